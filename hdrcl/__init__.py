@@ -1,0 +1,32 @@
+"""hdrcl: OpenCL-accelerated HDR radiance maps from bracketed photographs.
+
+Implements Debevec & Malik, "Recovering High Dynamic Range Radiance Maps from
+Photographs" (SIGGRAPH 1997): the response curve is solved on the CPU (scipy), fusion
+and virtual exposures run as OpenCL kernels (``kernels/``), with float64 NumPy twins in
+:mod:`hdrcl.reference`.
+
+Importing hdrcl is cheap: no OpenCL device scan and no OpenImageIO load happen until
+they are needed.
+"""
+__version__ = "0.1.0"
+
+__all__ = [
+    "calibrate", "merge", "expose", "merge_files", "expose_file", "load_bracket",
+    "Response", "HdrclError", "__version__",
+]
+
+
+def __getattr__(name):
+    if name in ("calibrate", "merge", "expose", "merge_files", "expose_file", "load_bracket", "merge_bracket"):
+        from . import api
+
+        return getattr(api, name)
+    if name == "Response":
+        from .response import Response
+
+        return Response
+    if name == "HdrclError":
+        from .errors import HdrclError
+
+        return HdrclError
+    raise AttributeError(f"module 'hdrcl' has no attribute {name!r}")

@@ -1,0 +1,57 @@
+"""Base of the OpenCL processors: device context, strip size, buffer reuse."""
+from __future__ import annotations
+
+from typing import Dict, Optional, Tuple
+
+import numpy as np
+import pyopencl as cl
+
+from .context import DeviceContext, get_context
+
+#: Pixels per strip: bounds device memory whatever the image size (about 1 M pixels).
+STRIP_PIXELS = 1 << 20
+#: Global work sizes are rounded up to a multiple of this.
+WORK_MULTIPLE = 64
+
+
+def round_up(n: int, m: int = WORK_MULTIPLE) -> int:
+    return ((n + m - 1) // m) * m
+
+
+class OpenCLProcessor:
+    """Owns a :class:`DeviceContext` and device buffers reused across calls.
+
+    Subclasses name their kernel file and call :meth:`buffer` for scratch space; a
+    buffer is re-allocated only when a larger one is needed.
+    """
+
+    source = ""
+
+    def __init__(self, device: Optional[str] = None, ctx: Optional[DeviceContext] = None,
+                 strip_pixels: int = STRIP_PIXELS):
+        self.ctx = ctx or get_context(device)
+        self.strip_pixels = int(strip_pixels)
+        self._buffers: Dict[str, Tuple[int, "cl.Buffer"]] = {}
+
+    @property
+    def queue(self) -> "cl.CommandQueue":
+        return self.ctx.queue
+
+    def buffer(self, name: str, nbytes: int, flags=cl.mem_flags.READ_WRITE) -> "cl.Buffer":
+        nbytes = max(int(nbytes), 4)
+        have = self._buffers.get(name)
+        if have is None or have[0] < nbytes:
+            buf = cl.Buffer(self.ctx.context, flags, nbytes)
+            self._buffers[name] = (nbytes, buf)
+            return buf
+        return have[1]
+
+    def constant(self, name: str, array: np.ndarray) -> "cl.Buffer":
+        """A read-only buffer holding ``array`` (copied now)."""
+        array = np.ascontiguousarray(array)
+        buf = self.buffer(name, array.nbytes, cl.mem_flags.READ_ONLY)
+        cl.enqueue_copy(self.queue, buf, array)
+        return buf
+
+    def strip_rows(self, width: int) -> int:
+        return max(1, self.strip_pixels // max(width, 1))

@@ -1,0 +1,59 @@
+"""Fusing a bracket into a radiance map: the OpenCL kernel or its NumPy twin."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+from . import reference
+from .backend import get_processor
+from .response import Response
+from .weights import weight_table
+
+
+@dataclass
+class FusionResult:
+    """A radiance map and what happened making it.
+
+    ``counts`` are pixel-channel samples: ``clipped_high`` (clipped in every frame,
+    value taken from the shortest exposure at the top code), ``clipped_low`` (black in
+    every frame, from the longest exposure), ``no_data`` (invalid in every frame; 0).
+    """
+
+    radiance: np.ndarray
+    counts: dict = field(default_factory=dict)
+    backend: str = "opencl"
+
+
+def fuse_frames(
+    frames: Sequence[np.ndarray],
+    times: Sequence[float],
+    response: Response,
+    *,
+    weight: str = "hat",
+    valid: Optional[Sequence[Optional[np.ndarray]]] = None,
+    device: Optional[str] = None,
+) -> FusionResult:
+    """Radiance map of ``frames`` with exposures ``times`` (any order) and ``response``."""
+    order = np.argsort(np.asarray(times, np.float64), kind="stable")
+    frames = [frames[i] for i in order]
+    log_t = np.log(np.asarray(times, np.float64)[order])
+    vals = None if valid is None else [valid[i] for i in order]
+    nch = frames[0].shape[2]
+    tables = response.table_for(nch)
+    levels = tables.shape[1]
+    if int(np.iinfo(frames[0].dtype).max) + 1 != levels:
+        from .errors import UsageError
+
+        raise UsageError(
+            f"the response describes {response.bits}-bit images but the frames are "
+            f"{8 * frames[0].dtype.itemsize}-bit"
+        )
+    wts = weight_table(levels, weight)
+    proc = get_processor("fusion", device)
+    if proc is None:
+        rad, counts = reference.fuse(frames, log_t, tables, wts, vals)
+        return FusionResult(rad.astype(np.float32), counts, "numpy")
+    rad, counts = proc.fuse(frames, log_t, tables, wts, vals)
+    return FusionResult(rad, counts, "opencl")

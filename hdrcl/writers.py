@@ -1,0 +1,410 @@
+"""Writing radiance maps and 8/16-bit images, atomically.
+
+Every writer renders into a hidden temporary file beside the target and renames it onto
+the target only when the whole file has been written, so an interrupted run never
+leaves a half-written file under the real name and never destroys the previous one.
+
+Formats, chosen by extension:
+
+========  ==============================================================
+``.exr``  OpenEXR, half (default) or float, any OpenEXR compression;
+          metadata as ``hdrcl:*`` header attributes, Rec.709 chromaticities
+``.hdr``  Radiance RGBE (shared 8-bit exponent: about 1% precision;
+          grey is written as RGB); no metadata
+``.tif``  32-bit float TIFF; metadata as JSON in ImageDescription
+``.pfm``  Portable float map (1 or 3 channels); no metadata
+========  ==============================================================
+
+Only this module and :mod:`hdrcl.io` import OpenImageIO, lazily.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import secrets
+from typing import Mapping, Optional
+
+import numpy as np
+
+from .errors import InputError, ProcessingError, UsageError
+from .io import _clean_error, _open_input, _read_error
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "RADIANCE_EXTENSIONS",
+    "LDR_EXTENSIONS",
+    "EXR_COMPRESSIONS",
+    "atomic_output",
+    "write_radiance",
+    "write_ldr",
+    "read_radiance",
+]
+
+RADIANCE_EXTENSIONS = (".exr", ".hdr", ".tif", ".tiff", ".pfm")
+LDR_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+# OIIO silently falls back to zip for names it does not know, so names are checked here.
+EXR_COMPRESSIONS = ("none", "rle", "zips", "zip", "piz", "pxr24", "b44", "b44a", "dwaa", "dwab")
+TIFF_COMPRESSIONS = ("none", "zip", "lzw")
+HALF_MAX = 65504.0
+# OIIO 3.x name (the colour-interop ID) for scene-linear Rec.709 / sRGB primaries.
+LINEAR_COLORSPACE = "lin_rec709_scene"
+# CIE xy of the red, green, blue primaries and the D65 white point (Rec.709 / sRGB).
+REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+METADATA_PREFIX = "hdrcl:"
+# OpenEXR before 2.0 (and some tools still) limit attribute names to 31 characters.
+MAX_ATTRIBUTE_NAME = 31
+JPEG_QUALITY = 95
+
+
+def _oiio():
+    import OpenImageIO as oiio  # lazy: keeps ``import hdrcl`` free of the OIIO load
+
+    return oiio
+
+
+def _ext(path: str) -> str:
+    return os.path.splitext(path)[1].lower()
+
+
+@contextlib.contextmanager
+def atomic_output(path):
+    """Yield a temporary path beside ``path``; move it onto ``path`` on success.
+
+    The temporary file is hidden and keeps the extension (``out.exr`` is written as
+    ``.out.tmp-1a2b3c4d.exr``) so that format detection by extension still works. On
+    any exception the temporary file is removed and an existing file at ``path`` is left
+    untouched.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Final file name.
+
+    Yields
+    ------
+    str
+        The temporary file to write.
+
+    Raises
+    ------
+    UsageError
+        The output folder does not exist, or ``path`` is a folder.
+    """
+    target = os.fspath(path)
+    folder = os.path.dirname(target) or "."
+    if not os.path.isdir(folder):
+        raise UsageError(f"output folder '{folder}' does not exist")
+    if os.path.isdir(target):
+        raise UsageError(f"output '{target}' is a folder")
+    stem, ext = os.path.splitext(os.path.basename(target))
+    tmp = os.path.join(folder, f".{stem}.tmp-{secrets.token_hex(4)}{ext}")
+    try:
+        yield tmp
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        raise
+
+
+def _metadata_attributes(metadata: Optional[Mapping]) -> list:
+    """``(name, value)`` pairs with the ``hdrcl:`` prefix and OIIO-friendly types."""
+    out = []
+    for key, value in (metadata or {}).items():
+        name = METADATA_PREFIX + str(key)
+        if len(name) > MAX_ATTRIBUTE_NAME:
+            raise ValueError(
+                f"metadata key '{key}' is too long: '{name}' has {len(name)} characters, "
+                f"at most {MAX_ATTRIBUTE_NAME}"
+            )
+        if isinstance(value, np.generic):
+            value = value.item()
+        if isinstance(value, bool):
+            value = int(value)
+        if isinstance(value, int) and not -(2**31) <= value < 2**31:
+            value = str(value)  # OIIO ints are 32-bit
+        elif isinstance(value, (int, float, str)):
+            pass
+        else:
+            value = json.dumps(value, default=str)
+        out.append((name, value))
+    return out
+
+
+def _description(metadata: Optional[Mapping]) -> Optional[str]:
+    """Metadata as JSON for formats that keep ImageDescription but not custom attributes."""
+    if not metadata:
+        return None
+    plain = {str(k): (v.item() if isinstance(v, np.generic) else v) for k, v in metadata.items()}
+    return json.dumps({"hdrcl": plain}, default=str, sort_keys=True)
+
+
+def _write(path: str, pixels: np.ndarray, fmt: str, attributes: list, channelnames=None):
+    """Write ``pixels`` (H, W, C) to ``path`` atomically with OIIO in the given format."""
+    oiio = _oiio()
+    h, w, c = pixels.shape
+    spec = oiio.ImageSpec(w, h, c, fmt)
+    if channelnames is not None:
+        spec.channelnames = tuple(channelnames)
+    if c in (2, 4):
+        spec.alpha_channel = c - 1
+    for attr in attributes:
+        spec.attribute(*attr)
+    with atomic_output(path) as tmp:
+        out = oiio.ImageOutput.create(tmp)
+        if out is None:
+            raise UsageError(f"{path}: no writer for this format ({oiio.geterror()})")
+        try:
+            ok = out.open(tmp, spec) and out.write_image(pixels)
+        finally:
+            closed = out.close()
+        if not (ok and closed) or out.has_error:
+            detail = _clean_error(out.geterror() or oiio.geterror(), tmp)
+            raise ProcessingError(f"{path}: cannot write ({detail or 'unknown error'})")
+
+
+def _exr_compression(compression: str) -> str:
+    text = str(compression).strip().lower()
+    base, _, level = text.partition(":")
+    if base not in EXR_COMPRESSIONS or (level and not level.replace(".", "", 1).isdigit()):
+        raise UsageError(
+            f"--compression: '{compression}' is not one of {', '.join(EXR_COMPRESSIONS)}"
+        )
+    return text
+
+
+def write_radiance(path, image, *, dtype="half", compression="zip", metadata=None) -> list:
+    """Write a floating-point radiance map; the format follows the extension.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.exr``, ``.hdr``, ``.tif``/``.tiff`` or ``.pfm``.
+    image : numpy.ndarray
+        ``(H, W, C)`` (or ``(H, W)``) radiance, C = 1 or 3; converted to float32.
+    dtype : {"half", "float"}
+        Sample type of EXR files. The other formats have one encoding each (RGBE, 32-bit
+        float) and ignore it.
+    compression : str
+        EXR: one of :data:`EXR_COMPRESSIONS`, optionally with a level (``"dwaa:45"``).
+        TIFF: ``none``, ``zip`` or ``lzw`` (others fall back to zip with a warning).
+        Ignored for HDR and PFM.
+    metadata : mapping, optional
+        Short keys (``hdrcl:`` + key at most 31 characters) to str, int or float values
+        (anything else is stored as JSON text). EXR keeps them as ``hdrcl:*`` attributes
+        (floats at float32 precision), TIFF as JSON in ImageDescription; HDR and PFM
+        cannot store them.
+
+    Returns
+    -------
+    list of str
+        Warnings for the user (also logged), such as values beyond the half range.
+
+    Raises
+    ------
+    UsageError
+        Unknown extension, dtype or compression; missing output folder.
+    ProcessingError
+        OpenImageIO failed to write the file.
+    ValueError
+        ``image`` has the wrong shape or a metadata key is too long (caller bugs).
+    """
+    target = os.fspath(path)
+    ext = _ext(target)
+    if ext not in RADIANCE_EXTENSIONS:
+        raise UsageError(
+            f"{target}: unsupported radiance format '{ext or '(none)'}'; "
+            f"use {', '.join(RADIANCE_EXTENSIONS)}"
+        )
+    if dtype not in ("half", "float"):
+        raise UsageError(f"--dtype: '{dtype}' is not one of half, float")
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim == 2:
+        img = img[:, :, None]
+    if img.ndim != 3 or img.shape[2] not in (1, 3) or img.shape[0] < 1 or img.shape[1] < 1:
+        raise ValueError(f"radiance image must be (H, W, 1) or (H, W, 3), got {img.shape}")
+    img = np.ascontiguousarray(img)
+
+    warnings = []
+    finite = np.isfinite(img)
+    if not finite.all():
+        bad = img.size - int(np.count_nonzero(finite))
+        warnings.append(f"{target}: {bad} value(s) are NaN or infinite")
+    attrs = _metadata_attributes(metadata)  # validates keys for every format
+    attrs.append(("oiio:ColorSpace", LINEAR_COLORSPACE))
+    fmt = "float"
+    channelnames = None
+
+    if ext == ".exr":
+        oiio = _oiio()
+        fmt = dtype
+        if dtype == "half":
+            over = int(np.count_nonzero(np.abs(img[finite]) > HALF_MAX))
+            if over:
+                pct = 100.0 * over / img.size
+                warnings.append(
+                    f"{target}: {pct:.2g}% of values exceed the half-float range "
+                    f"({HALF_MAX:g}); use --dtype float or scale"
+                )
+        attrs.append(("compression", _exr_compression(compression)))
+        attrs.append(("chromaticities", oiio.TypeDesc("float[8]"), REC709_CHROMATICITIES))
+        if img.shape[2] == 1:
+            channelnames = ("Y",)
+    elif ext in (".tif", ".tiff"):
+        comp = str(compression).strip().lower()
+        if comp not in TIFF_COMPRESSIONS:
+            warnings.append(f"{target}: TIFF has no '{compression}' compression; used zip")
+            comp = "zip"
+        attrs = [a for a in attrs if not a[0].startswith(METADATA_PREFIX)]
+        desc = _description(metadata)
+        if desc:
+            attrs.append(("ImageDescription", desc))
+        attrs.append(("compression", comp))
+        # OIIO 3.2 reports "failed TIFFWriteCustomDirectory() of the Exif data" on
+        # every TIFF it writes unless the (here useless) EXIF directory is skipped.
+        attrs.append(("tiff:write_exif", 0))
+    else:
+        if metadata:
+            logger.debug("%s: %s cannot store metadata; %d entries not written",
+                         target, ext, len(metadata))
+        attrs = [a for a in attrs if not a[0].startswith(METADATA_PREFIX)]
+        if ext == ".hdr":
+            if np.any(img[finite] < 0):
+                warnings.append(f"{target}: negative values are written as 0 in RGBE")
+            if img.shape[2] == 1:
+                img = np.ascontiguousarray(np.repeat(img, 3, axis=2))
+
+    _write(target, img, fmt, attrs, channelnames)
+    for w in warnings:
+        logger.warning("%s", w)
+    return warnings
+
+
+def write_ldr(path, pixels, *, metadata=None) -> None:
+    """Write an 8- or 16-bit image (a virtual photograph, a preview) atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.jpg``/``.jpeg`` (8-bit only, quality 95), ``.png`` or ``.tif``/``.tiff``.
+    pixels : numpy.ndarray
+        ``(H, W, C)`` or ``(H, W)`` ``uint8`` or ``uint16``; C = 1 or 3, or 2/4 with
+        unassociated alpha last (PNG and TIFF only).
+    metadata : mapping, optional
+        As for :func:`write_radiance`: ``hdrcl:*`` attributes (kept by PNG) and JSON in
+        ImageDescription (kept by JPEG and TIFF).
+
+    Raises
+    ------
+    UsageError
+        Unknown extension, 16-bit or alpha data for JPEG, missing output folder.
+    ProcessingError
+        OpenImageIO failed to write the file.
+    ValueError
+        Wrong dtype or shape (caller bugs).
+    """
+    target = os.fspath(path)
+    ext = _ext(target)
+    if ext not in LDR_EXTENSIONS:
+        raise UsageError(
+            f"{target}: unsupported image format '{ext or '(none)'}'; "
+            f"use {', '.join(LDR_EXTENSIONS)}"
+        )
+    px = np.asarray(pixels)
+    if px.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"pixels must be uint8 or uint16, got {px.dtype}")
+    if px.ndim == 2:
+        px = px[:, :, None]
+    if px.ndim != 3 or px.shape[2] not in (1, 2, 3, 4):
+        raise ValueError(f"pixels must be (H, W, C) with C in 1..4, got {px.shape}")
+    px = np.ascontiguousarray(px)
+    attrs = _metadata_attributes(metadata)
+    if ext in (".jpg", ".jpeg"):
+        if px.dtype != np.uint8:
+            raise UsageError(f"{target}: JPEG holds 8-bit data only; write .png or .tif")
+        if px.shape[2] not in (1, 3):
+            raise UsageError(f"{target}: JPEG cannot hold alpha; write .png or .tif")
+        attrs.append(("Compression", f"jpeg:{JPEG_QUALITY}"))
+    if ext in (".tif", ".tiff"):
+        attrs.append(("compression", "zip"))
+        attrs.append(("tiff:write_exif", 0))
+    if ext != ".png":
+        desc = _description(metadata)
+        if desc:
+            attrs.append(("ImageDescription", desc))
+    # Alpha as given: without this OIIO would divide colour by alpha when writing.
+    attrs.append(("oiio:UnassociatedAlpha", 1))
+    _write(target, px, "uint8" if px.dtype == np.uint8 else "uint16", attrs)
+
+
+def _pick_channels(spec, path: str) -> list:
+    names = [str(n) for n in spec.channelnames]
+    upper = [n.split(".")[-1].upper() for n in names]
+    if all(c in upper for c in ("R", "G", "B")):
+        return [upper.index(c) for c in ("R", "G", "B")]
+    if "Y" in upper:
+        return [upper.index("Y")]
+    n = spec.nchannels
+    if n in (1, 3):
+        return list(range(n))
+    if n in (2, 4) and spec.alpha_channel == n - 1:
+        return list(range(n - 1))
+    raise InputError(
+        f"{path}: cannot find grey or RGB channels among {', '.join(names) or n}"
+    )
+
+
+def read_radiance(path) -> tuple:
+    """Read a radiance map written by :func:`write_radiance` (or any float image).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        EXR, HDR, TIFF, PFM or another format OpenImageIO reads.
+
+    Returns
+    -------
+    pixels : numpy.ndarray
+        ``(H, W, C)`` float32, C = 1 or 3 (alpha and other channels dropped).
+    metadata : dict
+        The ``hdrcl:*`` attributes without the prefix (or the JSON kept in a TIFF's
+        ImageDescription); empty when there are none.
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable, truncated or corrupt file, or no grey/RGB channels.
+    """
+    name = os.fspath(path)
+    inp = _open_input(name)
+    try:
+        spec = inp.spec()
+        channels = _pick_channels(spec, name)
+        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+        problem = _read_error(inp, name)
+        if problem is None and data is None:
+            problem = f"{name}: cannot decode pixel data"
+        if problem is not None:
+            raise InputError(problem)
+        metadata = {}
+        desc = spec.getattribute("ImageDescription")
+        if isinstance(desc, str) and desc.startswith('{"hdrcl"'):
+            try:
+                parsed = json.loads(desc).get("hdrcl", {})
+            except (ValueError, AttributeError):
+                parsed = {}
+            if isinstance(parsed, dict):
+                metadata.update(parsed)
+        for p in spec.extra_attribs:
+            if p.name.startswith(METADATA_PREFIX):
+                metadata[p.name[len(METADATA_PREFIX):]] = p.value
+    finally:
+        inp.close()
+    data = np.asarray(data, dtype=np.float32)
+    if data.ndim == 2:
+        data = data[:, :, None]
+    pixels = np.ascontiguousarray(data[:, :, channels])
+    return pixels, metadata

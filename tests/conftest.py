@@ -1,0 +1,55 @@
+"""Shared fixtures.
+
+OpenCL tests use the ``cl_device`` fixture: it skips only when no OpenCL device can be
+used *and* ``HDRCL_REQUIRE_OPENCL`` is unset; CI sets it, so there a missing device
+fails the run instead of passing silently.
+"""
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+MEMORIAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "memorial"
+
+
+@pytest.fixture(scope="session")
+def cl_device():
+    from hdrcl.backend import get_processor, opencl_required
+
+    try:
+        proc = get_processor("fusion")
+    except Exception as exc:  # required and broken: fail loudly
+        pytest.fail(f"OpenCL required but unavailable: {exc}")
+    if proc is None:
+        if opencl_required():
+            pytest.fail("HDRCL_REQUIRE_OPENCL is set but no OpenCL device could be used")
+        pytest.skip("no usable OpenCL device (set HDRCL_REQUIRE_OPENCL=1 to make this an error)")
+    return proc.ctx
+
+
+@pytest.fixture(scope="session")
+def memorial():
+    if not (MEMORIAL / "image_list.txt").is_file():
+        pytest.skip(f"Memorial set not found at {MEMORIAL} (expected ../shared/data/memorial beside the repo)")
+    return MEMORIAL
+
+
+@pytest.fixture(scope="session")
+def memorial_bracket(memorial):
+    import hdrcl
+
+    paths = sorted(memorial.glob("memorial*.png"))
+    return hdrcl.load_bracket(paths, times_file=memorial / "image_list.txt", ignore_color=(0, 0, 255))
+
+
+@pytest.fixture(scope="session")
+def scene():
+    """A synthetic scene with known truth: radiance, camera, times, 8-bit bracket."""
+    from hdrcl import synthetic as s
+
+    cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
+    rad = s.radiance_field(120, 160, decades=4.5, seed=1)
+    times = s.stops(7, 2.0, centre=1.0 / float(np.median(rad)))
+    frames = s.bracket(rad, times, cam, noise=0.5, seed=2)
+    return {"camera": cam, "radiance": rad, "times": times, "frames": frames}

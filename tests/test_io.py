@@ -1,0 +1,193 @@
+"""Reading photographs: headers, EXIF, pixel formats, alpha, damaged files."""
+import datetime as dt
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+oiio = pytest.importorskip("OpenImageIO")
+
+from hdrcl.errors import InputError  # noqa: E402
+from hdrcl.io import ignore_color_mask, read_image, read_images, read_info  # noqa: E402
+
+
+def _write(path, pixels, attrs=(), channelnames=None, alpha=None):
+    """Write ``pixels`` (H, W, C) with OIIO in their own integer format."""
+    h, w, c = pixels.shape
+    spec = oiio.ImageSpec(w, h, c, "uint8" if pixels.dtype == np.uint8 else "uint16")
+    if channelnames:
+        spec.channelnames = channelnames
+    if alpha is not None:
+        spec.alpha_channel = alpha
+        spec.attribute("oiio:UnassociatedAlpha", 1)
+    for name, value in attrs:
+        spec.attribute(name, value)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec), out.geterror()
+    assert out.write_image(pixels), out.geterror()
+    out.close()
+    return path
+
+
+def _noise(shape, dtype=np.uint8, seed=0):
+    hi = np.iinfo(dtype).max
+    return np.random.default_rng(seed).integers(0, hi, shape, dtype=dtype, endpoint=True)
+
+
+EXIF = [
+    ("ExposureTime", 1 / 30),
+    ("FNumber", 8.0),
+    ("Exif:PhotographicSensitivity", 200),
+    ("Exif:ExposureBiasValue", -2.0 / 3.0),
+    ("Exif:ExposureMode", 2),
+    ("Exif:DateTimeOriginal", "2024:05:06 07:08:09"),
+    ("Exif:SubsecTimeOriginal", "25"),
+    ("Make", "Canon"),
+    ("Model", "EOS 5D"),
+    ("Exif:BodySerialNumber", "0123456"),
+    ("Exif:LensModel", "EF 24-70mm"),
+    ("Exif:FocalLength", 35.0),
+]
+
+
+def test_exif_round_trip_through_jpeg(tmp_path):
+    path = _write(tmp_path / "IMG_0001.JPG", _noise((31, 47, 3)), EXIF)
+    info = read_info(path)
+    assert (info.width, info.height, info.nchannels, info.bits) == (47, 31, 3, 8)
+    assert info.channel_names == ("R", "G", "B")
+    assert info.exposure_time == 1 / 30  # float32 rational snapped back to exactly 1/30
+    assert info.fnumber == 8.0
+    assert info.iso == 200
+    assert info.exposure_bias == pytest.approx(-2 / 3, abs=1e-3)
+    assert info.exposure_mode == 2
+    assert info.capture_time == dt.datetime(2024, 5, 6, 7, 8, 9, 250000)
+    assert (info.make, info.model, info.serial, info.lens) == (
+        "Canon", "EOS 5D", "0123456", "EF 24-70mm")
+    assert info.focal_length == 35.0
+    assert info.path == str(path)
+
+
+def test_info_without_exif_and_datetime_fallback(tmp_path):
+    path = _write(tmp_path / "plain.png", _noise((5, 7, 3)),
+                  [("DateTime", "2023:01:02 03:04:05")])
+    info = read_info(path)
+    assert info.exposure_time is None and info.fnumber is None and info.iso is None
+    assert info.capture_time == dt.datetime(2023, 1, 2, 3, 4, 5)
+
+
+def test_read_rgb_jpeg_and_16bit_png(tmp_path):
+    jpg = read_image(_write(tmp_path / "a.jpg", _noise((31, 47, 3))))
+    assert jpg.pixels.shape == (31, 47, 3) and jpg.pixels.dtype == np.uint8
+    assert jpg.valid is None and jpg.info.bits == 8
+
+    px = _noise((31, 47, 3), np.uint16, seed=1)
+    png = read_image(_write(tmp_path / "b.png", px))
+    assert png.pixels.dtype == np.uint16 and png.info.bits == 16
+    np.testing.assert_array_equal(png.pixels, px)
+
+
+def test_grey(tmp_path):
+    px = _noise((9, 11, 1))
+    img = read_image(_write(tmp_path / "g.png", px))
+    assert img.pixels.shape == (9, 11, 1)
+    np.testing.assert_array_equal(img.pixels, px)
+
+
+@pytest.mark.parametrize("nch", [2, 4])
+def test_alpha_gives_valid_mask_and_raw_colour(tmp_path, nch):
+    px = _noise((6, 8, nch), np.uint16, seed=nch)
+    alpha = px[:, :, -1]
+    alpha[0, :] = 0
+    alpha[1, :] = 1000  # partial alpha must not premultiply the colour
+    names = ("Y", "A") if nch == 2 else ("R", "G", "B", "A")
+    img = read_image(_write(tmp_path / "al.png", px, channelnames=names, alpha=nch - 1))
+    assert img.pixels.shape == (6, 8, nch - 1)
+    np.testing.assert_array_equal(img.pixels, px[:, :, : nch - 1])
+    np.testing.assert_array_equal(img.valid, alpha != 0)
+    assert not img.valid[0].any()
+
+
+def test_truncated_jpeg(tmp_path):
+    path = _write(tmp_path / "photo3.jpg", _noise((64, 96, 3)))
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    read_info(path)  # the header is intact
+    with pytest.raises(InputError, match=r"^.*photo3\.jpg: truncated JPEG data"):
+        read_image(path)
+
+
+def test_truncated_png(tmp_path):
+    path = _write(tmp_path / "cut.png", _noise((64, 96, 3), np.uint16))
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputError, match=r"cut\.png: truncated PNG data"):
+        read_image(path)
+
+
+def test_garbage_missing_empty(tmp_path):
+    bad = tmp_path / "garbage.jpg"
+    bad.write_bytes(b"this is not an image" * 20)
+    with pytest.raises(InputError, match=r"garbage\.jpg: cannot read image"):
+        read_image(bad)
+    with pytest.raises(InputError, match=r"garbage\.jpg"):
+        read_info(bad)
+    with pytest.raises(InputError, match=r"nope\.jpg: no such file"):
+        read_info(tmp_path / "nope.jpg")
+    empty = tmp_path / "empty.png"
+    empty.write_bytes(b"")
+    with pytest.raises(InputError, match=r"empty\.png: empty file"):
+        read_image(empty)
+
+
+def test_float_image_rejected(tmp_path):
+    spec = oiio.ImageSpec(4, 3, 3, "float")
+    spec.attribute("tiff:write_exif", 0)
+    path = str(tmp_path / "f.tif")
+    out = oiio.ImageOutput.create(path)
+    out.open(path, spec)
+    out.write_image(np.ones((3, 4, 3), np.float32))
+    out.close()
+    with pytest.raises(InputError, match=r"f\.tif: unsupported pixel format float; hdrcl merges"):
+        read_info(path)
+
+
+def test_read_images_parallel_order_and_checks(tmp_path):
+    paths = [_write(tmp_path / f"f{i}.png", _noise((7, 9, 3), seed=i)) for i in range(5)]
+    images = read_images(paths)
+    assert [im.info.path for im in images] == [str(p) for p in paths]
+    np.testing.assert_array_equal(images[3].pixels, _noise((7, 9, 3), seed=3))
+
+    odd = _write(tmp_path / "odd.png", _noise((9, 7, 3)))
+    with pytest.raises(InputError, match=r"odd\.png: size 7x9 differs from .*f0\.png \(9x7\)"):
+        read_images([paths[0], paths[1], odd])
+    grey = _write(tmp_path / "grey.png", _noise((7, 9, 1)))
+    with pytest.raises(InputError, match=r"grey\.png: 1 colour channel"):
+        read_images([paths[0], grey])
+    deep = _write(tmp_path / "deep.png", _noise((7, 9, 3), np.uint16))
+    with pytest.raises(InputError, match=r"deep\.png: 16-bit"):
+        read_images([paths[0], deep])
+    with pytest.raises(InputError, match=r"gone\.png: no such file"):
+        read_images([paths[0], tmp_path / "gone.png"])
+
+
+def test_ignore_color_mask():
+    px = np.zeros((2, 3, 3), np.uint8)
+    px[0, 0] = (0, 0, 255)
+    px[1, 2] = (0, 1, 255)
+    mask = ignore_color_mask(px, (0, 0, 255))
+    assert mask.tolist() == [[True, False, False], [False, False, False]]
+    mask16 = ignore_color_mask(px.astype(np.uint16) * 257, (0, 0, 255))
+    np.testing.assert_array_equal(mask16, mask)
+    grey = np.array([[[7], [8]]], np.uint8)
+    assert ignore_color_mask(grey, (7, 7, 7)).tolist() == [[True, False]]
+
+
+def test_import_does_not_load_oiio():
+    code = ("import sys, hdrcl.io, hdrcl.writers, hdrcl.metadata; "
+            "sys.exit('OpenImageIO' in sys.modules)")
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root))
+    assert subprocess.run([sys.executable, "-c", code], cwd=root, env=env).returncode == 0
