@@ -38,6 +38,7 @@ class Bracket:
     valid: List[Optional[np.ndarray]]
     paths: List[str] = field(default_factory=list)
     infos: list = field(default_factory=list)
+    grid: bool = False  # frames are the decimated sampling grid, not whole images
 
     @property
     def valid_all(self) -> Optional[np.ndarray]:
@@ -126,14 +127,13 @@ def load_bracket(
     elif any(isinstance(im, np.ndarray) for im in images):
         raise UsageError("give either file paths or arrays, not a mix")
     else:
-        from .io import read_images
+        from .io import BracketReader
 
         paths = [os.fspath(p) for p in images]
-        decoded = read_images(paths)
-        frames = [d.pixels for d in decoded]
-        masks = [d.valid for d in decoded]
-        infos = [d.info for d in decoded]
+        infos = read_infos(paths)
         exposures = metadata.resolve_exposures(paths, infos, times=times, times_file=times_file)
+        with BracketReader(paths, infos) as reader:
+            frames, masks = reader.read_all()
     if rgb is not None:
         from .io import ignore_color_mask
 
@@ -144,6 +144,64 @@ def load_bracket(
                  for m, v in zip(masks, valid)]
     rel = metadata.relative_exposures(exposures)
     return Bracket(frames=frames, times=np.asarray(rel, np.float64), valid=masks, paths=paths, infos=infos)
+
+
+def read_infos(paths: Sequence[str]) -> list:
+    """Headers of ``paths`` (no pixels decoded), read in parallel; InputError names the file."""
+    import concurrent.futures
+
+    from .io import read_info
+
+    if len(paths) < 2:
+        from .metadata import resolve_exposures
+
+        resolve_exposures(paths)  # raises the "needs at least two exposures" error
+    with concurrent.futures.ThreadPoolExecutor(max_workers=min(8, len(paths))) as pool:
+        return list(pool.map(read_info, paths))
+
+
+def memory_budget() -> int:
+    """Bytes of decoded frames a calibrating merge may hold at once (``HDRCL_MEMORY_MB``).
+
+    Above it, calibration reads a decimated grid in a first pass and fusion decodes the
+    frames again strip by strip, so memory stays flat at the cost of a second decode.
+    """
+    try:
+        mb = float(os.environ.get("HDRCL_MEMORY_MB", "1024"))
+    except ValueError:
+        raise UsageError(f"HDRCL_MEMORY_MB must be a number of megabytes, not {os.environ['HDRCL_MEMORY_MB']!r}")
+    return int(mb * (1 << 20))
+
+
+def _with_ignore(frames, valid, rgb):
+    if rgb is None:
+        return list(valid)
+    from .io import ignore_color_mask
+
+    return [(~ignore_color_mask(f, rgb)) if v is None else (v & ~ignore_color_mask(f, rgb))
+            for f, v in zip(frames, valid)]
+
+
+def _open_files(paths, times, times_file):
+    from . import metadata
+    from .io import check_compatible
+
+    paths = [os.fspath(p) for p in paths]
+    infos = read_infos(paths)
+    exposures = metadata.resolve_exposures(paths, infos, times=times, times_file=times_file)
+    check_compatible(infos)
+    return paths, infos, np.asarray(metadata.relative_exposures(exposures), np.float64)
+
+
+def _grid_bracket(paths, infos, rel, rgb) -> Bracket:
+    """The decimated grid that sample selection uses, read in one streaming pass."""
+    from .io import BracketReader
+    from .sampling import grid_stride
+
+    with BracketReader(paths, infos) as reader:
+        frames, valid = reader.read_grid(grid_stride(reader.height, reader.width))
+    return Bracket(frames=frames, times=rel, valid=_with_ignore(frames, valid, rgb), paths=paths, infos=infos,
+                   grid=True)
 
 
 def calibrate(
@@ -169,10 +227,16 @@ def calibrate(
     >>> resp = hdrcl.calibrate(paths, times_file="image_list.txt", ignore_color=(0, 0, 255))
     >>> resp.save("memorial.json")
     """
-    br = images if isinstance(images, Bracket) else load_bracket(images, times, times_file=times_file,
-                                                                 ignore_color=ignore_color)
+    if isinstance(images, Bracket):
+        br = images
+    elif len(images) and not any(isinstance(im, np.ndarray) for im in images):
+        # Files: only the sampling grid is kept, so memory does not grow with the image.
+        paths, infos, rel = _open_files(images, times, times_file)
+        br = _grid_bracket(paths, infos, rel, _parse_ignore_color(ignore_color))
+    else:
+        br = load_bracket(images, times, times_file=times_file, ignore_color=ignore_color)
     resp = recover_response(br.frames, br.times, valid=br.valid_all, samples=samples,
-                            smoothness=smoothness, weight=weight, seed=seed)
+                            smoothness=smoothness, weight=weight, seed=seed, decimate=not br.grid)
     resp.camera = br.camera
     names = br.paths or [f"image {k}" for k in range(len(br.frames))]
     resp.exposures = [{"file": os.path.basename(n), "nominal": float(t)} for n, t in zip(names, br.times)]
@@ -183,7 +247,7 @@ def calibrate(
 class MergeResult:
     """A merged radiance map with what went into it."""
 
-    radiance: np.ndarray
+    radiance: Optional[np.ndarray]
     response: Response
     counts: dict
     times: np.ndarray
@@ -192,6 +256,12 @@ class MergeResult:
     seconds: dict = field(default_factory=dict)
     warnings: List[str] = field(default_factory=list)
     output: Optional[str] = None
+    shape: tuple = ()
+    thumbnail: Optional[np.ndarray] = None
+
+    def __post_init__(self):
+        if not self.shape and self.radiance is not None:
+            self.shape = tuple(self.radiance.shape)
 
 
 def merge_bracket(
@@ -271,11 +341,12 @@ def _provenance(result: MergeResult, response_source: str) -> dict:
         "responseSmoothness": float(r.smoothness),
         "responseSamples": int(r.samples),
         "weight": r.weight,
-        "clippedHigh": int(result.counts.get("clipped_high", 0)),
-        "clippedLow": int(result.counts.get("clipped_low", 0)),
-        "noData": int(result.counts.get("no_data", 0)),
         "backend": result.backend,
     }
+    if result.counts:  # a streamed file's header is written before the counts are known
+        meta.update({"clippedHigh": int(result.counts.get("clipped_high", 0)),
+                     "clippedLow": int(result.counts.get("clipped_low", 0)),
+                     "noData": int(result.counts.get("no_data", 0))})
     if r.camera:
         meta["camera"] = " ".join(str(r.camera[k]) for k in ("make", "model") if k in r.camera)
     return meta
@@ -292,16 +363,35 @@ def merge_files(
     ignore_color=None,
     samples: Optional[int] = None,
     smoothness: Optional[float] = None,
+    seed: int = 0,
     dtype: str = "half",
     compression: str = "zip",
     device: Optional[str] = None,
+    keep_radiance: bool = False,
+    thumbnail: int = 0,
 ) -> MergeResult:
     """Merge image files into a radiance file (EXR, HDR, TIFF or PFM by extension).
 
+    The frames are decoded, fused and written strip by strip, with decoding, fusion and
+    encoding overlapping, so memory stays bounded whatever the image size. Without a
+    ``response`` the set calibrates itself: frames up to :func:`memory_budget` are held
+    in memory for that; larger sets are read twice (a decimated grid, then the strips).
     The output is written atomically: nothing appears at ``output`` unless the whole
     merge succeeded.
+
+    Parameters
+    ----------
+    keep_radiance : bool
+        Also return the whole radiance map in ``result.radiance`` (memory grows with the
+        image); otherwise it is None.
+    thumbnail : int
+        If > 0, ``result.thumbnail`` holds every k-th pixel of the radiance, with the
+        long side about this many pixels (for previews).
     """
-    from .writers import RADIANCE_EXTENSIONS, write_radiance
+    from .backend import get_processor
+    from .io import BracketReader
+    from .pipeline import ArraySink, ArraySource, Thumbnail, stream_merge
+    from .writers import RADIANCE_EXTENSIONS, RadianceWriter
 
     output = os.fspath(output)
     ext = os.path.splitext(output)[1].lower()
@@ -309,19 +399,68 @@ def merge_files(
         raise UsageError(f"{output}: unsupported output type '{ext}'; use one of {', '.join(RADIANCE_EXTENSIONS)}")
     if not os.path.isdir(os.path.dirname(os.path.abspath(output))):
         raise UsageError(f"{output}: output folder does not exist")
-    source = os.fspath(response) if isinstance(response, (str, os.PathLike)) else (
+    rgb = _parse_ignore_color(ignore_color)
+    source_name = os.fspath(response) if isinstance(response, (str, os.PathLike)) else (
         "given" if response is not None else "calibrated from these frames")
     resp = _as_response(response)
     t0 = _time.perf_counter()
-    br = load_bracket(paths, times, times_file=times_file, ignore_color=ignore_color)
+    paths, infos, rel = _open_files(paths, times, times_file)
+    first = infos[0]
+    nch = 3 if first.nchannels >= 3 else 1
+    h, w = first.height, first.width
     t1 = _time.perf_counter()
-    result = merge_bracket(br, resp, weight=weight, samples=samples, smoothness=smoothness, device=device)
+    if resp is None:
+        itemsize = 1 if first.bits == 8 else 2
+        if len(paths) * h * w * nch * itemsize <= memory_budget():
+            with BracketReader(paths, infos) as reader:
+                frames, valid = reader.read_all()
+            valid = _with_ignore(frames, valid, rgb)
+            br = Bracket(frames=frames, times=rel, valid=valid, paths=paths, infos=infos)
+            resp = calibrate(br, samples=samples, smoothness=smoothness, weight=weight, seed=seed)
+            source = ArraySource(frames, valid)
+            ignore = None
+        else:
+            resp = calibrate(_grid_bracket(paths, infos, rel, rgb), samples=samples, smoothness=smoothness,
+                             weight=weight, seed=seed)
+            source = BracketReader(paths, infos)
+            ignore = rgb
+    else:
+        source = BracketReader(paths, infos)
+        ignore = rgb
     t2 = _time.perf_counter()
-    result.warnings += write_radiance(output, result.radiance, dtype=dtype, compression=compression,
-                                      metadata=_provenance(result, source))
-    result.seconds.update({"read": t1 - t0, "write": _time.perf_counter() - t2})
-    result.output = output
+    backend = "numpy" if get_processor("fusion", device) is None else "opencl"
+    result = MergeResult(radiance=None, response=resp, counts={}, times=rel, paths=paths, backend=backend,
+                         shape=(h, w, nch), warnings=list(resp.warnings), output=output)
+    has_valid = rgb is not None or any(i.nchannels in (2, 4) for i in infos)
+    thumb = Thumbnail(h, w, nch, thumbnail) if thumbnail else None
+    keep = ArraySink(h, w, nch) if keep_radiance else None
+    try:
+        with RadianceWriter(output, w, h, nch, dtype=dtype, compression=compression,
+                            metadata=_provenance(result, source_name)) as writer:
+            sink = writer if keep is None else _Tee(writer, keep)
+            counts, backend = stream_merge(source, rel, resp, sink, weight=weight, ignore_color=ignore,
+                                           has_valid=has_valid, device=device, thumbnail=thumb)
+        result.warnings += writer.warnings
+    finally:
+        if hasattr(source, "close"):
+            source.close()
+    result.counts = counts
+    result.backend = backend
+    result.radiance = keep.array if keep is not None else None
+    result.thumbnail = thumb.array if thumb is not None else None
+    if counts.get("no_data"):
+        result.warnings.append(f"{counts['no_data']} pixel-channels are invalid in every frame and were set to 0")
+    result.seconds = {"open": t1 - t0, "calibrate": t2 - t1, "fuse_and_write": _time.perf_counter() - t2}
     return result
+
+
+class _Tee:
+    def __init__(self, *sinks):
+        self.sinks = sinks
+
+    def write_rows(self, y0, y1, data):
+        for s in self.sinks:
+            s.write_rows(y0, y1, data)
 
 
 def expose_file(

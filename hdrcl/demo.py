@@ -58,7 +58,7 @@ def run_demo(folder, *, width: int = 768, height: int = 512, frames: int = 7, st
         fh.write("\n".join(lines) + "\n")
 
     exr = os.path.join(folder, "demo.exr")
-    res = merge_files(paths, exr, times_file=tfile, dtype="float", device=device)
+    res = merge_files(paths, exr, times_file=tfile, dtype="float", device=device, keep_radiance=True)
     rfile = os.path.join(folder, "response.json")
     res.response.save(rfile)
     preview = os.path.join(folder, "preview.jpg")

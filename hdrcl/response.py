@@ -318,6 +318,7 @@ def recover_response(
     weight: str = "hat",
     seed: int = 0,
     channels: Optional[Sequence[str]] = None,
+    decimate: bool = True,
 ) -> Response:
     """Recover the response of a bracket.
 
@@ -331,7 +332,7 @@ def recover_response(
         Pixels measured in every frame (alpha, ignore-colour); others are never sampled.
     samples : int, optional
         Number of pixels; default :func:`hdrcl.sampling.default_sample_count`.
-    smoothness, weight, seed
+    smoothness, weight, seed, decimate
         See :func:`solve_curve` and :func:`hdrcl.sampling.select_samples`.
 
     Returns
@@ -356,7 +357,7 @@ def recover_response(
     n = int(samples) if samples else default_sample_count(knots.size, len(frames))
     if n < 1:
         raise UsageError(f"--samples must be positive, not {samples}")
-    idx = select_samples(frames, valid, n, seed=seed)
+    idx = select_samples(frames, valid, n, seed=seed, decimate=decimate)
     if idx.size * (len(frames) - 1) <= knots.size // 4:
         raise InputError(
             f"only {idx.size} usable calibration pixels were found; the frames may be blank, "

@@ -22,6 +22,11 @@ MAX_GRID_PIXELS = 250_000
 MAX_BINS = 64
 
 
+def grid_stride(height: int, width: int) -> int:
+    """Stride of the decimated grid that sample selection works on."""
+    return max(1, int(np.ceil(np.sqrt(height * width / MAX_GRID_PIXELS))))
+
+
 def default_sample_count(knots: int, frames: int) -> int:
     """Samples needed for a well-posed solve with some margin.
 
@@ -37,6 +42,7 @@ def select_samples(
     valid: Optional[np.ndarray],
     n: int,
     seed: int = 0,
+    decimate: bool = True,
 ) -> np.ndarray:
     """Choose ``n`` calibration pixels.
 
@@ -51,6 +57,9 @@ def select_samples(
     seed : int
         Seed of the random choice within each stratum; the result depends only on it
         and the data.
+    decimate : bool
+        Work on the :func:`grid_stride` grid (the default). False when ``frames`` are
+        that grid already, read so by :meth:`hdrcl.io.BracketReader.read_grid`.
 
     Returns
     -------
@@ -70,7 +79,7 @@ def select_samples(
     from scipy import ndimage
 
     h, w = frames[0].shape[:2]
-    stride = max(1, int(np.ceil(np.sqrt(h * w / MAX_GRID_PIXELS))))
+    stride = grid_stride(h, w) if decimate else 1
     key = np.zeros((len(range(0, h, stride)), len(range(0, w, stride))), np.float64)
     top = 0.0
     for f in frames:

@@ -4,81 +4,188 @@
  *
  *   ln E = sum_j w(Z_j) (g_c(Z_j) - ln dt_j) / sum_j w(Z_j)
  *
- * One work item per pixel; it loops over channels and frames. Frames are ordered by
- * increasing exposure. A pixel-channel whose weights sum to zero takes the rule of the
- * twin: clipped high (shortest valid frame reads 2Z >= L) -> g_c(Zmax) - ln dt_shortest,
- * otherwise black -> g_c(Zmin) - ln dt_longest; valid in no frame -> 0.
+ * Two kernels share one strip of codes:
+ *
+ *   fuse      the fast path. Each work item takes 4 pixels (4*NCH consecutive values,
+ *             so every lane's channel is known at compile time), loads them as
+ *             uchar4/ushort4 vectors and gathers from one table per frame that folds
+ *             weight and log exposure together: lut[p][c][z] = w(z)(g_c(z) - ln dt_p)/ln 2.
+ *             One division and one exp2 per value, none per sample. A value whose
+ *             weights sum to zero is written as -1 (impossible radiance) and counted.
+ *   fuse_fix  run only when fuse counted such values: one work item per pixel applies
+ *             the twin's rule to them. Clipped high (the shortest valid frame reads
+ *             2Z >= L) -> g_c(Zmax) - ln dt_shortest; otherwise black ->
+ *             g_c(Zmin) - ln dt_longest; valid in no frame -> 0.
+ *
+ * Frames are ordered by increasing exposure.
  *
  * Build options
- *   -DPIXEL_T=uchar|ushort   integer type of the codes (default uchar)
+ *   -DPIXEL_T=uchar|ushort  integer type of the codes (default uchar)
+ *   -DNCH=1|3               channels per pixel (default 3)
+ *   -DHAS_VALID             per-frame validity masks are given
  *
  * Arguments (units, layout)
  *   frames   PIXEL_T [P][plane]  codes of a strip: frame p starts at p*plane, pixels
- *                                row-major, channels interleaved (i*nch + c)
- *   valid    uchar [P][vplane]   1 where frame p measures pixel i; read only if has_valid
- *   lut      float [P][C][L]     w(z) * (g_c(z) - ln dt_p), natural-log exposure units
+ *                                row-major, channels interleaved (i*NCH + c)
+ *   valid    uchar [P][vplane]   1 where frame p measures pixel i (HAS_VALID only)
+ *   lut      float [P][NCH][L]   w(z) (g_c(z) - ln dt_p) / ln 2, log2 exposure units
  *   wlut     float [L]           w(z), dimensionless
- *   hi, lo   float [P][C]        g_c(L-1) - ln dt_p and g_c(0) - ln dt_p
- *   out      float [npix*C]      linear relative radiance E, channels interleaved
- *   counts   uint [3]            samples that were clipped high, black, valid nowhere
+ *   hi, lo   float [P][NCH]      (g_c(L-1) - ln dt_p) / ln 2 and (g_c(0) - ln dt_p) / ln 2
+ *   out      float [npix*NCH]    linear relative radiance E, channels interleaved
+ *   counts   uint [4]            clipped high, black, valid nowhere, zero weight (fuse)
  *   npix                         pixels in this strip
- *   nframes, nch, levels         P, C, L
+ *   nframes, levels              P, L
  *   plane, vplane                elements between frames in `frames` and `valid`
  */
 #ifndef PIXEL_T
 #define PIXEL_T uchar
 #endif
+#ifndef NCH
+#define NCH 3
+#endif
+
+#define CAT_(a, b) a##b
+#define CAT(a, b) CAT_(a, b)
+#define PIXEL4 CAT(PIXEL_T, 4)
+#define LOAD4(i, p) convert_int4(vload4((i), (p)))
+
+/* Contribution of one 4-lane vector of codes whose lanes have channels c0..c3. */
+#define GATHER(z, c0, c1, c2, c3, l, num, den, ok)                                   \
+    do {                                                                             \
+        const float4 n_ = (float4)(l[(c0) * levels + (z).s0], l[(c1) * levels + (z).s1], \
+                                   l[(c2) * levels + (z).s2], l[(c3) * levels + (z).s3]); \
+        const float4 d_ = (float4)(wlut[(z).s0], wlut[(z).s1], wlut[(z).s2], wlut[(z).s3]); \
+        num += select((float4)0.0f, n_, (ok));                                       \
+        den += select((float4)0.0f, d_, (ok));                                       \
+    } while (0)
+
+inline float4 finish(const float4 num, const float4 den, __global uint *counts)
+{
+    const int4 zero = den <= 0.0f;
+    if (any(zero))
+        atomic_add(&counts[3], (uint)(-(zero.s0 + zero.s1 + zero.s2 + zero.s3)));
+    return select(exp2(num / den), (float4)(-1.0f), zero);
+}
+
+/* Scalar version of one value, for the ragged end of a strip. */
+inline float one_value(__global const PIXEL_T *frames, __global const uchar *valid,
+                       __global const float *lut, __global const float *wlut,
+                       __global uint *counts, const int i, const int c, const int nframes,
+                       const int levels, const int plane, const int vplane)
+{
+    float num = 0.0f, den = 0.0f;
+    for (int p = 0; p < nframes; ++p) {
+#ifdef HAS_VALID
+        if (!valid[(size_t)p * vplane + i])
+            continue;
+#endif
+        const int z = frames[(size_t)p * plane + (size_t)i * NCH + c];
+        num += lut[(p * NCH + c) * levels + z];
+        den += wlut[z];
+    }
+    if (den > 0.0f)
+        return exp2(num / den);
+    atomic_inc(&counts[3]);
+    return -1.0f;
+}
 
 __kernel void fuse(__global const PIXEL_T *frames,
                    __global const uchar *valid,
                    __global const float *lut,
                    __global const float *wlut,
-                   __global const float *hi,
-                   __global const float *lo,
                    __global float *out,
                    __global uint *counts,
                    const int npix,
                    const int nframes,
-                   const int nch,
                    const int levels,
                    const int plane,
-                   const int vplane,
-                   const int has_valid)
+                   const int vplane)
+{
+    const int q = get_global_id(0);
+    const int i0 = q * 4; /* first pixel of this work item */
+    if (i0 >= npix)
+        return;
+    if (i0 + 4 > npix) { /* ragged end */
+        for (int i = i0; i < npix; ++i)
+            for (int c = 0; c < NCH; ++c)
+                out[(size_t)i * NCH + c] = one_value(frames, valid, lut, wlut, counts, i, c, nframes,
+                                                     levels, plane, vplane);
+        return;
+    }
+    const size_t v0 = (size_t)i0 * NCH;
+    float4 na = 0.0f;
+    float4 da = 0.0f;
+#if NCH == 3
+    float4 nb = 0.0f, nc = 0.0f, db = 0.0f, dc = 0.0f;
+#endif
+    for (int p = 0; p < nframes; ++p) {
+        __global const PIXEL_T *f = frames + (size_t)p * plane + v0;
+        __global const float *l = lut + p * NCH * levels;
+#ifdef HAS_VALID
+        const int4 m = convert_int4(vload4(0, valid + (size_t)p * vplane + i0)) != 0;
+#else
+        const int4 m = (int4)(-1);
+#endif
+#if NCH == 3
+        /* values 0..11 = pixels 0..3 x RGB: lanes (R G B R) (G B R G) (B R G B) */
+        const int4 a = LOAD4(0, f), b = LOAD4(1, f), c = LOAD4(2, f);
+        GATHER(a, 0, 1, 2, 0, l, na, da, m.s0001);
+        GATHER(b, 1, 2, 0, 1, l, nb, db, m.s1122);
+        GATHER(c, 2, 0, 1, 2, l, nc, dc, m.s2333);
+#else
+        const int4 a = LOAD4(0, f);
+        GATHER(a, 0, 0, 0, 0, l, na, da, m);
+#endif
+    }
+    __global float *o = out + v0;
+    vstore4(finish(na, da, counts), 0, o);
+#if NCH == 3
+    vstore4(finish(nb, db, counts), 1, o);
+    vstore4(finish(nc, dc, counts), 2, o);
+#endif
+}
+
+__kernel void fuse_fix(__global const PIXEL_T *frames,
+                       __global const uchar *valid,
+                       __global const float *hi,
+                       __global const float *lo,
+                       __global float *out,
+                       __global uint *counts,
+                       const int npix,
+                       const int nframes,
+                       const int levels,
+                       const int plane,
+                       const int vplane)
 {
     const int i = get_global_id(0);
     if (i >= npix)
         return;
-    for (int c = 0; c < nch; ++c) {
-        float num = 0.0f;
-        float den = 0.0f;
+    for (int c = 0; c < NCH; ++c) {
+        const size_t v = (size_t)i * NCH + c;
+        if (out[v] >= 0.0f)
+            continue;
         int first = -1;
         int last = -1;
         for (int p = 0; p < nframes; ++p) {
-            if (has_valid && !valid[(size_t)p * vplane + i])
+#ifdef HAS_VALID
+            if (!valid[(size_t)p * vplane + i])
                 continue;
-            const int z = frames[(size_t)p * plane + (size_t)i * nch + c];
-            num += lut[((size_t)p * nch + c) * levels + z];
-            den += wlut[z];
+#endif
             if (first < 0)
                 first = p;
             last = p;
         }
         float e;
-        if (den > 0.0f) {
-            e = exp(num / den);
-        } else if (first < 0) {
+        if (first < 0) {
             e = 0.0f;
             atomic_inc(&counts[2]);
+        } else if (2 * (int)frames[(size_t)first * plane + v] >= levels) {
+            e = exp2(hi[first * NCH + c]);
+            atomic_inc(&counts[0]);
         } else {
-            const int z0 = frames[(size_t)first * plane + (size_t)i * nch + c];
-            if (2 * z0 >= levels) {
-                e = exp(hi[first * nch + c]);
-                atomic_inc(&counts[0]);
-            } else {
-                e = exp(lo[last * nch + c]);
-                atomic_inc(&counts[1]);
-            }
+            e = exp2(lo[last * NCH + c]);
+            atomic_inc(&counts[1]);
         }
-        out[(size_t)i * nch + c] = e;
+        out[v] = e;
     }
 }

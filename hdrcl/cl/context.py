@@ -54,11 +54,20 @@ class DeviceContext:
                 try:
                     prg = cl.Program(self.context, kernel_source(source)).build(options=list(options))
                 except cl.Error as exc:
-                    raise HdrclError(f"building kernels/{source}.cl for {self.name} failed: {exc}") from exc
+                    raise HdrclError(
+                        f"building kernels/{source}.cl for {self.name} failed: {_build_error(exc)}"
+                    ) from exc
                 for k in prg.all_kernels():
                     self._kernels[(source, k.function_name, key[2])] = k
                 knl = self._kernels[key]
             return knl
+
+
+def _build_error(exc: Exception) -> str:
+    """The compiler's own error lines from a pyopencl build failure, on one line."""
+    lines = [ln.strip() for ln in str(exc).splitlines()]
+    errs = [ln for ln in lines if "error" in ln.lower() and "clBuildProgram failed" not in ln]
+    return "; ".join(dict.fromkeys(errs)) or (lines[0] if lines else type(exc).__name__)
 
 
 def _all_devices() -> List[Tuple[int, int, "cl.Device"]]:

@@ -1,7 +1,8 @@
 """Host side of ``kernels/fusion.cl``: a bracket in, a float32 radiance map out."""
 from __future__ import annotations
 
-from typing import Optional, Sequence
+import math
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 import pyopencl as cl
@@ -9,6 +10,74 @@ import pyopencl as cl
 from .processing import OpenCLProcessor, round_up
 
 _PIXEL_T = {np.dtype(np.uint8): "uchar", np.dtype(np.uint16): "ushort"}
+_LOG2E = 1.0 / math.log(2.0)
+
+
+class FusionPlan:
+    """Tables and device buffers for fusing many strips of one bracket."""
+
+    def __init__(self, proc: "FusionProcessor", nframes: int, width: int, nch: int, dtype,
+                 log_times, tables: np.ndarray, weights: np.ndarray, has_valid: bool):
+        self.proc = proc
+        self.p, self.w, self.c = nframes, width, nch
+        self.dtype = np.dtype(dtype)
+        if self.dtype not in _PIXEL_T:
+            raise TypeError(f"frames must be uint8 or uint16, not {self.dtype}")
+        if nch not in (1, 3):
+            raise ValueError(f"fusion handles 1 or 3 channels, not {nch}")
+        self.levels = tables.shape[1]
+        self.has_valid = has_valid
+        opts = (f"-DPIXEL_T={_PIXEL_T[self.dtype]}", f"-DNCH={nch}") + (("-DHAS_VALID",) if has_valid else ())
+        self.knl = proc.ctx.kernel("fusion", "fuse", opts)
+        self.fix = proc.ctx.kernel("fusion", "fuse_fix", opts)
+        log_t = np.asarray(log_times, np.float64)
+        wt = np.asarray(weights, np.float64)
+        # Folded table, log2 units: exp2(num / den) = exp(ln E).
+        lut = wt[None, None, :] * (tables[None, :, :] - log_t[:, None, None]) * _LOG2E
+        self.lut = proc.constant("lut", lut.astype(np.float32))
+        self.wlut = proc.constant("wlut", wt.astype(np.float32))
+        self.hi = proc.constant("hi", ((tables[None, :, -1] - log_t[:, None]) * _LOG2E).astype(np.float32))
+        self.lo = proc.constant("lo", ((tables[None, :, 0] - log_t[:, None]) * _LOG2E).astype(np.float32))
+        self.counts = np.zeros(4, np.uint32)
+        self.counts_b = proc.constant("counts", self.counts)
+        self.rows = proc.strip_rows(width)
+        self.spix = self.rows * width
+        self.plane = self.spix * nch
+        self.frames_b = proc.buffer("frames", nframes * self.plane * self.dtype.itemsize, cl.mem_flags.READ_ONLY)
+        self.valid_b = proc.buffer("valid", nframes * self.spix if has_valid else 4, cl.mem_flags.READ_ONLY)
+        self.out_b = proc.buffer("out", self.plane * 4, cl.mem_flags.READ_WRITE)
+        self._ones = np.ones(self.spix, np.uint8) if has_valid else None
+        self._zero_weight_seen = 0
+
+    def fuse_strip(self, frames: Sequence[np.ndarray], valid: Optional[Sequence[Optional[np.ndarray]]],
+                   out: np.ndarray) -> None:
+        """Fuse one strip: ``frames`` are ``(rows, W, C)`` slices, ``out`` the matching
+        float32 ``(rows, W, C)`` destination (contiguous)."""
+        q = self.proc.queue
+        npix = frames[0].shape[0] * self.w
+        if npix > self.spix:
+            raise ValueError("strip larger than the plan's strip size")
+        size = self.dtype.itemsize
+        for j, f in enumerate(frames):
+            cl.enqueue_copy(q, self.frames_b, np.ascontiguousarray(f), dst_offset=j * self.plane * size,
+                            is_blocking=False)
+            if self.has_valid:
+                v = self._ones[:npix] if valid[j] is None else np.ascontiguousarray(valid[j], dtype=np.uint8)
+                cl.enqueue_copy(q, self.valid_b, v, dst_offset=j * self.spix, is_blocking=False)
+        args = (np.int32(npix), np.int32(self.p), np.int32(self.levels), np.int32(self.plane), np.int32(self.spix))
+        self.knl(q, (round_up((npix + 3) // 4),), None, self.frames_b, self.valid_b, self.lut, self.wlut,
+                 self.out_b, self.counts_b, *args)
+        cl.enqueue_copy(q, self.counts, self.counts_b, is_blocking=True)
+        if self.counts[3] != self._zero_weight_seen:  # some values need the zero-weight rule
+            self._zero_weight_seen = int(self.counts[3])
+            self.fix(q, (round_up(npix),), None, self.frames_b, self.valid_b, self.hi, self.lo, self.out_b,
+                     self.counts_b, *args)
+        cl.enqueue_copy(q, out, self.out_b, is_blocking=True)
+
+    def result_counts(self) -> dict:
+        cl.enqueue_copy(self.proc.queue, self.counts, self.counts_b, is_blocking=True)
+        return {"clipped_high": int(self.counts[0]), "clipped_low": int(self.counts[1]),
+                "no_data": int(self.counts[2])}
 
 
 class FusionProcessor(OpenCLProcessor):
@@ -20,6 +89,9 @@ class FusionProcessor(OpenCLProcessor):
 
     source = "fusion"
 
+    def plan(self, nframes, width, nch, dtype, log_times, tables, weights, has_valid) -> FusionPlan:
+        return FusionPlan(self, nframes, width, nch, dtype, log_times, tables, weights, has_valid)
+
     def fuse(
         self,
         frames: Sequence[np.ndarray],
@@ -29,7 +101,7 @@ class FusionProcessor(OpenCLProcessor):
         valid: Optional[Sequence[Optional[np.ndarray]]] = None,
         out: Optional[np.ndarray] = None,
     ):
-        """Fuse ``frames`` (ordered by increasing exposure).
+        """Fuse whole in-memory ``frames`` (ordered by increasing exposure).
 
         Parameters are those of :func:`hdrcl.reference.fuse`; ``out`` may be a
         preallocated ``(H, W, C)`` float32 array.
@@ -39,50 +111,14 @@ class FusionProcessor(OpenCLProcessor):
         radiance : ndarray (H, W, C) float32
         counts : dict
         """
-        p = len(frames)
         h, w, c = frames[0].shape
-        dtype = frames[0].dtype
-        if dtype not in _PIXEL_T:
-            raise TypeError(f"frames must be uint8 or uint16, not {dtype}")
-        levels = tables.shape[1]
-        log_t = np.asarray(log_times, np.float64)
-        knl = self.ctx.kernel("fusion", "fuse", (f"-DPIXEL_T={_PIXEL_T[dtype]}",))
-
-        wt = np.asarray(weights, np.float64)
-        lut = (wt[None, None, :] * (tables[None, :, :] - log_t[:, None, None])).astype(np.float32)
-        hi = (tables[None, :, levels - 1] - log_t[:, None]).astype(np.float32)
-        lo = (tables[None, :, 0] - log_t[:, None]).astype(np.float32)
-        lut_b = self.constant("lut", lut)
-        w_b = self.constant("wlut", wt.astype(np.float32))
-        hi_b = self.constant("hi", hi)
-        lo_b = self.constant("lo", lo)
-        counts = np.zeros(3, np.uint32)
-        cnt_b = self.constant("counts", counts)
-
-        rows = self.strip_rows(w)
-        spix = rows * w
-        plane = spix * c
-        frames_b = self.buffer("frames", p * plane * dtype.itemsize, cl.mem_flags.READ_ONLY)
         has_valid = valid is not None and any(v is not None for v in valid)
-        valid_b = self.buffer("valid", p * spix if has_valid else 1, cl.mem_flags.READ_ONLY)
-        out_b = self.buffer("out", plane * 4, cl.mem_flags.WRITE_ONLY)
+        plan = self.plan(len(frames), w, c, frames[0].dtype, log_times, tables, weights, has_valid)
         if out is None:
             out = np.empty((h, w, c), np.float32)
-        ones = np.ones(spix, np.uint8) if has_valid else None
-
-        q = self.queue
-        for r0 in range(0, h, rows):
-            r1 = min(h, r0 + rows)
-            npix = (r1 - r0) * w
-            for j, f in enumerate(frames):
-                cl.enqueue_copy(q, frames_b, np.ascontiguousarray(f[r0:r1]),
-                                dst_offset=j * plane * dtype.itemsize, is_blocking=False)
-                if has_valid:
-                    v = ones[:npix] if valid[j] is None else np.ascontiguousarray(valid[j][r0:r1], dtype=np.uint8)
-                    cl.enqueue_copy(q, valid_b, v, dst_offset=j * spix, is_blocking=False)
-            knl(q, (round_up(npix),), None, frames_b, valid_b, lut_b, w_b, hi_b, lo_b, out_b, cnt_b,
-                np.int32(npix), np.int32(p), np.int32(c), np.int32(levels), np.int32(plane),
-                np.int32(spix), np.int32(1 if has_valid else 0))
-            cl.enqueue_copy(q, out[r0:r1], out_b, is_blocking=True)
-        cl.enqueue_copy(q, counts, cnt_b, is_blocking=True)
-        return out, {"clipped_high": int(counts[0]), "clipped_low": int(counts[1]), "no_data": int(counts[2])}
+        for r0 in range(0, h, plan.rows):
+            r1 = min(h, r0 + plan.rows)
+            plan.fuse_strip([f[r0:r1] for f in frames],
+                            [None if v is None else v[r0:r1] for v in valid] if has_valid else None,
+                            out[r0:r1])
+        return out, plan.result_counts()

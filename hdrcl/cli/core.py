@@ -93,7 +93,7 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
         res.response.save(save_response)
     for w in res.warnings:
         click.echo(f"hdrcl: warning: {w}", err=True)
-    h, w_, c = res.radiance.shape
+    h, w_, c = res.shape
     total = sum(res.seconds.values())
     click.echo(f"wrote {output}: {w_}x{h}, {c} channel(s), {len(res.paths)} frames "
                f"({format_time(min(res.times))} .. {format_time(max(res.times))}), "

@@ -1,0 +1,161 @@
+"""Streaming merge: decode, fuse and write a bracket strip by strip.
+
+Memory stays bounded by the strip height whatever the image size. Three things overlap:
+the frames' next strip is decoded on helper threads (:class:`hdrcl.io.BracketReader`),
+the current strip is fused on the OpenCL device (or by the NumPy twin), and the previous
+strip is encoded by a writer thread (:class:`hdrcl.writers.RadianceWriter`).
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import logging
+from collections import deque
+from typing import List, Optional, Sequence
+
+import numpy as np
+
+from . import reference
+from .backend import get_processor
+from .errors import UsageError
+from .response import Response
+from .weights import weight_table
+
+logger = logging.getLogger(__name__)
+
+#: Rows per strip on the NumPy path (the OpenCL path takes its processor's strip size).
+NUMPY_STRIP_PIXELS = 1 << 18
+
+
+class ArraySource:
+    """In-memory frames presented as strips (same protocol as BracketReader)."""
+
+    def __init__(self, frames: Sequence[np.ndarray], valid: Sequence[Optional[np.ndarray]]):
+        self.frames = list(frames)
+        self.valid = list(valid)
+        self.height, self.width, self.nch = self.frames[0].shape
+        self.dtype = self.frames[0].dtype
+
+    def strips(self, rows: int):
+        for y0 in range(0, self.height, rows):
+            y1 = min(self.height, y0 + rows)
+            yield (y0, y1, [f[y0:y1] for f in self.frames],
+                   [None if v is None else v[y0:y1] for v in self.valid])
+
+
+class ArraySink:
+    """Collects strips into one float32 array (for the Python API)."""
+
+    def __init__(self, height: int, width: int, nch: int):
+        self.array = np.empty((height, width, nch), np.float32)
+
+    def write_rows(self, y0: int, y1: int, data: np.ndarray) -> None:
+        self.array[y0:y1] = data
+
+
+class Thumbnail:
+    """Keeps every ``stride``-th pixel of the radiance for previews."""
+
+    def __init__(self, height: int, width: int, nch: int, long_side: int):
+        self.stride = max(1, int(np.ceil(max(height, width) / max(long_side, 1))))
+        self.array = np.empty((len(range(0, height, self.stride)), len(range(0, width, self.stride)), nch),
+                              np.float32)
+
+    def add(self, y0: int, y1: int, data: np.ndarray) -> None:
+        first = (-y0) % self.stride
+        rows = data[first::self.stride, ::self.stride]
+        g0 = (y0 + first) // self.stride
+        self.array[g0:g0 + rows.shape[0]] = rows
+
+
+def stream_merge(
+    source,
+    times: Sequence[float],
+    response: Response,
+    sink,
+    *,
+    weight: str = "hat",
+    ignore_color=None,
+    has_valid: Optional[bool] = None,
+    device: Optional[str] = None,
+    thumbnail: Optional[Thumbnail] = None,
+):
+    """Fuse every strip of ``source`` and hand it to ``sink.write_rows``.
+
+    Parameters
+    ----------
+    source
+        :class:`hdrcl.io.BracketReader` or :class:`ArraySource`: ``height``, ``width``,
+        ``nch``, ``dtype`` and ``strips(rows)`` yielding ``(y0, y1, frames, valid)``.
+    times : sequence of float
+        Exposure of each source frame (seconds), in source order.
+    response : Response
+    sink
+        Anything with ``write_rows(y0, y1, float32 array)``; called from one writer
+        thread, strips in order.
+    ignore_color : (R, G, B), optional
+        8-bit colour marking invalid pixels.
+    has_valid : bool, optional
+        Whether any frame can have invalid pixels (alpha or ignore colour); computed
+        from the first strip when None.
+
+    Returns
+    -------
+    counts : dict
+        As :func:`hdrcl.reference.fuse`.
+    backend : str
+        ``"opencl"`` or ``"numpy"``.
+    """
+    from .io import ignore_color_mask
+
+    order = np.argsort(np.asarray(times, np.float64), kind="stable")
+    log_t = np.log(np.asarray(times, np.float64)[order])
+    nch = source.nch
+    tables = response.table_for(nch)
+    levels = tables.shape[1]
+    if int(np.iinfo(source.dtype).max) + 1 != levels:
+        raise UsageError(
+            f"the response describes {response.bits}-bit images but the frames are "
+            f"{8 * np.dtype(source.dtype).itemsize}-bit"
+        )
+    wts = weight_table(levels, weight)
+    proc = get_processor("fusion", device)
+    if has_valid is None:
+        has_valid = ignore_color is not None or any(
+            v is not None for v in getattr(source, "valid", [None]))
+    plan = None
+    if proc is not None:
+        plan = proc.plan(len(order), source.width, nch, source.dtype, log_t, tables, wts, has_valid)
+        rows = plan.rows
+    else:
+        rows = max(1, NUMPY_STRIP_PIXELS // max(source.width, 1))
+    counts = {"clipped_high": 0, "clipped_low": 0, "no_data": 0}
+    # Three output strips: one being fused, one being written, one queued.
+    buffers = deque(np.empty((rows, source.width, nch), np.float32) for _ in range(3))
+    pending: deque = deque()
+    with concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="hdrcl-write") as writer:
+        for y0, y1, frames, valid in source.strips(rows):
+            frames = [frames[i] for i in order]
+            valid = [valid[i] for i in order]
+            if ignore_color is not None:
+                valid = [(~ignore_color_mask(f, ignore_color)) if v is None else (v & ~ignore_color_mask(f, ignore_color))
+                         for f, v in zip(frames, valid)]
+            if len(pending) == len(buffers) - 1:
+                pending.popleft().result()  # bounded memory; also re-raises write errors
+            buf = buffers[0]
+            buffers.rotate(-1)
+            out = buf[: y1 - y0]
+            if plan is not None:
+                plan.fuse_strip(frames, valid if has_valid else None, out)
+            else:
+                rad, c = reference.fuse(frames, log_t, tables, wts, valid)
+                out[...] = rad
+                for k in counts:
+                    counts[k] += c[k]
+            if thumbnail is not None:
+                thumbnail.add(y0, y1, out)
+            pending.append(writer.submit(sink.write_rows, y0, y1, out))
+        for fut in pending:
+            fut.result()
+    if plan is not None:
+        counts = plan.result_counts()
+    return counts, ("opencl" if plan is not None else "numpy")
