@@ -214,8 +214,17 @@ def calibrate(
     weight: str = "hat",
     ignore_color=None,
     seed: int = 0,
+    fit_exposures: str = "auto",
+    exposure_tolerance: Optional[float] = None,
 ) -> Response:
     """Recover the camera response from a bracket set.
+
+    ``fit_exposures`` (``auto``, ``on``, ``off``): estimate each frame's relative
+    exposure from the pixels (:func:`hdrcl.response.fit_exposures`) and report every
+    frame whose metadata disagrees by more than ``exposure_tolerance`` stops (default
+    0.5). ``auto`` uses the fitted value only for those frames, ``on`` for all, ``off``
+    never fits. The times used are recorded per frame in ``Response.exposures``
+    (``nominal``, ``fitted``, ``used``) and a merge of the same set uses them.
 
     Returns
     -------
@@ -235,12 +244,47 @@ def calibrate(
         br = _grid_bracket(paths, infos, rel, _parse_ignore_color(ignore_color))
     else:
         br = load_bracket(images, times, times_file=times_file, ignore_color=ignore_color)
-    resp = recover_response(br.frames, br.times, valid=br.valid_all, samples=samples,
+    from .metadata import format_time
+    from .response import EXPOSURE_TOLERANCE_STOPS
+    from .response import fit_exposures as _fit
+
+    if fit_exposures not in ("auto", "on", "off"):
+        raise UsageError(f"--fit-exposures: '{fit_exposures}' is not one of auto, on, off")
+    tol = EXPOSURE_TOLERANCE_STOPS if exposure_tolerance is None else float(exposure_tolerance)
+    names = br.paths or [f"image {k}" for k in range(len(br.frames))]
+    used = np.asarray(br.times, np.float64)
+    fitted = None
+    if fit_exposures != "off" and len(br.frames) >= 3:
+        fit = _fit(br.frames, br.times, valid=br.valid_all, samples=min(samples or 400, 400),
+                   smoothness=smoothness, weight=weight, seed=seed, tolerance=tol, decimate=not br.grid)
+        fitted = fit.fitted
+        for k in np.flatnonzero(fit.flagged):
+            logger.warning("%s: metadata says %s but the pixels say %s (%+.2f stops)%s", os.path.basename(names[k]),
+                           format_time(fit.nominal[k]), format_time(fit.fitted[k]), fit.stops[k],
+                           "" if fit_exposures != "auto" else "; using the fitted exposure")
+        if fit_exposures == "on":
+            used = fit.fitted.copy()
+        elif fit.flagged.any():
+            used = np.where(fit.flagged, fit.fitted, used)
+    resp = recover_response(br.frames, used, valid=br.valid_all, samples=samples,
                             smoothness=smoothness, weight=weight, seed=seed, decimate=not br.grid)
     resp.camera = br.camera
-    names = br.paths or [f"image {k}" for k in range(len(br.frames))]
-    resp.exposures = [{"file": os.path.basename(n), "nominal": float(t)} for n, t in zip(names, br.times)]
+    resp.exposures = [
+        {"file": os.path.basename(n), "nominal": float(t), "fitted": None if fitted is None else float(f),
+         "used": float(u)}
+        for n, t, f, u in zip(names, br.times, fitted if fitted is not None else br.times, used)]
     return resp
+
+
+def exposures_used(response: Response, bracket_times) -> np.ndarray:
+    """The times a merge should use: those its response refined, when it was
+    calibrated from this very set (same count and nominal values), else the nominal."""
+    ex = response.exposures or []
+    nominal = np.asarray(bracket_times, np.float64)
+    if len(ex) == nominal.size and all("used" in e for e in ex) and np.allclose(
+            [e["nominal"] for e in ex], nominal, rtol=1e-9):
+        return np.asarray([e["used"] for e in ex], np.float64)
+    return nominal
 
 
 @dataclass
@@ -273,20 +317,25 @@ def merge_bracket(
     smoothness: Optional[float] = None,
     seed: int = 0,
     device: Optional[str] = None,
+    fit_exposures: str = "auto",
+    exposure_tolerance: Optional[float] = None,
 ) -> MergeResult:
-    """Fuse a loaded :class:`Bracket`, calibrating from it when no response is given."""
+    """Fuse a loaded :class:`Bracket`, calibrating from it when no response is given
+    (then with the exposures that calibration refined, see :func:`calibrate`)."""
     from .fusion import fuse_frames
 
     t0 = _time.perf_counter()
     if response is None:
-        response = calibrate(bracket, samples=samples, smoothness=smoothness, weight=weight, seed=seed)
+        response = calibrate(bracket, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
+                             fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance)
     t1 = _time.perf_counter()
-    res = fuse_frames(bracket.frames, bracket.times, response, weight=weight, valid=bracket.valid, device=device)
+    times = exposures_used(response, bracket.times)
+    res = fuse_frames(bracket.frames, times, response, weight=weight, valid=bracket.valid, device=device)
     t2 = _time.perf_counter()
     warnings = list(response.warnings)
     if res.counts.get("no_data"):
         warnings.append(f"{res.counts['no_data']} pixel-channels are invalid in every frame and were set to 0")
-    return MergeResult(radiance=res.radiance, response=response, counts=res.counts, times=bracket.times,
+    return MergeResult(radiance=res.radiance, response=response, counts=res.counts, times=times,
                        paths=bracket.paths, backend=res.backend,
                        seconds={"calibrate": t1 - t0, "fuse": t2 - t1}, warnings=warnings)
 
@@ -302,6 +351,7 @@ def merge(
     samples: Optional[int] = None,
     smoothness: Optional[float] = None,
     device: Optional[str] = None,
+    fit_exposures: str = "auto",
 ) -> np.ndarray:
     """Merge a bracket into a float32 radiance map ``(H, W, C)``.
 
@@ -311,7 +361,7 @@ def merge(
     """
     br = load_bracket(images, times, times_file=times_file, ignore_color=ignore_color)
     return merge_bracket(br, _as_response(response), weight=weight, samples=samples, smoothness=smoothness,
-                         device=device).radiance
+                         device=device, fit_exposures=fit_exposures).radiance
 
 
 def _as_response(response) -> Optional[Response]:
@@ -336,6 +386,8 @@ def _provenance(result: MergeResult, response_source: str) -> dict:
         "software": "hdrcl",
         "sources": [os.path.basename(p) for p in result.paths],
         "exposures": [float(t) for t in result.times],
+        "exposuresNominal": [float(e.get("nominal", t)) for e, t in zip(r.exposures or [{}] * len(result.times),
+                                                                        result.times)],
         "exposureText": ", ".join(format_time(t) for t in result.times),
         "response": response_source,
         "responseSmoothness": float(r.smoothness),
@@ -369,6 +421,8 @@ def merge_files(
     device: Optional[str] = None,
     keep_radiance: bool = False,
     thumbnail: int = 0,
+    fit_exposures: str = "auto",
+    exposure_tolerance: Optional[float] = None,
 ) -> MergeResult:
     """Merge image files into a radiance file (EXR, HDR, TIFF or PFM by extension).
 
@@ -416,17 +470,20 @@ def merge_files(
                 frames, valid = reader.read_all()
             valid = _with_ignore(frames, valid, rgb)
             br = Bracket(frames=frames, times=rel, valid=valid, paths=paths, infos=infos)
-            resp = calibrate(br, samples=samples, smoothness=smoothness, weight=weight, seed=seed)
+            resp = calibrate(br, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
+                             fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance)
             source = ArraySource(frames, valid)
             ignore = None
         else:
             resp = calibrate(_grid_bracket(paths, infos, rel, rgb), samples=samples, smoothness=smoothness,
-                             weight=weight, seed=seed)
+                             weight=weight, seed=seed, fit_exposures=fit_exposures,
+                             exposure_tolerance=exposure_tolerance)
             source = BracketReader(paths, infos)
             ignore = rgb
     else:
         source = BracketReader(paths, infos)
         ignore = rgb
+    rel = exposures_used(resp, rel)
     t2 = _time.perf_counter()
     backend = "numpy" if get_processor("fusion", device) is None else "opencl"
     result = MergeResult(radiance=None, response=resp, counts={}, times=rel, paths=paths, backend=backend,
@@ -449,7 +506,9 @@ def merge_files(
     result.radiance = keep.array if keep is not None else None
     result.thumbnail = thumb.array if thumb is not None else None
     if counts.get("no_data"):
-        result.warnings.append(f"{counts['no_data']} pixel-channels are invalid in every frame and were set to 0")
+        msg = f"{output}: {counts['no_data']} pixel-channels are invalid in every frame and were set to 0"
+        logger.warning(msg)
+        result.warnings.append(msg)
     result.seconds = {"open": t1 - t0, "calibrate": t2 - t1, "fuse_and_write": _time.perf_counter() - t2}
     return result
 

@@ -34,17 +34,20 @@ def leave_one_out(
     samples: Optional[int] = None,
     weight: str = "hat",
     device: Optional[str] = None,
+    fit_exposures: str = "auto",
 ) -> LeaveOneOut:
     """RMSE (8-bit levels) of frame ``index`` rendered from a merge of the others.
 
-    The merge calibrates its own response from the remaining frames. Pixel-channels
+    The merge calibrates its own response from the remaining frames (with
+    ``fit_exposures`` as :func:`hdrcl.api.calibrate`) and renders the missing frame at
+    ``bracket.times[index]``: pass refined times to measure a refined set. Pixel-channels
     count where the real frame reads within ``[low, high]`` (8-bit units; scaled for
     16-bit data) and the pixel is valid in that frame.
     """
     keep = [k for k in range(len(bracket.frames)) if k != index]
     sub = Bracket(frames=[bracket.frames[k] for k in keep], times=bracket.times[keep],
                   valid=[bracket.valid[k] for k in keep])
-    resp = calibrate(sub, smoothness=smoothness, samples=samples, weight=weight)
+    resp = calibrate(sub, smoothness=smoothness, samples=samples, weight=weight, fit_exposures=fit_exposures)
     res = merge_bracket(sub, resp, weight=weight, device=device)
     real = bracket.frames[index]
     scale = 1.0 if real.dtype == np.uint8 else 257.0

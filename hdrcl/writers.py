@@ -41,6 +41,8 @@ __all__ = [
     "write_radiance",
     "write_ldr",
     "read_radiance",
+    "read_metadata",
+    "write_photo",
 ]
 
 RADIANCE_EXTENSIONS = (".exr", ".hdr", ".tif", ".tiff", ".pfm")
@@ -176,7 +178,8 @@ def _exr_compression(compression: str) -> str:
     return text
 
 
-def write_radiance(path, image, *, dtype="half", compression="zip", metadata=None) -> list:
+def write_radiance(path, image, *, dtype="half", compression="zip", metadata=None,
+                   timestamp=None) -> list:
     """Write a floating-point radiance map; the format follows the extension.
 
     Parameters
@@ -197,6 +200,11 @@ def write_radiance(path, image, *, dtype="half", compression="zip", metadata=Non
         (anything else is stored as JSON text). EXR keeps them as ``hdrcl:*`` attributes
         (floats at float32 precision), TIFF as JSON in ImageDescription; HDR and PFM
         cannot store them.
+    timestamp : str, optional
+        EXR only: the ``DateTime`` attribute (``"YYYY:MM:DD HH:MM:SS"``) instead of the
+        time of writing, which OpenImageIO records by default; ``""`` records none. Given,
+        the same pixels and metadata always give the same bytes (``hdrcl batch`` uses
+        the capture time of the first frame).
 
     Returns
     -------
@@ -251,6 +259,9 @@ def write_radiance(path, image, *, dtype="half", compression="zip", metadata=Non
                 )
         attrs.append(("compression", _exr_compression(compression)))
         attrs.append(("chromaticities", oiio.TypeDesc("float[8]"), REC709_CHROMATICITIES))
+        if timestamp is not None:
+            # OIIO stamps the time of writing unless DateTime is set ("" leaves it out).
+            attrs.append(("DateTime", str(timestamp)))
         if img.shape[2] == 1:
             channelnames = ("Y",)
     elif ext in (".tif", ".tiff"):
@@ -408,3 +419,267 @@ def read_radiance(path) -> tuple:
         data = data[:, :, None]
     pixels = np.ascontiguousarray(data[:, :, channels])
     return pixels, metadata
+
+
+def read_metadata(path) -> dict:
+    """The ``hdrcl:*`` metadata of a file, from its header only (no pixels decoded).
+
+    Reads what :func:`write_radiance` and :func:`write_ldr` store: EXR ``hdrcl:*``
+    attributes, or the JSON kept in ImageDescription (TIFF, JPEG). ``hdrcl batch``
+    uses it to decide, cheaply, whether an existing output is already up to date.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    dict
+        Keys without the ``hdrcl:`` prefix; empty when the file carries none.
+
+    Raises
+    ------
+    InputError
+        The file is missing or its header cannot be read.
+    """
+    name = os.fspath(path)
+    inp = _open_input(name)
+    try:
+        spec = inp.spec()
+        metadata = {}
+        desc = spec.getattribute("ImageDescription")
+        if isinstance(desc, str) and desc.startswith('{"hdrcl"'):
+            try:
+                parsed = json.loads(desc).get("hdrcl", {})
+            except (ValueError, AttributeError):
+                parsed = {}
+            if isinstance(parsed, dict):
+                metadata.update(parsed)
+        for p in spec.extra_attribs:
+            if p.name.startswith(METADATA_PREFIX):
+                metadata[p.name[len(METADATA_PREFIX):]] = p.value
+    finally:
+        inp.close()
+    return metadata
+
+
+def write_photo(path, pixels, exif: Optional[Mapping] = None) -> None:
+    """Write an 8- or 16-bit photograph with camera metadata, atomically.
+
+    For sample and test data (``hdrcl sample-shoot``): unlike :func:`write_ldr`, the
+    attribute names are OpenImageIO's own, unprefixed, so EXIF fields written here are
+    read back by :func:`hdrcl.io.read_info` as a camera's would be.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.jpg``/``.jpeg`` (8-bit, quality 95), ``.png`` or ``.tif``/``.tiff``.
+    pixels : numpy.ndarray
+        ``(H, W, C)`` or ``(H, W)`` ``uint8`` or ``uint16``, C = 1 or 3.
+    exif : mapping, optional
+        OIIO attribute name to value, e.g. ``{"ExposureTime": 1/60, "FNumber": 8.0,
+        "Exif:PhotographicSensitivity": 100, "Exif:DateTimeOriginal":
+        "2024:06:01 10:00:00", "Make": "Canon"}``. Python floats are stored as
+        float, ints as int, anything else as text.
+
+    Raises
+    ------
+    UsageError
+        Unknown extension or 16-bit data for JPEG; missing output folder.
+    ProcessingError
+        OpenImageIO failed to write the file.
+    """
+    target = os.fspath(path)
+    ext = _ext(target)
+    if ext not in LDR_EXTENSIONS:
+        raise UsageError(
+            f"{target}: unsupported image format '{ext or '(none)'}'; "
+            f"use {', '.join(LDR_EXTENSIONS)}"
+        )
+    px = np.asarray(pixels)
+    if px.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"pixels must be uint8 or uint16, got {px.dtype}")
+    if px.ndim == 2:
+        px = px[:, :, None]
+    if px.ndim != 3 or px.shape[2] not in (1, 3):
+        raise ValueError(f"pixels must be (H, W, 1) or (H, W, 3), got {px.shape}")
+    if ext in (".jpg", ".jpeg") and px.dtype != np.uint8:
+        raise UsageError(f"{target}: JPEG holds 8-bit data only; write .png or .tif")
+    attrs = []
+    for key, value in (exif or {}).items():
+        if isinstance(value, np.generic):
+            value = value.item()
+        if isinstance(value, bool):
+            value = int(value)
+        if not isinstance(value, (int, float, str)):
+            value = str(value)
+        attrs.append((str(key), value))
+    if ext in (".jpg", ".jpeg"):
+        attrs.append(("Compression", f"jpeg:{JPEG_QUALITY}"))
+    if ext in (".tif", ".tiff"):
+        attrs.append(("compression", "zip"))
+    _write(target, np.ascontiguousarray(px), "uint8" if px.dtype == np.uint8 else "uint16", attrs)
+
+
+class RadianceWriter:
+    """Writes a radiance map strip by strip (top to bottom), atomically.
+
+    The file is written to a hidden temporary name beside ``path`` and renamed onto it
+    by :meth:`close` only when every row has been written; :meth:`abort` (or leaving a
+    ``with`` block by an exception) deletes it. Memory use is one strip, whatever the
+    image size, except for PFM, whose rows are stored bottom to top and so are collected
+    whole before writing.
+
+    Parameters are those of :func:`write_radiance` plus the image size; ``write_rows``
+    takes float32 ``(rows, width, nch)`` strips.
+    """
+
+    def __init__(self, path, width: int, height: int, nch: int, *, dtype: str = "half",
+                 compression: str = "zip", metadata=None, timestamp=None):
+        target = os.fspath(path)
+        ext = _ext(target)
+        if ext not in RADIANCE_EXTENSIONS:
+            raise UsageError(
+                f"{target}: unsupported radiance format '{ext or '(none)'}'; "
+                f"use {', '.join(RADIANCE_EXTENSIONS)}"
+            )
+        if dtype not in ("half", "float"):
+            raise UsageError(f"--dtype: '{dtype}' is not one of half, float")
+        if nch not in (1, 3):
+            raise ValueError(f"radiance must have 1 or 3 channels, not {nch}")
+        self.path, self.ext = target, ext
+        self.width, self.height, self.nch = int(width), int(height), int(nch)
+        self.dtype = dtype
+        self.warnings: list = []
+        self._nonfinite = 0
+        self._over_half = 0
+        self._negative = 0
+        self._next_row = 0
+        attrs = _metadata_attributes(metadata)
+        attrs.append(("oiio:ColorSpace", LINEAR_COLORSPACE))
+        fmt = "float"
+        channelnames = None
+        self._expand = False
+        if ext == ".exr":
+            oiio = _oiio()
+            fmt = dtype
+            attrs.append(("compression", _exr_compression(compression)))
+            attrs.append(("chromaticities", oiio.TypeDesc("float[8]"), REC709_CHROMATICITIES))
+            if timestamp is not None:
+                attrs.append(("DateTime", str(timestamp)))
+            if nch == 1:
+                channelnames = ("Y",)
+        elif ext in (".tif", ".tiff"):
+            comp = str(compression).strip().lower()
+            if comp not in TIFF_COMPRESSIONS:
+                self.warnings.append(f"{target}: TIFF has no '{compression}' compression; used zip")
+                comp = "zip"
+            attrs = [a for a in attrs if not a[0].startswith(METADATA_PREFIX)]
+            desc = _description(metadata)
+            if desc:
+                attrs.append(("ImageDescription", desc))
+            attrs.append(("compression", comp))
+            attrs.append(("tiff:write_exif", 0))
+        else:
+            attrs = [a for a in attrs if not a[0].startswith(METADATA_PREFIX)]
+            self._expand = ext == ".hdr" and nch == 1  # RGBE has no grey
+        self._attrs, self._fmt, self._channelnames = attrs, fmt, channelnames
+        self._whole = np.empty((height, width, nch), np.float32) if ext == ".pfm" else None
+        self._ctx = atomic_output(target)
+        self._tmp = self._ctx.__enter__()
+        self._out = None
+        if self._whole is None:
+            self._open()
+
+    def _open(self):
+        oiio = _oiio()
+        c = 3 if self._expand else self.nch
+        spec = oiio.ImageSpec(self.width, self.height, c, self._fmt)
+        if self._channelnames is not None:
+            spec.channelnames = tuple(self._channelnames)
+        for attr in self._attrs:
+            spec.attribute(*attr)
+        out = oiio.ImageOutput.create(self._tmp)
+        if out is None or not out.open(self._tmp, spec):
+            detail = _clean_error((out.geterror() if out is not None else "") or oiio.geterror(), self._tmp)
+            self.abort()
+            raise ProcessingError(f"{self.path}: cannot write ({detail or 'no writer for this format'})")
+        self._out = out
+
+    def _check(self, data: np.ndarray) -> None:
+        finite = np.isfinite(data)
+        self._nonfinite += data.size - int(np.count_nonzero(finite))
+        if self.ext == ".exr" and self.dtype == "half":
+            self._over_half += int(np.count_nonzero(np.abs(data[finite]) > HALF_MAX))
+        if self.ext == ".hdr":
+            self._negative += int(np.count_nonzero(data[finite] < 0))
+
+    def write_rows(self, y0: int, y1: int, data: np.ndarray) -> None:
+        """Write rows ``y0 .. y1`` (in order) from a float32 ``(rows, W, C)`` array."""
+        if y0 != self._next_row:
+            raise ValueError(f"rows must be written in order: expected {self._next_row}, got {y0}")
+        data = np.ascontiguousarray(data, dtype=np.float32)
+        self._check(data)
+        if self._whole is not None:
+            self._whole[y0:y1] = data
+        else:
+            if self._expand:
+                data = np.ascontiguousarray(np.repeat(data, 3, axis=2))
+            if not self._out.write_scanlines(y0, y1, 0, data):
+                detail = _clean_error(self._out.geterror() or _oiio().geterror(), self._tmp)
+                self.abort()
+                raise ProcessingError(f"{self.path}: cannot write rows {y0}-{y1} ({detail or 'unknown error'})")
+        self._next_row = y1
+
+    def close(self) -> list:
+        """Finish the file and move it into place; returns the warnings."""
+        if self._next_row != self.height:
+            self.abort()
+            raise ValueError(f"{self.path}: only {self._next_row} of {self.height} rows were written")
+        if self._whole is not None:
+            _write(self._tmp, self._whole, self._fmt, self._attrs, self._channelnames)
+        else:
+            ok = self._out.close()
+            if not ok:
+                detail = _clean_error(self._out.geterror() or _oiio().geterror(), self._tmp)
+                self.abort()
+                raise ProcessingError(f"{self.path}: cannot write ({detail or 'unknown error'})")
+            self._out = None
+        total = self.width * self.height * self.nch
+        if self._nonfinite:
+            self.warnings.append(f"{self.path}: {self._nonfinite} value(s) are NaN or infinite")
+        if self._over_half:
+            self.warnings.append(
+                f"{self.path}: {100.0 * self._over_half / total:.2g}% of values exceed the half-float "
+                f"range ({HALF_MAX:g}); use --dtype float or scale")
+        if self._negative:
+            self.warnings.append(f"{self.path}: negative values are written as 0 in RGBE")
+        self._ctx.__exit__(None, None, None)  # rename onto the target
+        self._ctx = None
+        for w in self.warnings:
+            logger.warning("%s", w)
+        return self.warnings
+
+    def abort(self) -> None:
+        """Drop the temporary file; the target is left as it was."""
+        if self._out is not None:
+            try:
+                self._out.close()
+            except Exception:  # the file is deleted anyway
+                pass
+            self._out = None
+        if self._ctx is not None:
+            ctx, self._ctx = self._ctx, None
+            try:
+                ctx.__exit__(ProcessingError, ProcessingError("aborted"), None)
+            except ProcessingError:
+                pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()

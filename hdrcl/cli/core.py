@@ -7,8 +7,8 @@ import os
 import click
 
 from . import main
-from .options import (device_option, exposure_options, output_options, seconds_callback, solve_options,
-                      weight_option)
+from .options import (device_option, exposure_options, fit_options, output_options, seconds_callback,
+                      solve_options, weight_option)
 
 
 @main.command()
@@ -52,12 +52,15 @@ def devices(as_json):
 @exposure_options
 @solve_options
 @weight_option
-def calibrate(images, output, times, times_file, ignore_color, samples, smoothness, seed, weight):
+@fit_options
+def calibrate(images, output, times, times_file, ignore_color, samples, smoothness, seed, weight, fit_exposures,
+              exposure_tolerance):
     """Recover the camera response curve from one bracket set."""
     from ..api import calibrate as _calibrate
 
     resp = _calibrate(list(images), times, times_file=times_file, samples=samples, smoothness=smoothness,
-                      weight=weight, ignore_color=ignore_color, seed=seed)
+                      weight=weight, ignore_color=ignore_color, seed=seed, fit_exposures=fit_exposures,
+                      exposure_tolerance=exposure_tolerance)
     resp.save(output)
     t = resp.tables()
     click.echo(f"wrote {output}: {resp.bits}-bit response, channels {''.join(resp.channels)}, "
@@ -78,21 +81,21 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
 @exposure_options
 @solve_options
 @weight_option
+@fit_options
 @output_options
 @device_option
 def merge(images, output, response, save_response, times, times_file, ignore_color, samples, smoothness,
-          seed, weight, dtype, compression, device):
+          seed, weight, fit_exposures, exposure_tolerance, dtype, compression, device):
     """Merge one bracket set into a radiance map."""
     from ..api import merge_files
     from ..metadata import format_time
 
     res = merge_files(list(images), output, times=times, times_file=times_file, response=response,
-                      weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness,
-                      dtype=dtype, compression=compression, device=device)
+                      weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness, seed=seed,
+                      dtype=dtype, compression=compression, device=device, fit_exposures=fit_exposures,
+                      exposure_tolerance=exposure_tolerance)
     if save_response:
         res.response.save(save_response)
-    for w in res.warnings:
-        click.echo(f"hdrcl: warning: {w}", err=True)
     h, w_, c = res.shape
     total = sum(res.seconds.values())
     click.echo(f"wrote {output}: {w_}x{h}, {c} channel(s), {len(res.paths)} frames "

@@ -74,3 +74,43 @@ def output_options(f):
 
 
 seconds_callback = _seconds
+
+
+def grouping_options(f):
+    """How a folder is grouped into bracket sets (``scan``, and ``batch`` given a folder)."""
+    f = click.option("--gap", type=click.FloatRange(min=0), default=None, metavar="SECONDS",
+                     help="Largest end-to-start gap within a set [default: 8 s, plus the exposure time "
+                          "after exposures of 1 s or more].")(f)
+    f = click.option("--frames-per-set", type=click.IntRange(min=1), default=None, metavar="N",
+                     help="Cut the frames, in capture order, into sets of exactly N.")(f)
+    f = click.option("-r", "--recursive", is_flag=True, help="Include subfolders.")(f)
+    return f
+
+
+def _ignore_color(ctx, param, value):
+    if value is None:
+        return None
+    parts = [p.strip() for p in str(value).split(",")]
+    try:
+        vals = tuple(int(p) for p in parts)
+    except ValueError:
+        vals = ()
+    if len(vals) != 3 or not all(0 <= v <= 255 for v in vals):
+        raise click.BadParameter(f"expected R,G,B with values 0-255, not '{value}'")
+    return vals
+
+
+def ignore_color_option(f):
+    """``--ignore-color`` alone (commands without --times), parsed to an (R, G, B) tuple."""
+    return click.option("--ignore-color", callback=_ignore_color, metavar="R,G,B",
+                        help="Treat pixels of exactly this colour (8-bit units) as invalid, e.g. 0,0,255.")(f)
+
+
+def fit_options(f):
+    f = click.option("--exposure-tolerance", type=click.FloatRange(min=0.0), default=None, metavar="STOPS",
+                     help="Report frames whose metadata the pixels contradict by more than this [default: 0.5].")(f)
+    f = click.option("--fit-exposures", type=click.Choice(["auto", "on", "off"]), default="auto",
+                     show_default=True,
+                     help="Estimate each frame's exposure from the pixels: auto uses the fitted value only "
+                          "where the metadata is clearly wrong, on always, off never.")(f)
+    return f
