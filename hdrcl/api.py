@@ -319,6 +319,7 @@ def merge_bracket(
     device: Optional[str] = None,
     fit_exposures: str = "auto",
     exposure_tolerance: Optional[float] = None,
+    deghost: bool = False,
 ) -> MergeResult:
     """Fuse a loaded :class:`Bracket`, calibrating from it when no response is given
     (then with the exposures that calibration refined, see :func:`calibrate`)."""
@@ -330,7 +331,8 @@ def merge_bracket(
                              fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance)
     t1 = _time.perf_counter()
     times = exposures_used(response, bracket.times)
-    res = fuse_frames(bracket.frames, times, response, weight=weight, valid=bracket.valid, device=device)
+    res = fuse_frames(bracket.frames, times, response, weight=weight, valid=bracket.valid, device=device,
+                      deghost=deghost)
     t2 = _time.perf_counter()
     warnings = list(response.warnings)
     if res.counts.get("no_data"):
@@ -423,6 +425,8 @@ def merge_files(
     thumbnail: int = 0,
     fit_exposures: str = "auto",
     exposure_tolerance: Optional[float] = None,
+    deghost: bool = False,
+    ghost_mask: Union[str, os.PathLike, None] = None,
 ) -> MergeResult:
     """Merge image files into a radiance file (EXR, HDR, TIFF or PFM by extension).
 
@@ -441,6 +445,11 @@ def merge_files(
     thumbnail : int
         If > 0, ``result.thumbnail`` holds every k-th pixel of the radiance, with the
         long side about this many pixels (for previews).
+    deghost : bool
+        Take pixels where the frames disagree (moving objects) from the middle exposure
+        alone (:mod:`hdrcl.deghost`); ``result.counts["ghost"]`` counts them.
+    ghost_mask : path, optional
+        With ``deghost``, also write the ghost mask as an 8-bit PNG/TIFF (255 = ghost).
     """
     from .backend import get_processor
     from .io import BracketReader
@@ -491,13 +500,21 @@ def merge_files(
     has_valid = rgb is not None or any(i.nchannels in (2, 4) for i in infos)
     thumb = Thumbnail(h, w, nch, thumbnail) if thumbnail else None
     keep = ArraySink(h, w, nch) if keep_radiance else None
+    if ghost_mask is not None and not deghost:
+        raise UsageError("--ghost-mask needs --deghost")
+    mask = np.zeros((h, w), bool) if ghost_mask is not None else None
     try:
         with RadianceWriter(output, w, h, nch, dtype=dtype, compression=compression,
                             metadata=_provenance(result, source_name)) as writer:
             sink = writer if keep is None else _Tee(writer, keep)
             counts, backend = stream_merge(source, rel, resp, sink, weight=weight, ignore_color=ignore,
-                                           has_valid=has_valid, device=device, thumbnail=thumb)
+                                           has_valid=has_valid, device=device, thumbnail=thumb,
+                                           deghost=deghost, ghost_mask=mask)
         result.warnings += writer.warnings
+        if mask is not None:
+            from .writers import write_ldr
+
+            write_ldr(ghost_mask, (mask.astype(np.uint8) * 255)[..., None])
     finally:
         if hasattr(source, "close"):
             source.close()
@@ -509,6 +526,8 @@ def merge_files(
         msg = f"{output}: {counts['no_data']} pixel-channels are invalid in every frame and were set to 0"
         logger.warning(msg)
         result.warnings.append(msg)
+    if deghost:
+        logger.info("%s: ghost pixels %.2f %%", output, 100.0 * counts.get("ghost", 0) / max(h * w, 1))
     result.seconds = {"open": t1 - t0, "calibrate": t2 - t1, "fuse_and_write": _time.perf_counter() - t2}
     return result
 

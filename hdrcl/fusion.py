@@ -24,6 +24,7 @@ class FusionResult:
     radiance: np.ndarray
     counts: dict = field(default_factory=dict)
     backend: str = "opencl"
+    ghost_mask: Optional[np.ndarray] = None
 
 
 def fuse_frames(
@@ -34,8 +35,14 @@ def fuse_frames(
     weight: str = "hat",
     valid: Optional[Sequence[Optional[np.ndarray]]] = None,
     device: Optional[str] = None,
+    deghost: bool = False,
 ) -> FusionResult:
-    """Radiance map of ``frames`` with exposures ``times`` (any order) and ``response``."""
+    """Radiance map of ``frames`` with exposures ``times`` (any order) and ``response``.
+
+    ``deghost`` replaces pixels where the frames disagree by the middle exposure's own
+    estimate (:mod:`hdrcl.deghost`); ``counts`` then has ``ghost`` and
+    ``ghost_unresolved``, and ``ghost_mask`` the (H, W) mask.
+    """
     order = np.argsort(np.asarray(times, np.float64), kind="stable")
     frames = [frames[i] for i in order]
     log_t = np.log(np.asarray(times, np.float64)[order])
@@ -54,6 +61,16 @@ def fuse_frames(
     proc = get_processor("fusion", device)
     if proc is None:
         rad, counts = reference.fuse(frames, log_t, tables, wts, vals)
-        return FusionResult(rad.astype(np.float32), counts, "numpy")
-    rad, counts = proc.fuse(frames, log_t, tables, wts, vals)
-    return FusionResult(rad, counts, "opencl")
+        res = FusionResult(rad.astype(np.float32), counts, "numpy")
+    else:
+        rad, counts = proc.fuse(frames, log_t, tables, wts, vals)
+        res = FusionResult(rad, counts, "opencl")
+    if deghost:
+        from . import deghost as dg
+
+        ref = len(frames) // 2
+        mask = dg.detect(frames, log_t, tables, vals, res.radiance)
+        res.counts["ghost_unresolved"] = dg.replace(res.radiance, frames, log_t, tables, mask, vals, ref)
+        res.counts["ghost"] = int(np.count_nonzero(mask))
+        res.ghost_mask = mask
+    return res

@@ -78,6 +78,8 @@ def stream_merge(
     has_valid: Optional[bool] = None,
     device: Optional[str] = None,
     thumbnail: Optional[Thumbnail] = None,
+    deghost: bool = False,
+    ghost_mask: Optional[np.ndarray] = None,
 ):
     """Fuse every strip of ``source`` and hand it to ``sink.write_rows``.
 
@@ -97,6 +99,10 @@ def stream_merge(
     has_valid : bool, optional
         Whether any frame can have invalid pixels (alpha or ignore colour); computed
         from the first strip when None.
+    deghost : bool
+        Replace pixels where the frames disagree (:mod:`hdrcl.deghost`) by the middle
+        exposure's own estimate; ``counts`` then also holds ``ghost`` and
+        ``ghost_unresolved`` (pixels). ``ghost_mask`` (H, W) bool receives the mask.
 
     Returns
     -------
@@ -129,6 +135,8 @@ def stream_merge(
     else:
         rows = max(1, NUMPY_STRIP_PIXELS // max(source.width, 1))
     counts = {"clipped_high": 0, "clipped_low": 0, "no_data": 0}
+    ghosts = {"ghost": 0, "ghost_unresolved": 0}
+    ref = len(order) // 2  # middle exposure, in exposure order
     # Three output strips: one being fused, one being written, one queued.
     buffers = deque(np.empty((rows, source.width, nch), np.float32) for _ in range(3))
     pending: deque = deque()
@@ -151,6 +159,15 @@ def stream_merge(
                 out[...] = rad
                 for k in counts:
                     counts[k] += c[k]
+            if deghost:
+                from . import deghost as dg
+
+                vv = valid if has_valid else None
+                mask = dg.detect(frames, log_t, tables, vv, out)
+                ghosts["ghost_unresolved"] += dg.replace(out, frames, log_t, tables, mask, vv, ref)
+                ghosts["ghost"] += int(np.count_nonzero(mask))
+                if ghost_mask is not None:
+                    ghost_mask[y0:y1] = mask
             if thumbnail is not None:
                 thumbnail.add(y0, y1, out)
             pending.append(writer.submit(sink.write_rows, y0, y1, out))
@@ -158,4 +175,6 @@ def stream_merge(
             fut.result()
     if plan is not None:
         counts = plan.result_counts()
+    if deghost:
+        counts.update(ghosts)
     return counts, ("opencl" if plan is not None else "numpy")

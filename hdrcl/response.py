@@ -372,14 +372,54 @@ def recover_response(
     return _finish(zs, np.broadcast_to(log_t, zs.shape[:2]), None, bits, smoothness, weight, seed, channels)
 
 
+#: A sample whose residual (weighted RMS over its frames, ln units) exceeds this many
+#: times the median sample's, and 0.1, is dropped before a second solve: a pixel that
+#: moved between frames, or sits on an edge that misregistration smears, must not bend
+#: the curve.
+OUTLIER_FACTOR = 4.0
+
+
+def _sample_residuals(z, log_t, usable, g_tables, weight, levels):
+    """Weighted RMS residual of each sample under curves ``g_tables`` (C, levels)."""
+    nch = z.shape[2]
+    res = np.zeros(z.shape[0])
+    for ch in range(nch):
+        zc = z[:, :, ch].astype(np.int64)
+        w = weight_values(zc, levels, weight)
+        if usable is not None:
+            w = np.where(usable, w, 0.0)
+        x = g_tables[ch][zc] - log_t
+        sw = w.sum(axis=1)
+        ln_e = np.where(sw > 0, (w * x).sum(axis=1) / np.maximum(sw, 1e-12), 0.0)
+        r2 = (w * (x - ln_e[:, None]) ** 2).sum(axis=1) / np.maximum(sw, 1e-12)
+        res = np.maximum(res, np.sqrt(r2))
+    return res
+
+
 def _finish(zs, log_t, usable, bits, smoothness, weight, seed, channels) -> Response:
     nch = zs.shape[2]
     smoothness = _check_smoothness(smoothness, weight)
     knots = knot_positions(bits)
-    g = np.stack([solve_curve(zs[:, :, ch], log_t, bits, smoothness, weight, usable) for ch in range(nch)])
+
+    def solve(keep):
+        u = None if usable is None else usable[keep]
+        return np.stack([solve_curve(zs[keep][:, :, ch], log_t[keep], bits, smoothness, weight, u)
+                         for ch in range(nch)])
+
+    keep = np.ones(zs.shape[0], bool)
+    g = solve(keep)
+    probe = Response(bits=bits, g=g, knots=knots, channels=("R", "G", "B")[:nch] if nch == 3 else ("Y",) * nch)
+    res = _sample_residuals(zs, log_t, usable, probe.tables(), weight, 1 << bits)
+    limit = max(OUTLIER_FACTOR * float(np.median(res)), 0.1)
+    outliers = res > limit
+    if outliers.any() and outliers.mean() < 0.5:
+        keep = ~outliers
+        g = solve(keep)
+        logger.info("response: dropped %d of %d samples as outliers (residual > %.3f)",
+                    int(outliers.sum()), outliers.size, limit)
     names = tuple(channels) if channels else (("R", "G", "B")[:nch] if nch == 3 else tuple(f"Y{c}" if c else "Y" for c in range(nch)))
     resp = Response(bits=bits, g=g, knots=knots, channels=names, smoothness=float(smoothness),
-                    weight=weight, samples=int(zs.shape[0]), seed=int(seed))
+                    weight=weight, samples=int(keep.sum()), seed=int(seed))
     resp.warnings.extend(resp.monotonic_problems())
     for wmsg in resp.warnings:
         logger.warning(wmsg)

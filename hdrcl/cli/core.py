@@ -82,10 +82,13 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
 @solve_options
 @weight_option
 @fit_options
+@click.option("--deghost", is_flag=True,
+              help="Take pixels where the frames disagree (moving objects) from the middle exposure alone.")
+@click.option("--ghost-mask", type=click.Path(dir_okay=False), help="With --deghost: write the ghost mask (PNG).")
 @output_options
 @device_option
 def merge(images, output, response, save_response, times, times_file, ignore_color, samples, smoothness,
-          seed, weight, fit_exposures, exposure_tolerance, dtype, compression, device):
+          seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, dtype, compression, device):
     """Merge one bracket set into a radiance map."""
     from ..api import merge_files
     from ..metadata import format_time
@@ -93,7 +96,7 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
     res = merge_files(list(images), output, times=times, times_file=times_file, response=response,
                       weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness, seed=seed,
                       dtype=dtype, compression=compression, device=device, fit_exposures=fit_exposures,
-                      exposure_tolerance=exposure_tolerance)
+                      exposure_tolerance=exposure_tolerance, deghost=deghost, ghost_mask=ghost_mask)
     if save_response:
         res.response.save(save_response)
     h, w_, c = res.shape
@@ -102,6 +105,10 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
                f"({format_time(min(res.times))} .. {format_time(max(res.times))}), "
                f"{'OpenCL' if res.backend == 'opencl' else 'NumPy'}, {total:.2f} s")
     cnt = res.counts
+    if deghost:
+        click.echo(f"  ghosts: {100.0 * cnt.get('ghost', 0) / max(h * w_, 1):.2f} % of pixels taken from the "
+                   f"middle exposure" + (f" ({cnt['ghost_unresolved']} pixel-channels unresolved)"
+                                         if cnt.get("ghost_unresolved") else ""))
     if cnt.get("clipped_high") or cnt.get("clipped_low"):
         click.echo(f"  clipped in every frame: {cnt['clipped_high']} high, {cnt['clipped_low']} low (pixel-channels)")
 
