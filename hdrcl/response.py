@@ -376,7 +376,7 @@ def recover_response(
 #: times the median sample's, and 0.1, is dropped before a second solve: a pixel that
 #: moved between frames, or sits on an edge that misregistration smears, must not bend
 #: the curve.
-OUTLIER_FACTOR = 4.0
+OUTLIER_FACTOR = 6.0
 
 
 def _sample_residuals(z, log_t, usable, g_tables, weight, levels):
