@@ -430,6 +430,9 @@ def merge_files(
     exposure_tolerance: Optional[float] = None,
     deghost: bool = False,
     ghost_mask: Union[str, os.PathLike, None] = None,
+    neutral=None,
+    reference_patch=None,
+    absolute: bool = False,
 ) -> MergeResult:
     """Merge image files into a radiance file (EXR, HDR, TIFF or PFM by extension).
 
@@ -453,6 +456,13 @@ def merge_files(
         alone (:mod:`hdrcl.deghost`); ``result.counts["ghost"]`` counts them.
     ghost_mask : path, optional
         With ``deghost``, also write the ghost mask as an 8-bit PNG/TIFF (255 = ghost).
+    neutral : "x,y,w,h", optional
+        White balance: scale the channels so this patch comes out neutral
+        (:mod:`hdrcl.radiometry`).
+    reference_patch : "x,y,w,h=VALUE", optional
+        Absolute scale: the patch's mean luminance becomes VALUE (cd/m^2).
+    absolute : bool
+        Approximate absolute scale (cd/m^2) from the first frame's f-number and ISO.
     """
     from .backend import get_processor
     from .io import BracketReader
@@ -506,10 +516,17 @@ def merge_files(
     if ghost_mask is not None and not deghost:
         raise UsageError("--ghost-mask needs --deghost")
     mask = np.zeros((h, w), bool) if ghost_mask is not None else None
+    factors, units = _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, nch,
+                                          neutral, reference_patch, absolute)
     try:
-        with RadianceWriter(output, w, h, nch, dtype=dtype, compression=compression,
-                            metadata=_provenance(result, source_name)) as writer:
+        meta = _provenance(result, source_name)
+        meta.update(units)
+        with RadianceWriter(output, w, h, nch, dtype=dtype, compression=compression, metadata=meta) as writer:
             sink = writer if keep is None else _Tee(writer, keep)
+            if factors is not None:
+                from .radiometry import ScaledSink
+
+                sink = ScaledSink(sink, factors)
             counts, backend = stream_merge(source, rel, resp, sink, weight=weight, ignore_color=ignore,
                                            has_valid=has_valid, device=device, thumbnail=thumb,
                                            deghost=deghost, ghost_mask=mask)
@@ -535,6 +552,57 @@ def merge_files(
     return result
 
 
+def _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, nch, neutral, reference_patch,
+                         absolute):
+    """Per-channel factors (or None) and metadata for white balance and absolute scale."""
+    from . import radiometry as rm
+
+    if reference_patch is not None and absolute:
+        raise UsageError("--absolute and --reference-patch both set the scale; give one")
+    units = {"units": "relative"}
+    if neutral is None and reference_patch is None and not absolute:
+        return None, units
+    h, w = infos[0].height, infos[0].width
+    factors = np.ones(nch)
+
+    def patch_radiance(patch):
+        from .fusion import fuse_frames
+
+        x, y, pw, ph = patch
+        if hasattr(source, "frames"):  # in memory already
+            frames = [f[y:y + ph, x:x + pw] for f in source.frames]
+            valid = [None if v is None else v[y:y + ph, x:x + pw] for v in source.valid]
+        else:
+            from .io import BracketReader
+
+            with BracketReader(paths, infos) as reader:
+                fs, vs = reader.read_rows(y, y + ph)
+            frames = [np.ascontiguousarray(f[:, x:x + pw]) for f in fs]
+            valid = _with_ignore(frames, [None if v is None else v[:, x:x + pw] for v in vs], rgb)
+        return fuse_frames(frames, rel, resp, weight=weight, valid=valid, device=device).radiance
+
+    if neutral is not None:
+        patch = rm.parse_patch(neutral, "--neutral")
+        rm.check_patch(patch, h, w, "--neutral")
+        gains = rm.neutral_gains(patch_radiance(patch))
+        factors *= gains
+        units["whiteBalance"] = [round(float(g), 6) for g in gains]
+    if reference_patch is not None:
+        patch, value = rm.parse_reference_patch(reference_patch)
+        rm.check_patch(patch, h, w, "--reference-patch")
+        scale = rm.patch_scale(patch_radiance(patch) * factors, value)
+        factors *= scale
+        units.update({"units": "cd/m2", "scaleSource": f"reference patch {patch} = {value:g} cd/m2",
+                      "scale": float(scale)})
+    elif absolute:
+        scale = rm.exif_scale(infos[0].fnumber, infos[0].iso)
+        factors *= scale
+        units.update({"units": "cd/m2 (approximate)",
+                      "scaleSource": f"K N^2/ISO, K={rm.METER_K:g}, N={infos[0].fnumber:g}, ISO={infos[0].iso:g}",
+                      "scale": float(scale)})
+    return factors, units
+
+
 class _Tee:
     def __init__(self, *sinks):
         self.sinks = sinks
@@ -552,8 +620,13 @@ def expose_file(
     *,
     bits: Optional[int] = None,
     device: Optional[str] = None,
+    motion_blur: Optional[tuple] = None,
 ) -> np.ndarray:
-    """Render a radiance file as a virtual photograph file (JPEG, PNG or TIFF)."""
+    """Render a radiance file as a virtual photograph file (JPEG, PNG or TIFF).
+
+    ``motion_blur=(dx, dy)`` first blurs the radiance along that vector
+    (:func:`hdrcl.radiometry.motion_blur`), as a camera moving during the exposure would.
+    """
     from .writers import LDR_EXTENSIONS, read_radiance, write_ldr
 
     output = os.fspath(output)
@@ -564,6 +637,10 @@ def expose_file(
         raise UsageError(f"{output}: JPEG holds 8 bits; use .png or .tif for 16-bit output")
     resp = _as_response(response)
     rad, _meta = read_radiance(radiance_path)
+    if motion_blur is not None:
+        from .radiometry import motion_blur as _blur
+
+        rad = _blur(rad, *motion_blur)
     if ext in (".jpg", ".jpeg"):
         bits = 8
     img = expose(rad, resp, time, bits=bits, device=device)

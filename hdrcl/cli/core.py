@@ -85,10 +85,16 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
 @click.option("--deghost", is_flag=True,
               help="Take pixels where the frames disagree (moving objects) from the middle exposure alone.")
 @click.option("--ghost-mask", type=click.Path(dir_okay=False), help="With --deghost: write the ghost mask (PNG).")
+@click.option("--neutral", metavar="X,Y,W,H", help="White balance: make this patch (pixels) neutral grey.")
+@click.option("--reference-patch", metavar="X,Y,W,H=VALUE",
+              help="Absolute scale: this patch's mean luminance is VALUE cd/m^2.")
+@click.option("--absolute", is_flag=True,
+              help="Approximate absolute scale (cd/m^2) from f-number and ISO (meter constant K = 12.5).")
 @output_options
 @device_option
 def merge(images, output, response, save_response, times, times_file, ignore_color, samples, smoothness,
-          seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, dtype, compression, device):
+          seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, neutral, reference_patch, absolute,
+          dtype, compression, device):
     """Merge one bracket set into a radiance map."""
     from ..api import merge_files
     from ..metadata import format_time
@@ -96,7 +102,8 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
     res = merge_files(list(images), output, times=times, times_file=times_file, response=response,
                       weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness, seed=seed,
                       dtype=dtype, compression=compression, device=device, fit_exposures=fit_exposures,
-                      exposure_tolerance=exposure_tolerance, deghost=deghost, ghost_mask=ghost_mask)
+                      exposure_tolerance=exposure_tolerance, deghost=deghost, ghost_mask=ghost_mask,
+                      neutral=neutral, reference_patch=reference_patch, absolute=absolute)
     if save_response:
         res.response.save(save_response)
     h, w_, c = res.shape
@@ -121,12 +128,24 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
               help="Exposure time of the virtual photograph, e.g. 1/30.")
 @click.option("--bits", type=click.Choice(["8", "16"]), default=None,
               help="Output depth [default: the response's; JPEG is always 8].")
+@click.option("--motion-blur", metavar="DX,DY", default=None,
+              help="Blur the radiance along this vector (pixels) before the exposure, as a moving camera would.")
 @device_option
-def expose(radiance, output, response, time_, bits, device):
+def expose(radiance, output, response, time_, bits, motion_blur, device):
     """Render a virtual photograph from a radiance map."""
     from ..api import expose_file
+    from ..errors import UsageError
 
-    img = expose_file(radiance, output, response, time_, bits=int(bits) if bits else None, device=device)
+    blur = None
+    if motion_blur is not None:
+        try:
+            blur = tuple(float(v) for v in motion_blur.split(","))
+        except ValueError:
+            blur = ()
+        if len(blur) != 2:
+            raise UsageError(f"--motion-blur: expected DX,DY in pixels, not '{motion_blur}'")
+    img = expose_file(radiance, output, response, time_, bits=int(bits) if bits else None, device=device,
+                      motion_blur=blur)
     click.echo(f"wrote {output}: {img.shape[1]}x{img.shape[0]}, {8 * img.dtype.itemsize}-bit")
 
 
