@@ -1,0 +1,85 @@
+"""Streaming merge: files decoded, fused and written strip by strip."""
+import numpy as np
+import pytest
+
+import hdrcl
+from hdrcl import synthetic as s
+from hdrcl.errors import ProcessingError
+from hdrcl.writers import RadianceWriter, read_radiance
+
+
+@pytest.fixture()
+def files(tmp_path):
+    from hdrcl.writers import write_ldr
+
+    cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
+    rad = s.radiance_field(131, 97, decades=4.0, seed=8)
+    times = s.stops(5, 2.0, centre=1.0 / float(np.median(rad)))
+    paths = []
+    for k, img in enumerate(s.bracket(rad, times, cam, noise=0.5, seed=3)):
+        alpha = np.full(img.shape[:2] + (1,), 255, np.uint8)
+        alpha[:4, :7] = 0  # some pixels carry no measurement in this frame
+        p = tmp_path / f"f{k}.png"
+        write_ldr(str(p), np.concatenate([img, alpha], axis=2))
+        paths.append(str(p))
+    return paths, [float(t) for t in times], tmp_path
+
+
+@pytest.mark.parametrize("budget", ["1024", "0.01"])  # in memory, and two passes
+def test_file_merge_equals_in_memory_merge(files, budget, monkeypatch, cl_device):
+    import hdrcl.cl.processing as proc
+
+    paths, times, d = files
+    monkeypatch.setenv("HDRCL_MEMORY_MB", budget)
+    monkeypatch.setattr(proc, "STRIP_PIXELS", 1000)  # many strips, a ragged last one
+    from hdrcl.backend import _processors
+
+    _processors.clear()
+    res = hdrcl.merge_files(paths, d / "out.exr", times=times, dtype="float", keep_radiance=True,
+                            ignore_color=(0, 0, 255))
+    _processors.clear()
+    whole = hdrcl.merge(paths, times=times, ignore_color=(0, 0, 255))
+    np.testing.assert_allclose(res.radiance, whole, rtol=1e-6)
+    back, meta = read_radiance(str(d / "out.exr"))
+    np.testing.assert_array_equal(back, res.radiance)
+    assert res.radiance is not None and res.shape == (131, 97, 3)
+
+
+def test_writer_is_atomic_on_failure(tmp_path):
+    target = tmp_path / "r.exr"
+    target.write_bytes(b"old")
+    w = RadianceWriter(target, 10, 8, 3)
+    w.write_rows(0, 4, np.ones((4, 10, 3), np.float32))
+    with pytest.raises(ValueError):
+        w.close()  # rows 4..8 missing
+    assert target.read_bytes() == b"old"
+    assert [p.name for p in tmp_path.iterdir()] == ["r.exr"]
+
+
+@pytest.mark.parametrize("ext", ["exr", "hdr", "tif", "pfm"])
+def test_writer_formats_round_trip(tmp_path, ext):
+    img = np.random.default_rng(0).uniform(0.01, 50, (23, 17, 3)).astype(np.float32)
+    p = tmp_path / f"x.{ext}"
+    with RadianceWriter(p, 17, 23, 3, dtype="float") as w:
+        for y0 in range(0, 23, 5):
+            w.write_rows(y0, min(23, y0 + 5), img[y0:y0 + 5].copy())
+    back, _ = read_radiance(str(p))
+    if ext == "hdr":  # RGBE: one shared exponent, so error scales with the brightest channel
+        assert np.all(np.abs(back - img) <= 0.01 * img.max(axis=2, keepdims=True))
+    else:
+        np.testing.assert_allclose(back, img, rtol=1e-6)
+
+
+def test_rows_out_of_order(tmp_path):
+    w = RadianceWriter(tmp_path / "y.exr", 4, 4, 1)
+    with pytest.raises(ValueError):
+        w.write_rows(2, 4, np.zeros((2, 4, 1), np.float32))
+    w.abort()
+    assert not list(tmp_path.iterdir())
+
+
+def test_thumbnail_is_a_subsample(files, cl_device):
+    paths, times, d = files
+    res = hdrcl.merge_files(paths, d / "t.exr", times=times, dtype="float", keep_radiance=True, thumbnail=30)
+    stride = int(np.ceil(131 / 30))
+    np.testing.assert_array_equal(res.thumbnail, res.radiance[::stride, ::stride])
