@@ -114,3 +114,10 @@ def fit_options(f):
                      help="Estimate each frame's exposure from the pixels: auto uses the fitted value only "
                           "where the metadata is clearly wrong, on always, off never.")(f)
     return f
+
+
+def deghost_option(f):
+    """``--deghost`` (the flag alone; ``merge`` adds ``--ghost-mask`` for its one output)."""
+    return click.option("--deghost", is_flag=True,
+                        help="Take pixels where the frames disagree (moving objects) from the middle "
+                             "exposure alone.")(f)

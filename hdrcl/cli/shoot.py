@@ -1,0 +1,245 @@
+"""Commands on a whole shoot: scan, batch, sample-shoot.
+
+Exit codes of ``batch``: 0 every selected set done or skipped; 1 some set (or, for
+a whole-folder run, some input file) failed while the rest completed; 2 usage error;
+3 the folder, manifest or response file cannot be read.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+
+import click
+
+from . import main
+from .options import (deghost_option, device_option, grouping_options, ignore_color_option, output_options,
+                      solve_options, weight_option)
+
+
+# ------------------------------------------------------------------------- scan
+
+
+@main.command()
+@click.argument("source", type=click.Path())
+@grouping_options
+@click.option("-o", "--output", type=click.Path(dir_okay=False),
+              help="Write the manifest (JSON, paths relative to its folder) for 'hdrcl batch'.")
+@click.option("--json", "as_json", is_flag=True, help="Print the grouping as one JSON object.")
+@click.pass_context
+def scan(ctx, source, recursive, frames_per_set, gap, output, as_json):
+    """Group the photographs of a folder into bracket sets.
+
+    SOURCE is a folder, or a manifest written by 'scan -o' (possibly edited by hand:
+    move files between sets, split or join sets, add "exposures"), which is then
+    checked and shown. Exit code 1 when a set of a manifest cannot be merged.
+
+    \b
+    hdrcl scan shoot/ -o shoot/manifest.json
+    hdrcl scan shoot/manifest.json          # after editing it
+    """
+    from ..batch import check_manifest, load_source
+    from ..grouping import format_table, save_manifest
+
+    manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap)
+    problems = {} if os.path.isdir(source) else check_manifest(manifest)
+    if output:
+        save_manifest(manifest, output)
+    if as_json:
+        d = manifest.to_dict()
+        for s in d["sets"]:
+            if s["index"] in problems:
+                s["problem"] = problems[s["index"]]
+        click.echo(json.dumps(d, indent=1))
+    else:
+        click.echo(format_table(manifest))
+        for i in sorted(problems):
+            click.echo(f"set {i} cannot be merged: {problems[i]}")
+    if output:
+        click.echo(f"wrote {output}: {len(manifest.sets)} set(s)", err=as_json)
+    if problems:
+        ctx.exit(1)
+
+
+# ------------------------------------------------------------------------ batch
+
+
+class _Progress:
+    """A progress bar on a terminal, one plain line per set otherwise (farm logs).
+
+    Both go to stderr so that stdout carries only the summary (or the JSON report).
+    """
+
+    def __init__(self, stream, tty: bool, quiet: bool):
+        self.stream, self.tty, self.quiet = stream, tty, quiet
+        self.total = 0
+        self.counts = {"done": 0, "skipped": 0, "failed": 0}
+        self.t0 = time.monotonic()
+        self.drawn = False
+
+    def __call__(self, res, completed: int, total: int):
+        self.total = total
+        if res is None:
+            self.t0 = time.monotonic()
+            if self.tty and not self.quiet and total:
+                self._draw(0)
+            return
+        self.counts[res.status] = self.counts.get(res.status, 0) + 1
+        name = os.path.basename(res.output or res.files[0])
+        if self.tty:
+            if res.status == "failed":
+                self._clear()
+                self.stream.write(f"hdrcl: set {res.index} ({name}) failed: {res.error}\n")
+            if not self.quiet:
+                self._draw(completed)
+        elif not self.quiet or res.status == "failed":
+            width = len(str(total))
+            line = (f"hdrcl: [{completed:{width}d}/{total}] set {res.index} {name}: {res.status} "
+                    f"({res.seconds.get('total', 0.0):.2f} s)")
+            if res.error:
+                line += f": {res.error}"
+            self.stream.write(line + "\n")
+            self.stream.flush()
+
+    def _clear(self):
+        if self.drawn:
+            self.stream.write("\r\033[K")
+            self.drawn = False
+
+    def _draw(self, completed: int):
+        width = 24
+        fill = int(width * completed / self.total) if self.total else width
+        elapsed = time.monotonic() - self.t0
+        eta = f", {elapsed / completed * (self.total - completed):.0f} s left" if 0 < completed < self.total else ""
+        c = self.counts
+        self.stream.write(f"\r\033[K[{'#' * fill}{'-' * (width - fill)}] {completed}/{self.total} sets "
+                          f"({c['done']} done, {c['skipped']} skipped, {c['failed']} failed{eta})")
+        self.stream.flush()
+        self.drawn = True
+
+    def close(self):
+        if self.tty and self.drawn:
+            self.stream.write("\n")
+            self.stream.flush()
+            self.drawn = False
+
+
+@main.command()
+@click.argument("source", type=click.Path())
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Output folder (created): one EXR and one JPEG preview per set, report.json.")
+@click.option("--response", type=click.Path(dir_okay=False),
+              help="Response JSON for every set [default: calibrate one per camera and ISO, pooled over the shoot].")
+@click.option("--sets", "sets", metavar="A-B[,C...]",
+              help="Only these manifest indices (ranges are clamped to the sets that exist), "
+                   "e.g. a farm chunk #START#-#END#.")
+@click.option("-j", "--jobs", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Worker processes (1: one process, reading, fusing and writing overlapped).")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="Run the sets on this Dask cluster, e.g. tcp://head:8786 (pip install 'hdrcl[dask]').")
+@click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
+              help="With --scheduler: retries of a task that failed unexpectedly.")
+@click.option("--force", is_flag=True, help="Rebuild outputs that are already up to date.")
+@click.option("--calibrate-only", is_flag=True,
+              help="Only solve (or load) and save the responses, e.g. once before submitting farm chunks.")
+@click.option("--report", type=click.Path(dir_okay=False),
+              help="Write the JSON report here [default: OUT_DIR/report.json].")
+@click.option("--json", "as_json", is_flag=True, help="Print the report JSON on stdout.")
+@click.option("--preview/--no-preview", default=True, show_default=True,
+              help="Write a tone-mapped JPEG beside each EXR.")
+@click.option("--preview-size", type=click.IntRange(min=16), default=512, show_default=True, metavar="PIXELS",
+              help="Long side of the previews.")
+@grouping_options
+@solve_options
+@weight_option
+@ignore_color_option
+@deghost_option
+@output_options
+@device_option
+@click.pass_context
+def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force, calibrate_only, report,
+          as_json, preview, preview_size, recursive, frames_per_set, gap, samples, smoothness, seed, weight,
+          ignore_color, deghost, dtype, compression, device):
+    """Merge every bracket set of a folder or manifest into OUT_DIR.
+
+    SOURCE is a folder of photographs (grouped as 'hdrcl scan' does) or a manifest
+    from 'hdrcl scan -o'. Each set becomes OUT_DIR/<first frame>.exr plus a JPEG
+    preview; outputs that are already up to date are skipped, so an interrupted run
+    is finished by running it again.
+
+    \b
+    Exit codes: 0 every set done or skipped; 1 some sets failed (the others
+    completed; see report.json); 2 usage error; 3 unreadable folder, manifest
+    or response file.
+    """
+    from ..batch import BatchOptions, run_batch
+
+    quiet = bool((ctx.find_root().params or {}).get("quiet"))
+    opts = BatchOptions(weight=weight, samples=samples, smoothness=smoothness, seed=seed,
+                        ignore_color=ignore_color, deghost=deghost, dtype=dtype, compression=compression,
+                        preview=preview, preview_size=preview_size, device=device)
+    progress = _Progress(sys.stderr, sys.stderr.isatty(), quiet)
+    try:
+        rep = run_batch(source, out_dir, options=opts, sets=sets, response=response, jobs=jobs,
+                        scheduler=scheduler, retries=retries, force=force, report=report,
+                        calibrate_only=calibrate_only, recursive=recursive, frames_per_set=frames_per_set,
+                        gap=gap, progress=progress)
+    finally:
+        progress.close()
+    if as_json:
+        click.echo(json.dumps(rep.to_dict(), indent=1))
+    elif calibrate_only:
+        for r in rep.responses:
+            state = f"error: {r.error}" if r.error else f"{r.source} {r.file}"
+            click.echo(f"{r.group}: {state}")
+    else:
+        _summary(rep)
+    if calibrate_only:
+        ctx.exit(1 if any(r.error for r in rep.responses) else 0)
+    ctx.exit(rep.exit_code)
+
+
+def _summary(rep) -> None:
+    n = len(rep.results)
+    if n == 0:
+        click.echo("no bracket sets to merge" + (f"; report: {rep.path}" if rep.path else ""))
+    else:
+        click.echo(f"{n} set(s): {rep.count('done')} done, {rep.count('skipped')} skipped, "
+                   f"{rep.count('failed')} failed in {rep.seconds:.1f} s; report: {rep.path}")
+    for r in rep.results:
+        if r.status == "failed":
+            click.echo(f"  failed: set {r.index} ({os.path.basename(r.files[0])}): {r.error}")
+    for r in rep.responses:
+        if r.error:
+            click.echo(f"  no response for {r.group}: {r.error}")
+    if rep.unreadable:
+        click.echo(f"  unreadable, not merged: {', '.join(os.path.basename(f) for f in rep.unreadable)}")
+    others = [u for u in rep.unmerged if not u["reason"].startswith("corrupt")]
+    if others:
+        click.echo(f"  {len(others)} group(s) not merged (single frames and the like; see report)")
+
+
+# ------------------------------------------------------------------ sample-shoot
+
+
+@main.command("sample-shoot")
+@click.argument("folder", type=click.Path(file_okay=False))
+@click.option("--size", default="192x128", show_default=True, metavar="WxH", help="Size of each photograph.")
+@click.option("--seed", type=int, default=0, show_default=True)
+def sample_shoot(folder, size, seed):
+    """Write a small sample shoot of JPEGs with EXIF to try scan and batch on.
+
+    \b
+    hdrcl sample-shoot shoot/ && hdrcl batch shoot/ -o out/
+    """
+    from ..errors import UsageError
+    from ..sample import write_sample_shoot
+
+    try:
+        w, h = (int(v) for v in size.lower().split("x"))
+    except ValueError:
+        raise UsageError(f"--size: expected WxH, not '{size}'") from None
+    paths = write_sample_shoot(folder, width=w, height=h, seed=seed)
+    click.echo(f"wrote {len(paths)} photographs to {folder} (3 bracket sets and a stray frame)")
+    click.echo(f"next: hdrcl scan {folder}   or   hdrcl batch {folder} -o hdr/")
