@@ -649,3 +649,43 @@ def expose_file(
     write_ldr(output, img, metadata={"exposure": float(time), "exposureText": format_time(time),
                                      "source": os.path.basename(os.fspath(radiance_path))})
     return img
+
+
+def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *, ignore_color=None,
+                         weight: str = "hat", device: Optional[str] = None, name: Optional[str] = None,
+                         loo: bool = True):
+    """Quality figures of a file merge and their report in ``folder``.
+
+    Writes the response plot, coverage map, preview and JSON of the set, and an
+    ``index.html`` contact sheet (:mod:`hdrcl.report`). The frames are read again: whole
+    when they fit :func:`memory_budget`, else as the sampling grid (the clipping and
+    coverage figures are then on that grid).
+
+    Returns
+    -------
+    (QualityFigures, ReportEntry)
+    """
+    from .io import BracketReader
+    from .quality import measure
+    from .report import write_contact_sheet, write_set_report
+    from .sampling import grid_stride
+
+    folder = os.fspath(folder)
+    os.makedirs(folder, exist_ok=True)
+    paths = result.paths
+    infos = read_infos(paths)
+    rgb = _parse_ignore_color(ignore_color)
+    h, w, c = result.shape
+    with BracketReader(paths, infos) as reader:
+        if len(paths) * h * w * c * reader.dtype.itemsize <= memory_budget():
+            frames, valid = reader.read_all()
+        else:
+            frames, valid = reader.read_grid(grid_stride(h, w))
+    br = Bracket(frames=frames, times=np.asarray(result.times), valid=_with_ignore(frames, valid, rgb),
+                 paths=paths, infos=infos)
+    preview = result.thumbnail if result.thumbnail is not None else result.radiance
+    fig = measure(br, result.response, preview, weight=weight, times=result.times, device=device, loo=loo)
+    stem = name or os.path.splitext(os.path.basename(result.output or paths[0]))[0]
+    entry = write_set_report(folder, stem, fig, result.response, preview, fig.coverage, warnings=result.warnings)
+    write_contact_sheet(folder, [entry])
+    return fig, entry

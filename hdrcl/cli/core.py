@@ -90,11 +90,13 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
               help="Absolute scale: this patch's mean luminance is VALUE cd/m^2.")
 @click.option("--absolute", is_flag=True,
               help="Approximate absolute scale (cd/m^2) from f-number and ISO (meter constant K = 12.5).")
+@click.option("--report", "report", type=click.Path(file_okay=False),
+              help="Write a quality report here: response plot, coverage map, preview, figures, index.html.")
 @output_options
 @device_option
 def merge(images, output, response, save_response, times, times_file, ignore_color, samples, smoothness,
           seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, neutral, reference_patch, absolute,
-          dtype, compression, device):
+          report, dtype, compression, device):
     """Merge one bracket set into a radiance map."""
     from ..api import merge_files
     from ..metadata import format_time
@@ -103,7 +105,8 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
                       weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness, seed=seed,
                       dtype=dtype, compression=compression, device=device, fit_exposures=fit_exposures,
                       exposure_tolerance=exposure_tolerance, deghost=deghost, ghost_mask=ghost_mask,
-                      neutral=neutral, reference_patch=reference_patch, absolute=absolute)
+                      neutral=neutral, reference_patch=reference_patch, absolute=absolute,
+                      thumbnail=512 if report else 0)
     if save_response:
         res.response.save(save_response)
     h, w_, c = res.shape
@@ -118,6 +121,14 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
                                          if cnt.get("ghost_unresolved") else ""))
     if cnt.get("clipped_high") or cnt.get("clipped_low"):
         click.echo(f"  clipped in every frame: {cnt['clipped_high']} high, {cnt['clipped_low']} low (pixel-channels)")
+    if report:
+        from ..api import write_quality_report
+        from ..report import format_figures
+
+        fig, _entry = write_quality_report(res, report, ignore_color=ignore_color, weight=weight, device=device)
+        click.echo(f"quality report: {os.path.join(report, 'index.html')}")
+        for label, text in format_figures(fig):
+            click.echo(f"  {label}: {text}")
 
 
 @main.command()

@@ -1,0 +1,564 @@
+"""The quality report: figures and pictures per merged set, and an HTML contact sheet.
+
+For each set, :func:`write_set_report` writes into a report folder::
+
+    <name>-response.png   the response curves g(z) per channel, with the working range
+    <name>-coverage.png   how many frames measure each pixel, with a legend strip
+    <name>-preview.jpg    a tone-mapped preview (Reinhard 2002, :mod:`hdrcl.preview`)
+    <name>.json           the figures of :func:`hdrcl.quality.measure`
+
+and :func:`write_contact_sheet` writes ``index.html``: one card per set (failed sets
+too, with their reason) showing the preview, the figures and the two plots. The page is
+static and self-contained (inline CSS, relative links; the folder can be moved or
+served as is), every text is HTML-escaped, and every file is written atomically.
+
+The plots are rasterised here with NumPy (lines, ticks and a 3x5 pixel font) and
+written with :func:`hdrcl.writers.write_ldr`, so the report needs no plotting library.
+"""
+from __future__ import annotations
+
+import html
+import json
+import logging
+import os
+import re
+import urllib.parse
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Sequence, Union
+
+import numpy as np
+
+from .quality import NO_DATA, WORKING_HIGH, WORKING_LOW, QualityFigures
+from .response import Response
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["ReportEntry", "write_set_report", "load_set_report", "write_contact_sheet", "format_figures",
+           "response_plot", "coverage_image", "INDEX_NAME", "REPORT_FORMAT"]
+
+#: File name of the contact sheet.
+INDEX_NAME = "index.html"
+#: ``format`` of the per-set JSON files.
+REPORT_FORMAT = "hdrcl-quality"
+REPORT_VERSION = 1
+#: Long side of the preview and of the coverage map, in pixels.
+IMAGE_SIZE = 512
+
+STATUS_DONE, STATUS_SKIPPED, STATUS_FAILED = "done", "skipped", "failed"
+
+
+@dataclass
+class ReportEntry:
+    """One set of the contact sheet.
+
+    ``files`` maps ``response``, ``coverage``, ``preview``, ``json`` to file names
+    relative to the report folder (those written). A failed set has ``status`` "failed",
+    its ``error`` and usually no figures.
+    """
+
+    name: str
+    status: str = STATUS_DONE
+    figures: Optional[QualityFigures] = None
+    files: Dict[str, str] = field(default_factory=dict)
+    warnings: List[str] = field(default_factory=list)
+    error: Optional[str] = None
+
+    def to_dict(self) -> dict:
+        return {"format": REPORT_FORMAT, "version": REPORT_VERSION, "name": self.name, "status": self.status,
+                "error": self.error, "warnings": list(self.warnings), "files": dict(self.files),
+                "figures": None if self.figures is None else self.figures.to_dict()}
+
+
+def file_stem(name: str) -> str:
+    """A file-name-safe stem for a set name (letters, digits, ``._-``; no leading dot)."""
+    stem = re.sub(r"[^A-Za-z0-9._-]+", "_", str(name)).lstrip(".")
+    return stem or "set"
+
+
+# --------------------------------------------------------------------------- raster drawing
+
+# 3x5 pixel glyphs, one string of 15 bits (rows top to bottom) per character.
+_GLYPHS = {
+    "0": "111101101101111", "1": "010110010010111", "2": "111001111100111", "3": "111001111001111",
+    "4": "101101111001001", "5": "111100111001111", "6": "111100111101111", "7": "111001001010010",
+    "8": "111101111101111", "9": "111101111001111", "-": "000000111000000", ".": "000000000000010",
+    "+": "000010111010000", "=": "000111000111000", "(": "010100100100010", ")": "010001001001010",
+    "/": "001001010100100", ":": "000010000010000", "%": "101001010100101", " ": "000000000000000",
+    "A": "010101111101101", "B": "110101110101110", "C": "011100100100011", "D": "110101101101110",
+    "E": "111100110100111", "F": "111100110100100", "G": "011100101101011", "H": "101101111101101",
+    "I": "111010010010111", "J": "001001001101010", "K": "101101110101101", "L": "100100100100111",
+    "M": "101111111101101", "N": "110101101101101", "O": "010101101101010", "P": "110101110100100",
+    "Q": "010101101110011", "R": "110101110101101", "S": "011100010001110", "T": "111010010010010",
+    "U": "101101101101111", "V": "101101101101010", "W": "101101111111101", "X": "101101010101101",
+    "Y": "101101010010010", "Z": "111001010100111",
+}
+_FONT_SCALE = 2
+_ADVANCE = 4 * _FONT_SCALE  # glyph width 3 + 1 spacing
+_TEXT_HEIGHT = 5 * _FONT_SCALE
+
+_BLACK = (0, 0, 0)
+_GRID = (225, 225, 225)
+_SHADE = (242, 242, 242)
+_CURVE_COLOURS = {"R": (205, 40, 40), "G": (30, 150, 50), "B": (40, 80, 210)}
+_GREY_CURVE = (60, 60, 60)
+
+
+def _text_width(s: str) -> int:
+    return len(s) * _ADVANCE - _FONT_SCALE
+
+
+def _text(img: np.ndarray, x: int, y: int, s: str, colour=_BLACK) -> None:
+    """Draw ``s`` (upper-cased) with its top-left corner at ``(x, y)``, clipped to ``img``."""
+    h, w = img.shape[:2]
+    k = _FONT_SCALE
+    for i, ch in enumerate(s.upper()):
+        bits = _GLYPHS.get(ch, _GLYPHS[" "])
+        gx = x + i * _ADVANCE
+        for r in range(5):
+            for col in range(3):
+                if bits[3 * r + col] == "1":
+                    y0, x0 = y + r * k, gx + col * k
+                    if 0 <= y0 and y0 + k <= h and 0 <= x0 and x0 + k <= w:
+                        img[y0:y0 + k, x0:x0 + k] = colour
+
+
+def _hline(img, y, x0, x1, colour, width=1):
+    img[max(y, 0):y + width, max(min(x0, x1), 0):max(x0, x1) + 1] = colour
+
+
+def _vline(img, x, y0, y1, colour, width=1):
+    img[max(min(y0, y1), 0):max(y0, y1) + 1, max(x, 0):x + width] = colour
+
+
+def _polyline(img: np.ndarray, xs: np.ndarray, ys: np.ndarray, colour, width: int = 2) -> None:
+    """Connect points one pixel column apart: each column gets the span to the next point."""
+    h = img.shape[0]
+    ys = np.clip(np.round(ys).astype(np.int64), 0, h - 1)
+    for i in range(len(xs)):
+        y_next = ys[i + 1] if i + 1 < len(xs) else ys[i]
+        lo, hi = min(ys[i], y_next), max(ys[i], y_next)
+        img[max(lo - width // 2, 0):hi + (width + 1) // 2, xs[i]:xs[i] + 1] = colour
+
+
+def _nice_step(span: float, max_ticks: int = 8) -> float:
+    for step in (0.5, 1, 2, 5, 10, 20, 50):
+        if span / step <= max_ticks:
+            return float(step)
+    return float(10 ** np.ceil(np.log10(span / max_ticks)))
+
+
+def _fmt_tick(v: float) -> str:
+    return f"{v:.0f}" if abs(v - round(v)) < 1e-9 else f"{v:.1f}"
+
+
+def response_plot(response: Response, width: int = 560, height: int = 400) -> np.ndarray:
+    """The response curves as an RGB uint8 image ``(height, width, 3)``.
+
+    x: pixel code z from 0 to ``Zmax``; y: ``g(z) = ln exposure``. One line per channel
+    (red, green, blue; dark grey for a grey response), light grey grid at the ticks,
+    the codes outside the working range (below 10, above 245 in 8-bit units) shaded.
+    """
+    img = np.full((height, width, 3), 255, np.uint8)
+    tables = response.tables()
+    levels = response.levels
+    left, right, top, bottom = 64, 16, 34, 48
+    x0, x1, y0, y1 = left, width - right - 1, top, height - bottom - 1
+    finite = tables[np.isfinite(tables)]
+    gmin, gmax = (float(finite.min()), float(finite.max())) if finite.size else (-1.0, 1.0)
+    step = _nice_step(max(gmax - gmin, 1e-6))
+    lo, hi = np.floor(gmin / step) * step, np.ceil(gmax / step) * step
+    if hi <= lo:
+        hi = lo + step
+
+    def px(z):
+        return x0 + np.asarray(z, np.float64) / (levels - 1) * (x1 - x0)
+
+    def py(g):
+        return y1 - (np.asarray(g, np.float64) - lo) / (hi - lo) * (y1 - y0)
+
+    # Shade the codes outside the working range; grid and tick labels.
+    scale = (levels - 1) / 255.0
+    zlo, zhi = int(round(px(WORKING_LOW * scale))), int(round(px(WORKING_HIGH * scale)))
+    img[y0:y1 + 1, x0:zlo + 1] = _SHADE
+    img[y0:y1 + 1, zhi:x1 + 1] = _SHADE
+    for quarter in range(5):
+        z = min(quarter * levels // 4, levels - 1)  # 0, 64, 128, 192, 255 for 8-bit
+        x = int(round(px(z)))
+        _vline(img, x, y0, y1, _GRID)
+        _vline(img, x, y1, y1 + 5, _BLACK)
+        label = str(z)
+        _text(img, min(max(x - _text_width(label) // 2, 0), width - _text_width(label)), y1 + 9, label)
+    for g in np.arange(lo, hi + step / 2, step):
+        y = int(round(py(g)))
+        _hline(img, y, x0, x1, _GRID)
+        _hline(img, y, x0 - 5, x0, _BLACK)
+        label = _fmt_tick(g)
+        _text(img, x0 - 8 - _text_width(label), y - _TEXT_HEIGHT // 2, label)
+    _hline(img, y1, x0, x1, _BLACK)
+    _vline(img, x0, y0, y1, _BLACK)
+    # Curves, sampled once per pixel column.
+    cols = np.arange(x0, x1 + 1)
+    z = (cols - x0) / (x1 - x0) * (levels - 1)
+    codes = np.arange(levels, dtype=np.float64)
+    names = list(response.channels)[:tables.shape[0]]
+    for c in range(tables.shape[0]):
+        colour = _CURVE_COLOURS.get(names[c].upper(), _GREY_CURVE) if tables.shape[0] > 1 else _GREY_CURVE
+        _polyline(img, cols, py(np.interp(z, codes, tables[c])), colour)
+    # Titles and legend.
+    _text(img, 8, 10, "G(Z) = LN EXPOSURE")
+    xl = "PIXEL CODE Z (SHADED: OUTSIDE WORKING RANGE)"
+    _text(img, max((x0 + x1 - _text_width(xl)) // 2, 0), height - _TEXT_HEIGHT - 6, xl)
+    if tables.shape[0] > 1:
+        x = x1 - 8
+        for c in reversed(range(tables.shape[0])):
+            label = names[c]
+            x -= _text_width(label) + 22
+            colour = _CURVE_COLOURS.get(label.upper(), _GREY_CURVE)
+            _hline(img, 14, x, x + 14, colour, 3)
+            _text(img, x + 18, 10, label)
+    return img
+
+
+# Coverage colours: 0 frames (clipped) red, 1 frame orange, then light to dark blue-green.
+_COV_ZERO = (215, 25, 28)
+_COV_ONE = (253, 174, 97)
+_COV_RAMP = ((199, 233, 180), (65, 182, 196), (34, 94, 168), (8, 29, 88))
+_COV_NODATA = (150, 150, 150)
+
+
+def coverage_colours(frames: int) -> np.ndarray:
+    """Colour table ``(256, 3)`` uint8 for coverage values 0..frames and NO_DATA."""
+    lut = np.zeros((256, 3), np.uint8)
+    lut[:] = _COV_NODATA
+    lut[0] = _COV_ZERO
+    if frames >= 1:
+        lut[1] = _COV_ONE
+    n = max(frames - 1, 0)
+    ramp = np.asarray(_COV_RAMP, np.float64)
+    for i in range(n):
+        t = i / max(n - 1, 1) * (len(ramp) - 1)
+        k = min(int(t), len(ramp) - 2)
+        lut[2 + i] = np.round(ramp[k] + (t - k) * (ramp[k + 1] - ramp[k])).astype(np.uint8)
+    return lut
+
+
+def _block_min(a: np.ndarray, size: int) -> np.ndarray:
+    """Reduce ``a`` (H, W) to a long side of at most ``size`` by the minimum of each block,
+    so an isolated clipped (0) pixel stays visible; NO_DATA (255) loses to any count."""
+    h, w = a.shape
+    k = max(1, int(np.ceil(max(h, w) / max(size, 1))))
+    if k == 1:
+        return a
+    hh, ww = -(-h // k), -(-w // k)
+    pad = np.full((hh * k, ww * k), NO_DATA, a.dtype)
+    pad[:h, :w] = a
+    return pad.reshape(hh, k, ww, k).min(axis=(1, 3))
+
+
+def coverage_image(coverage: np.ndarray, frames: int, size: int = IMAGE_SIZE) -> np.ndarray:
+    """The coverage map colour-mapped, with a legend strip below, RGB uint8.
+
+    The map is reduced to a long side of at most ``size`` by block minimum (the worst
+    pixel of each block shows) and enlarged by whole factors when small.
+    """
+    cov = _block_min(np.asarray(coverage, np.uint8), size)
+    h, w = cov.shape
+    k = max(1, min(size // max(h, w), 8))
+    cov = np.repeat(np.repeat(cov, k, axis=0), k, axis=1)
+    h, w = cov.shape
+    lut = coverage_colours(frames)
+    values = list(range(frames + 1)) + ([NO_DATA] if (cov == NO_DATA).any() else [])
+    sw = 30
+    title = "FRAMES MEASURING THE PIXEL"
+    legend_w = max(len(values) * sw, _text_width(title)) + 16
+    width = max(w, legend_w)
+    strip = 2 * _TEXT_HEIGHT + 30
+    img = np.full((h + strip, width, 3), 255, np.uint8)
+    xm = (width - w) // 2
+    img[:h, xm:xm + w] = lut[cov]
+    y = h + 6
+    _text(img, 8, y, title)
+    y += _TEXT_HEIGHT + 4
+    for i, v in enumerate(values):
+        x = 8 + i * sw
+        img[y:y + 14, x:x + sw - 4] = lut[v]
+        label = "NA" if v == NO_DATA else str(v)
+        _text(img, x + (sw - 4 - _text_width(label)) // 2, y + 17, label)
+    return img
+
+
+# --------------------------------------------------------------------------- files
+
+def _write_json(path: str, obj) -> None:
+    from .writers import atomic_output
+
+    with atomic_output(path) as tmp:
+        with open(tmp, "w", encoding="utf-8") as f:
+            json.dump(obj, f, indent=2, allow_nan=False)
+            f.write("\n")
+
+
+def _write_text(path: str, text: str) -> None:
+    from .writers import atomic_output
+
+    with atomic_output(path) as tmp:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+
+
+def write_set_report(
+    folder: Union[str, os.PathLike],
+    name: str,
+    figures: QualityFigures,
+    response: Optional[Response],
+    preview: Optional[np.ndarray] = None,
+    coverage: Optional[np.ndarray] = None,
+    *,
+    warnings: Sequence[str] = (),
+    status: str = STATUS_DONE,
+    preview_size: int = IMAGE_SIZE,
+) -> ReportEntry:
+    """Write one set's report files into ``folder`` and return its contact-sheet entry.
+
+    Parameters
+    ----------
+    folder : path
+        Report folder (created if missing).
+    name : str
+        The set's name; files are named after :func:`file_stem` of it.
+    figures : QualityFigures
+        From :func:`hdrcl.quality.measure`.
+    response : Response or None
+        The curve the merge used (None: no response plot).
+    preview : ndarray, optional
+        Either the radiance map (or a decimated copy such as ``MergeResult.thumbnail``),
+        float: tone-mapped here with :func:`hdrcl.preview.preview`; or a ready 8-bit
+        preview, uint8, written as is.
+    coverage : ndarray (H, W) uint8, optional
+        Default ``figures.coverage``; none: no coverage map.
+    warnings : sequence of str
+        Shown on the set's card (the merge's warnings).
+    """
+    from .writers import write_ldr
+
+    folder = os.fspath(folder)
+    os.makedirs(folder, exist_ok=True)
+    stem = file_stem(name)
+    files: Dict[str, str] = {}
+    if response is not None:
+        files["response"] = stem + "-response.png"
+        write_ldr(os.path.join(folder, files["response"]), response_plot(response))
+    cov = figures.coverage if coverage is None else coverage
+    if cov is not None:
+        files["coverage"] = stem + "-coverage.png"
+        write_ldr(os.path.join(folder, files["coverage"]), coverage_image(cov, figures.frames))
+    if preview is not None:
+        img = np.asarray(preview)
+        if img.dtype != np.uint8:
+            from .preview import preview as tone_mapped
+
+            img = tone_mapped(img, preview_size)
+        files["preview"] = stem + "-preview.jpg"
+        write_ldr(os.path.join(folder, files["preview"]), img, metadata={"tonemap": "reinhard"})
+    files["json"] = stem + ".json"
+    entry = ReportEntry(name=name, status=status, figures=figures, files=files, warnings=list(warnings))
+    _write_json(os.path.join(folder, files["json"]), entry.to_dict())
+    return entry
+
+
+def load_set_report(folder: Union[str, os.PathLike], name: str) -> Optional[ReportEntry]:
+    """The entry :func:`write_set_report` wrote for ``name`` earlier, or None if absent
+    or unreadable (for sets a batch skipped because their output was current)."""
+    path = os.path.join(os.fspath(folder), file_stem(name) + ".json")
+    try:
+        with open(path, encoding="utf-8") as f:
+            d = json.load(f)
+        if d.get("format") != REPORT_FORMAT:
+            return None
+        figs = None if d.get("figures") is None else QualityFigures.from_dict(d["figures"])
+        files = {k: v for k, v in (d.get("files") or {}).items()
+                 if os.path.isfile(os.path.join(os.fspath(folder), v))}
+        return ReportEntry(name=d.get("name", name), status=d.get("status", STATUS_DONE), figures=figs,
+                           files=files, warnings=list(d.get("warnings") or []), error=d.get("error"))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        logger.debug("no usable report for %s at %s: %s", name, path, exc)
+        return None
+
+
+# --------------------------------------------------------------------------- contact sheet
+
+def _fmt_time(t: Optional[float]) -> str:
+    if t is None:
+        return "–"
+    from .metadata import format_time
+
+    return format_time(float(t))
+
+
+def _fmt_fitted(fitted: Optional[float], nominal: Optional[float]) -> str:
+    if fitted is None:
+        return "–"
+    if not nominal:
+        return _fmt_time(fitted)
+    return f"{_fmt_time(fitted)} ({np.log2(float(fitted) / float(nominal)):+.2f} EV)"
+
+
+def format_ev(value: float, side: str) -> str:
+    """``extra_ev_high`` / ``extra_ev_low`` in words: "at least -2.3 EV from the shortest
+    frame" (they are bounds, see :func:`hdrcl.quality.measure`)."""
+    if value == 0:
+        return "none needed"
+    frame = "shortest" if side == "high" else "longest"
+    return f"at least {value:+.1f} EV from the {frame} frame"
+
+
+def format_figures(figures: QualityFigures) -> List[tuple]:
+    """``(label, text)`` rows of a set's figures, as the contact sheet shows them."""
+    f = figures
+    if f.loo_rmse is None or not np.isfinite(f.loo_rmse):
+        loo = "not measured" if f.frames >= 3 else "not measured (fewer than 3 frames)"
+    else:
+        per = ", ".join("–" if not np.isfinite(r.rmse) else f"{r.rmse:.2f}" for r in f.loo)
+        grid = "every pixel" if f.loo_stride == 1 else f"every {f.loo_stride}th pixel"
+        loo = f"{f.loo_rmse:.2f} levels (median of {len(f.loo)} interior frames: {per}; {grid})"
+    if f.dynamic_range_stops is None:
+        dr = "–"
+    else:
+        p0, p1 = f.dynamic_range_percentiles
+        dr = (f"{'at least ' if f.dynamic_range_is_lower_bound else ''}{f.dynamic_range_stops:.1f} stops "
+              f"(luminance P{p0:g} to P{p1:g})")
+    return [
+        ("Leave-one-out RMSE", loo),
+        ("Dynamic range", dr),
+        ("Clipped high", f"{100 * f.clipped_high_fraction:.2f} % of pixels"),
+        ("Clipped low", f"{100 * f.clipped_low_fraction:.2f} % of pixels"),
+        ("Extra exposure for highlights", format_ev(f.extra_ev_high, "high")),
+        ("Extra exposure for shadows", format_ev(f.extra_ev_low, "low")),
+        ("Frames", f"{f.frames} × {f.shape[1]}×{f.shape[0]}, {f.bits}-bit, {f.weight} weights"),
+    ]
+
+
+_CSS = """
+body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0;background:#f4f4f2;color:#222}
+header{padding:16px 24px;background:#fff;border-bottom:1px solid #ddd}
+h1{font-size:1.4em;margin:0 0 4px}
+.summary,#image-check{margin:2px 0;color:#555}
+main{display:grid;grid-template-columns:repeat(auto-fill,minmax(420px,1fr));gap:16px;padding:16px 24px}
+article{background:#fff;border:1px solid #ddd;border-radius:6px;padding:12px 14px}
+article.failed{border-color:#d33;background:#fff6f6}
+h2{font-size:1.1em;margin:0 0 8px;word-break:break-all}
+.status{font-size:.8em;padding:1px 6px;border-radius:3px;background:#e6f2e6;margin-left:6px;vertical-align:middle}
+article.failed .status{background:#f8d0d0}
+.thumb{display:block;width:100%;max-width:512px;height:auto;margin:0 0 8px;background:#000}
+table{border-collapse:collapse;font-size:.9em;width:100%}
+th,td{text-align:left;vertical-align:top;padding:2px 6px 2px 0}
+th{font-weight:600;white-space:nowrap;color:#444}
+.plots{display:flex;gap:8px;flex-wrap:wrap;margin-top:8px}
+figure{margin:0;flex:1 1 180px}
+figure img{max-width:100%;height:auto;border:1px solid #eee}
+figcaption{font-size:.8em;color:#666}
+.error{color:#a00;white-space:pre-wrap}
+.warnings{color:#8a5a00;font-size:.85em;padding-left:18px}
+details{margin-top:6px;font-size:.9em}
+img.broken{outline:3px solid #d33}
+""".strip()
+
+# Counts the images that really decoded once the page has loaded: the count is shown
+# in the header (a moved or incomplete report folder is spotted at a glance) and kept
+# in data-loaded / data-total, which the browser test reads back.
+_SCRIPT = """
+window.addEventListener("load", function () {
+  var imgs = document.images, n = 0;
+  for (var i = 0; i < imgs.length; i++) {
+    if (imgs[i].complete && imgs[i].naturalWidth > 0) { n++; } else { imgs[i].classList.add("broken"); }
+  }
+  var el = document.getElementById("image-check");
+  el.setAttribute("data-loaded", String(n));
+  el.setAttribute("data-total", String(imgs.length));
+  el.textContent = n + " of " + imgs.length + " images loaded";
+});
+""".strip()
+
+
+def _e(text) -> str:
+    return html.escape(str(text), quote=True)
+
+
+def _href(filename: str) -> str:
+    return _e(urllib.parse.quote(filename))
+
+
+def _card(entry: ReportEntry, index: int) -> str:
+    status = entry.status or STATUS_DONE
+    out = [f'<article class="set {_e(status)}" id="set-{index}" data-set="{_e(entry.name)}" '
+           f'data-status="{_e(status)}">',
+           f'<h2>{_e(entry.name)}<span class="status">{_e(status)}</span></h2>']
+    files = entry.files or {}
+    if "preview" in files:
+        out.append(f'<a href="{_href(files["preview"])}"><img class="thumb" src="{_href(files["preview"])}" '
+                   f'alt="{_e(entry.name)}: tone-mapped preview (Reinhard 2002)"></a>')
+    if entry.error:
+        out.append(f'<p class="error">{_e(entry.error)}</p>')
+    f = entry.figures
+    if f is not None:
+        out.append('<table class="figures">')
+        for label, text in format_figures(f):
+            out.append(f"<tr><th>{_e(label)}</th><td>{_e(text)}</td></tr>")
+        out.append("</table>")
+    plots = []
+    if "response" in files:
+        plots.append(f'<figure><a href="{_href(files["response"])}"><img src="{_href(files["response"])}" '
+                     f'alt="{_e(entry.name)}: response curves"></a><figcaption>Response g(z) = ln exposure '
+                     f'per channel</figcaption></figure>')
+    if "coverage" in files:
+        plots.append(f'<figure><a href="{_href(files["coverage"])}"><img src="{_href(files["coverage"])}" '
+                     f'alt="{_e(entry.name)}: coverage map"></a><figcaption>Frames measuring each pixel '
+                     f'(red: none, clipped)</figcaption></figure>')
+    if plots:
+        out.append('<div class="plots">' + "".join(plots) + "</div>")
+    if f is not None and f.exposures:
+        out.append("<details><summary>Exposures (relative seconds)</summary><table>"
+                   "<tr><th>frame</th><th>nominal</th><th>fitted</th><th>used</th></tr>")
+        for k, ex in enumerate(f.exposures):
+            cells = (ex.get("file", k), _fmt_time(ex.get("nominal")),
+                     _fmt_fitted(ex.get("fitted"), ex.get("nominal")), _fmt_time(ex.get("used")))
+            out.append("<tr>" + "".join(f"<td>{_e(v)}</td>" for v in cells) + "</tr>")
+        out.append("</table></details>")
+    if entry.warnings:
+        out.append('<ul class="warnings">' + "".join(f"<li>{_e(w)}</li>" for w in entry.warnings) + "</ul>")
+    if "json" in files:
+        out.append(f'<p><a href="{_href(files["json"])}">figures (JSON)</a></p>')
+    out.append("</article>")
+    return "\n".join(out)
+
+
+def contact_sheet_html(entries: Sequence[ReportEntry], title: str = "hdrcl quality report") -> str:
+    """The contact sheet page for ``entries`` (see :func:`write_contact_sheet`)."""
+    from . import __version__
+
+    entries = list(entries)
+    failed = sum(1 for e in entries if e.status == STATUS_FAILED)
+    summary = f"{len(entries)} set{'s' if len(entries) != 1 else ''}: {len(entries) - failed} merged, {failed} failed"
+    cards = "\n".join(_card(e, i) for i, e in enumerate(entries))
+    return (
+        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+        "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
+        f"<title>{_e(title)}</title>\n<style>\n{_CSS}\n</style>\n</head>\n<body>\n"
+        f"<header><h1>{_e(title)}</h1><p class=\"summary\">{_e(summary)} · hdrcl {_e(__version__)}</p>"
+        f"<p id=\"image-check\" data-loaded=\"\" data-total=\"\"></p></header>\n"
+        f"<main>\n{cards}\n</main>\n<script>\n{_SCRIPT}\n</script>\n</body>\n</html>\n")
+
+
+def write_contact_sheet(folder: Union[str, os.PathLike], entries: Sequence[ReportEntry],
+                        title: str = "hdrcl quality report") -> str:
+    """Write ``index.html`` into ``folder``: one card per entry, in the order given.
+
+    Each card shows the preview, the figures (:func:`format_figures`), the response and
+    coverage plots, the exposures and the warnings, or a failed set's error. Images
+    are linked relative to the folder. Returns the page's path.
+    """
+    folder = os.fspath(folder)
+    os.makedirs(folder, exist_ok=True)
+    path = os.path.join(folder, INDEX_NAME)
+    _write_text(path, contact_sheet_html(entries, title))
+    return path
