@@ -71,6 +71,20 @@ def _ext(path: str) -> str:
     return os.path.splitext(path)[1].lower()
 
 
+def _fsync(path: str, directory: bool = False) -> None:
+    """Flush a file (or a folder's entries) to disk; best effort where unsupported."""
+    try:
+        fd = os.open(path, os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0))
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
 @contextlib.contextmanager
 def atomic_output(path):
     """Yield a temporary path beside ``path``; move it onto ``path`` on success.
@@ -105,7 +119,9 @@ def atomic_output(path):
     tmp = os.path.join(folder, f".{stem}.tmp-{secrets.token_hex(4)}{ext}")
     try:
         yield tmp
+        _fsync(tmp)  # data on disk before the name points at it (power loss, not just kill)
         os.replace(tmp, target)
+        _fsync(folder, directory=True)
     except BaseException:
         with contextlib.suppress(OSError):
             os.remove(tmp)
