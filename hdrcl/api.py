@@ -305,6 +305,7 @@ class MergeResult:
     output: Optional[str] = None
     shape: tuple = ()
     thumbnail: Optional[np.ndarray] = None
+    shifts: Optional[list] = None  # (dy, dx) per frame when aligned
 
     def __post_init__(self):
         if not self.shape and self.radiance is not None:
@@ -433,6 +434,8 @@ def merge_files(
     neutral=None,
     reference_patch=None,
     absolute: bool = False,
+    align: bool = False,
+    crop: bool = False,
 ) -> MergeResult:
     """Merge image files into a radiance file (EXR, HDR, TIFF or PFM by extension).
 
@@ -463,6 +466,13 @@ def merge_files(
         Absolute scale: the patch's mean luminance becomes VALUE (cd/m^2).
     absolute : bool
         Approximate absolute scale (cd/m^2) from the first frame's f-number and ISO.
+    align : bool
+        Align hand-held frames by translation (median threshold bitmaps, Ward 2003;
+        :mod:`hdrcl.align`) to the middle exposure; ``result.shifts`` holds each
+        frame's ``(dy, dx)``. Pixels a shifted frame no longer covers are masked in that
+        frame. The frames are held in memory for this.
+    crop : bool
+        With ``align``: crop the output to the box every frame covers.
     """
     from .backend import get_processor
     from .io import BracketReader
@@ -476,6 +486,8 @@ def merge_files(
     if not os.path.isdir(os.path.dirname(os.path.abspath(output))):
         raise UsageError(f"{output}: output folder does not exist")
     rgb = _parse_ignore_color(ignore_color)
+    if crop and not align:
+        raise UsageError("--crop needs --align")
     source_name = os.fspath(response) if isinstance(response, (str, os.PathLike)) else (
         "given" if response is not None else "calibrated from these frames")
     resp = _as_response(response)
@@ -485,23 +497,32 @@ def merge_files(
     nch = 3 if first.nchannels >= 3 else 1
     h, w = first.height, first.width
     t1 = _time.perf_counter()
-    if resp is None:
-        itemsize = 1 if first.bits == 8 else 2
-        if len(paths) * h * w * nch * itemsize <= memory_budget():
-            with BracketReader(paths, infos) as reader:
-                frames, valid = reader.read_all()
-            valid = _with_ignore(frames, valid, rgb)
+    shifts = None
+    itemsize = 1 if first.bits == 8 else 2
+    in_memory = align or (resp is None and len(paths) * h * w * nch * itemsize <= memory_budget())
+    if in_memory:
+        with BracketReader(paths, infos) as reader:
+            frames, valid = reader.read_all()
+        valid = _with_ignore(frames, valid, rgb)
+        if align:
+            frames, valid, shifts, box = _align(frames, valid, rel, device)
+            if crop:
+                y0, y1, x0, x1 = box
+                frames = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in frames]
+                valid = [None if v is None else np.ascontiguousarray(v[y0:y1, x0:x1]) for v in valid]
+                h, w = y1 - y0, x1 - x0
+        if resp is None:
             br = Bracket(frames=frames, times=rel, valid=valid, paths=paths, infos=infos)
             resp = calibrate(br, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
                              fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance)
-            source = ArraySource(frames, valid)
-            ignore = None
-        else:
-            resp = calibrate(_grid_bracket(paths, infos, rel, rgb), samples=samples, smoothness=smoothness,
-                             weight=weight, seed=seed, fit_exposures=fit_exposures,
-                             exposure_tolerance=exposure_tolerance)
-            source = BracketReader(paths, infos)
-            ignore = rgb
+        source = ArraySource(frames, valid)
+        ignore = None
+    elif resp is None:
+        resp = calibrate(_grid_bracket(paths, infos, rel, rgb), samples=samples, smoothness=smoothness,
+                         weight=weight, seed=seed, fit_exposures=fit_exposures,
+                         exposure_tolerance=exposure_tolerance)
+        source = BracketReader(paths, infos)
+        ignore = rgb
     else:
         source = BracketReader(paths, infos)
         ignore = rgb
@@ -509,18 +530,22 @@ def merge_files(
     t2 = _time.perf_counter()
     backend = "numpy" if get_processor("fusion", device) is None else "opencl"
     result = MergeResult(radiance=None, response=resp, counts={}, times=rel, paths=paths, backend=backend,
-                         shape=(h, w, nch), warnings=list(resp.warnings), output=output)
+                         shape=(h, w, nch), warnings=list(resp.warnings), output=output, shifts=shifts)
     has_valid = rgb is not None or any(i.nchannels in (2, 4) for i in infos)
     thumb = Thumbnail(h, w, nch, thumbnail) if thumbnail else None
     keep = ArraySink(h, w, nch) if keep_radiance else None
     if ghost_mask is not None and not deghost:
         raise UsageError("--ghost-mask needs --deghost")
+    if crop and not align:
+        raise UsageError("--crop needs --align")
     mask = np.zeros((h, w), bool) if ghost_mask is not None else None
     factors, units = _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, nch,
                                           neutral, reference_patch, absolute)
     try:
         meta = _provenance(result, source_name)
         meta.update(units)
+        if shifts is not None:
+            meta["alignShifts"] = [list(map(int, sh)) for sh in shifts]
         with RadianceWriter(output, w, h, nch, dtype=dtype, compression=compression, metadata=meta) as writer:
             sink = writer if keep is None else _Tee(writer, keep)
             if factors is not None:
@@ -550,6 +575,22 @@ def merge_files(
         logger.info("%s: ghost pixels %.2f %%", output, 100.0 * counts.get("ghost", 0) / max(h * w, 1))
     result.seconds = {"open": t1 - t0, "calibrate": t2 - t1, "fuse_and_write": _time.perf_counter() - t2}
     return result
+
+
+def _align(frames, valid, times, device):
+    """Shift ``frames`` onto the middle exposure; returns frames, masks, shifts, common box."""
+    from .align import apply_shifts, estimate_shifts
+    from .metadata import format_time
+
+    order = np.argsort(np.asarray(times, np.float64), kind="stable")
+    est = estimate_shifts([frames[i] for i in order], device=device)
+    shifts = [None] * len(frames)
+    for pos, i in enumerate(order):
+        shifts[i] = tuple(int(v) for v in est[pos])
+    for i, sh in enumerate(shifts):
+        logger.info("align: frame %d (%s) shifted by dy=%d dx=%d", i, format_time(times[i]), sh[0], sh[1])
+    out, masks, box = apply_shifts(frames, shifts, valid)
+    return list(out), list(masks), shifts, box
 
 
 def _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, nch, neutral, reference_patch,

@@ -90,13 +90,16 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
               help="Absolute scale: this patch's mean luminance is VALUE cd/m^2.")
 @click.option("--absolute", is_flag=True,
               help="Approximate absolute scale (cd/m^2) from f-number and ISO (meter constant K = 12.5).")
+@click.option("--align", is_flag=True,
+              help="Align hand-held frames by translation (median threshold bitmaps) before merging.")
+@click.option("--crop", is_flag=True, help="With --align: crop to the area every frame covers.")
 @click.option("--report", "report", type=click.Path(file_okay=False),
               help="Write a quality report here: response plot, coverage map, preview, figures, index.html.")
 @output_options
 @device_option
 def merge(images, output, response, save_response, times, times_file, ignore_color, samples, smoothness,
           seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, neutral, reference_patch, absolute,
-          report, dtype, compression, device):
+          align, crop, report, dtype, compression, device):
     """Merge one bracket set into a radiance map."""
     from ..api import merge_files
     from ..metadata import format_time
@@ -106,7 +109,7 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
                       dtype=dtype, compression=compression, device=device, fit_exposures=fit_exposures,
                       exposure_tolerance=exposure_tolerance, deghost=deghost, ghost_mask=ghost_mask,
                       neutral=neutral, reference_patch=reference_patch, absolute=absolute,
-                      thumbnail=512 if report else 0)
+                      thumbnail=512 if report else 0, align=align, crop=crop)
     if save_response:
         res.response.save(save_response)
     h, w_, c = res.shape
@@ -115,6 +118,9 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
                f"({format_time(min(res.times))} .. {format_time(max(res.times))}), "
                f"{'OpenCL' if res.backend == 'opencl' else 'NumPy'}, {total:.2f} s")
     cnt = res.counts
+    if res.shifts is not None:
+        click.echo("  aligned: " + ", ".join(f"{os.path.basename(p)} ({dy:+d}, {dx:+d})"
+                                             for p, (dy, dx) in zip(res.paths, res.shifts)) + " (dy, dx px)")
     if deghost:
         click.echo(f"  ghosts: {100.0 * cnt.get('ghost', 0) / max(h * w_, 1):.2f} % of pixels taken from the "
                    f"middle exposure" + (f" ({cnt['ghost_unresolved']} pixel-channels unresolved)"

@@ -1,0 +1,52 @@
+"""hdrcl merge --align: hand-held brackets end to end through the CLI."""
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from hdrcl import synthetic as s
+from hdrcl.cli import main
+
+SHIFTS = [(7, -12), (-25, 31), (0, 0), (40, -40)]  # the middle exposure (index 2) is the reference
+
+
+@pytest.fixture()
+def handheld(tmp_path):
+    from hdrcl.writers import write_ldr
+
+    from test_align import textured_radiance  # texture at several scales: something to align on
+
+    cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
+    big = textured_radiance(300, 400, seed=21)
+    times = s.stops(4, 1.5, centre=1.0 / float(np.median(big)))
+    paths = []
+    for k, ((dy, dx), t) in enumerate(zip(SHIFTS, times)):
+        view = big[60 + dy:240 + dy, 60 + dx:340 + dx]  # the camera moved: frame(y+dy, x+dx) = ref(y, x)
+        p = tmp_path / f"h{k}.png"
+        write_ldr(str(p), s.bracket(view, [t], cam, noise=0.5, seed=k)[0])
+        paths.append(str(p))
+    return paths, times, tmp_path
+
+
+def test_merge_align_recovers_shifts_and_crops(handheld, cl_device):
+    paths, times, d = handheld
+    tt = ",".join(repr(float(t)) for t in times)
+    r = CliRunner().invoke(main, ["merge", *paths, "--times", tt, "-o", str(d / "a.exr"), "--align", "--crop"])
+    assert r.exit_code == 0, r.output
+    line = [ln for ln in r.output.splitlines() if "aligned:" in ln][0]
+    from hdrcl.writers import read_radiance
+
+    rad, meta = read_radiance(str(d / "a.exr"))
+    got = [tuple(v) for v in __import__("json").loads(meta["alignShifts"])] if isinstance(meta["alignShifts"], str) \
+        else [tuple(v) for v in meta["alignShifts"]]
+    ref = SHIFTS[2]  # the middle exposure (index 2 of 4, by time order) is the reference
+    want = [(ref[0] - dy, ref[1] - dx) for dy, dx in SHIFTS]  # frame(y+dy, x+dx) = reference(y, x)
+    for g, w in zip(got, want):
+        assert abs(g[0] - w[0]) <= 1 and abs(g[1] - w[1]) <= 1, (got, want, line)
+    assert rad.shape[0] < 180 and rad.shape[1] < 280  # cropped to the common area
+    assert np.all(np.isfinite(rad)) and rad.min() > 0
+
+
+def test_crop_needs_align(handheld):
+    paths, times, d = handheld
+    r = CliRunner().invoke(main, ["merge", *paths, "--times", "1,2,4,8", "-o", str(d / "b.exr"), "--crop"])
+    assert r.exit_code == 2 and "--align" in r.output
