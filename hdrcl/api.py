@@ -182,6 +182,12 @@ def _with_ignore(frames, valid, rgb):
             for f, v in zip(frames, valid)]
 
 
+def _all_raw(paths) -> bool:
+    from .raw import is_raw
+
+    return bool(paths) and all(is_raw(p) for p in paths)
+
+
 def _open_files(paths, times, times_file):
     from . import metadata
     from .io import check_compatible
@@ -241,6 +247,15 @@ def calibrate(
     elif len(images) and not any(isinstance(im, np.ndarray) for im in images):
         # Files: only the sampling grid is kept, so memory does not grow with the image.
         paths, infos, rel = _open_files(images, times, times_file)
+        if _all_raw(paths):
+            from .raw import linear_response
+
+            logger.info("RAW input is linear; no calibration needed")
+            resp = linear_response(3 if infos[0].nchannels >= 3 else 1)
+            resp.camera = Bracket(frames=[], times=rel, valid=[], infos=infos).camera
+            resp.exposures = [{"file": os.path.basename(p), "nominal": float(t), "fitted": None, "used": float(t)}
+                              for p, t in zip(paths, rel)]
+            return resp
         br = _grid_bracket(paths, infos, rel, _parse_ignore_color(ignore_color))
     else:
         br = load_bracket(images, times, times_file=times_file, ignore_color=ignore_color)
@@ -496,6 +511,12 @@ def merge_files(
     first = infos[0]
     nch = 3 if first.nchannels >= 3 else 1
     h, w = first.height, first.width
+    if resp is None and _all_raw(paths):
+        from .raw import linear_response
+
+        resp, source_name = linear_response(nch), "linear (RAW input)"
+        resp.exposures = [{"file": os.path.basename(p), "nominal": float(t), "fitted": None, "used": float(t)}
+                          for p, t in zip(paths, rel)]
     t1 = _time.perf_counter()
     shifts = None
     itemsize = 1 if first.bits == 8 else 2

@@ -71,7 +71,8 @@ DEFAULT_GAP = 8.0
 LONG_EXPOSURE = 1.0
 
 #: File name endings :func:`scan_directory` looks at (compared case-insensitively).
-DEFAULT_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+DEFAULT_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff",
+                      ".cr2", ".cr3", ".nef", ".arw", ".dng", ".raf", ".rw2", ".orf", ".pef", ".srw")
 
 # Two settings closer than this (in stops) are the same: below half a third-stop step,
 # above the rounding of EXIF rationals (1/60 written as 0.016666...).

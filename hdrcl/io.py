@@ -33,6 +33,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from .errors import InputError
+from .raw import is_raw
 from .metadata import FrameInfo
 
 logger = logging.getLogger(__name__)
@@ -260,6 +261,10 @@ def read_info(path) -> FrameInfo:
         The file is missing or unreadable, or its samples are not 8- or 16-bit integers.
     """
     name = _name(path)
+    if is_raw(name):
+        from .raw import read_raw_info
+
+        return read_raw_info(name)
     inp = _open_input(name)
     try:
         return _info_from_spec(inp.spec(), name)
@@ -304,6 +309,11 @@ def read_image(path) -> Image:
         unsupported channel count. The message starts with the file name.
     """
     name = _name(path)
+    if is_raw(name):
+        from .raw import read_raw
+
+        f = read_raw(name)
+        return Image(pixels=f.pixels, valid=None, info=f.info)
     inp = _open_input(name)
     try:
         spec = inp.spec()
@@ -431,6 +441,10 @@ class BracketReader:
 
     def __init__(self, paths: Sequence, infos: Optional[Sequence[FrameInfo]] = None):
         self.paths = [_name(p) for p in paths]
+        raws = [is_raw(p) for p in self.paths]
+        if any(raws) and not all(raws):
+            odd = self.paths[raws.index(False) if raws[0] else raws.index(True)]
+            raise InputError(f"{odd}: a bracket set mixes RAW and non-RAW files")
         self.infos = list(infos) if infos is not None else [read_info(p) for p in self.paths]
         check_compatible(self.infos)
         first = self.infos[0]
@@ -438,6 +452,12 @@ class BracketReader:
         self.dtype = np.dtype(np.uint8 if first.bits == 8 else np.uint16)
         self._inputs: list = [None] * len(self.paths)
         self._layout: list = [None] * len(self.paths)
+        self._raw_wb = None
+        if any(raws):
+            from .raw import camera_white_balance
+
+            # one white balance for every frame: auto WB must not rescale channels per frame
+            self._raw_wb = camera_white_balance(self.paths[0])
         self._pool = concurrent.futures.ThreadPoolExecutor(
             max_workers=max(1, min(len(self.paths), (os.cpu_count() or 1) + 1)),
             thread_name_prefix="hdrcl-decode")
@@ -455,12 +475,26 @@ class BracketReader:
     def close(self) -> None:
         self._pool.shutdown(wait=True)
         for k, inp in enumerate(self._inputs):
-            if inp is not None:
+            if inp is not None and hasattr(inp, "close"):
                 inp.close()
-                self._inputs[k] = None
+            self._inputs[k] = None
 
     def _read(self, k: int, y0: int, y1: int):
         name = self.paths[k]
+        if self._raw_wb is not None:
+            # LibRaw decodes whole frames: keep the frame while its strips are served
+            px = self._inputs[k]
+            if px is None:
+                from .raw import read_raw
+
+                px = self._inputs[k] = read_raw(name, white_balance=self._raw_wb).pixels
+                if px.shape[:2] != (self.height, self.width):
+                    raise InputError(f"{name}: decoded {px.shape[1]}x{px.shape[0]}, header says "
+                                     f"{self.width}x{self.height}")
+            out = np.ascontiguousarray(px[y0:y1])
+            if y1 >= self.height:
+                self._inputs[k] = None
+            return out, None
         inp = self._inputs[k]
         if inp is None:
             inp = self._inputs[k] = _open_input(name)
