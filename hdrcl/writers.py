@@ -416,18 +416,7 @@ def read_radiance(path) -> tuple:
             problem = f"{name}: cannot decode pixel data"
         if problem is not None:
             raise InputError(problem)
-        metadata = {}
-        desc = spec.getattribute("ImageDescription")
-        if isinstance(desc, str) and desc.startswith('{"hdrcl"'):
-            try:
-                parsed = json.loads(desc).get("hdrcl", {})
-            except (ValueError, AttributeError):
-                parsed = {}
-            if isinstance(parsed, dict):
-                metadata.update(parsed)
-        for p in spec.extra_attribs:
-            if p.name.startswith(METADATA_PREFIX):
-                metadata[p.name[len(METADATA_PREFIX):]] = p.value
+        metadata = _spec_metadata(spec)
     finally:
         inp.close()
     data = np.asarray(data, dtype=np.float32)
@@ -435,6 +424,23 @@ def read_radiance(path) -> tuple:
         data = data[:, :, None]
     pixels = np.ascontiguousarray(data[:, :, channels])
     return pixels, metadata
+
+
+def _spec_metadata(spec) -> dict:
+    """``hdrcl:*`` attributes of a header, and the JSON some formats keep in ImageDescription."""
+    metadata = {}
+    desc = spec.getattribute("ImageDescription")
+    if isinstance(desc, str) and desc.startswith('{"hdrcl"'):
+        try:
+            parsed = json.loads(desc).get("hdrcl", {})
+        except (ValueError, AttributeError):
+            parsed = {}
+        if isinstance(parsed, dict):
+            metadata.update(parsed)
+    for p in spec.extra_attribs:
+        if p.name.startswith(METADATA_PREFIX):
+            metadata[p.name[len(METADATA_PREFIX):]] = p.value
+    return metadata
 
 
 def read_metadata(path) -> dict:
@@ -462,18 +468,7 @@ def read_metadata(path) -> dict:
     inp = _open_input(name)
     try:
         spec = inp.spec()
-        metadata = {}
-        desc = spec.getattribute("ImageDescription")
-        if isinstance(desc, str) and desc.startswith('{"hdrcl"'):
-            try:
-                parsed = json.loads(desc).get("hdrcl", {})
-            except (ValueError, AttributeError):
-                parsed = {}
-            if isinstance(parsed, dict):
-                metadata.update(parsed)
-        for p in spec.extra_attribs:
-            if p.name.startswith(METADATA_PREFIX):
-                metadata[p.name[len(METADATA_PREFIX):]] = p.value
+        metadata = _spec_metadata(spec)
     finally:
         inp.close()
     return metadata
