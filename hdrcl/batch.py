@@ -47,6 +47,17 @@ context once); ``scheduler`` runs them on a Dask cluster (:mod:`hdrcl.executors`
 Outputs, named after each set's first frame (:func:`output_stems`), go directly into
 the output folder: ``<stem>.exr``, ``<stem>.jpg`` (preview) and ``report.json``.
 
+**Quality report** (``BatchOptions.report_dir``, ``--report DIR``). Whoever merges a set
+(this process, a worker process, a Dask worker) measures it (:func:`hdrcl.quality.measure`
+on the frames kept as they stream past: whole when they fit
+:func:`hdrcl.api.memory_budget`, else the sampling grid; the radiance reduced for the
+preview) and writes its files into the folder (:func:`hdrcl.report.write_set_report`),
+after its EXR is committed; the figures also go into ``report.json`` under
+``quality``. A skipped set keeps its report when it was written for the same digest,
+else it is measured again from its frames and EXR. At the end, :func:`run_batch` writes
+``index.html`` over every set of the manifest. The EXRs and previews are the same bytes
+with or without a report.
+
 This module does not import click, OpenImageIO or pyopencl directly.
 """
 from __future__ import annotations
@@ -137,6 +148,12 @@ class BatchOptions:
         Long side of the preview in pixels.
     device : str, optional
         OpenCL device (see ``hdrcl devices``).
+    report_dir : str, optional
+        Quality report folder (``--report``): each merged set's figures
+        (:func:`hdrcl.quality.measure`), response plot, coverage map and preview, written
+        by whoever merges the set, and an ``index.html`` contact sheet over the manifest,
+        written by :func:`run_batch` at the end (:mod:`hdrcl.report`). Not part of any
+        output's identity: the EXRs and previews are the same with or without it.
     """
 
     weight: str = "hat"
@@ -150,6 +167,7 @@ class BatchOptions:
     preview: bool = True
     preview_size: int = 512
     device: Optional[str] = None
+    report_dir: Optional[str] = None
 
     def output_params(self) -> dict:
         """Parameters that shape an EXR beyond its response (part of its digest)."""
@@ -189,7 +207,9 @@ class SetResult:
 
     ``status`` is ``"done"`` (merged now), ``"skipped"`` (an up-to-date output exists)
     or ``"failed"`` (``error`` says why). ``seconds`` holds the time of each stage,
-    ``counts`` the pixel-channels clipped high/low in every frame and without data.
+    ``counts`` the pixel-channels clipped high/low in every frame and without data,
+    ``quality`` the set's quality figures (:meth:`hdrcl.quality.QualityFigures.to_dict`)
+    when a quality report is written.
     """
 
     index: int
@@ -204,6 +224,7 @@ class SetResult:
     ev_offset: Optional[float] = None
     digest: Optional[str] = None
     response: Optional[str] = None
+    quality: Optional[dict] = None
 
     def to_dict(self) -> dict:
         return {
@@ -219,6 +240,7 @@ class SetResult:
             "ev_offset": self.ev_offset,
             "hash": self.digest,
             "response": self.response,
+            "quality": self.quality,
         }
 
 
@@ -265,6 +287,8 @@ class BatchReport:
     responses : list of ResponseEntry
     path : str, optional
         Where the report was written.
+    quality_report : str, optional
+        The contact sheet (``index.html``) of the quality report, when one was asked for.
     unreadable : list of str
         Files the scan could not read; counted as failures when the whole manifest was
         selected.
@@ -275,6 +299,7 @@ class BatchReport:
     unmerged: List[dict] = field(default_factory=list)
     responses: List[ResponseEntry] = field(default_factory=list)
     path: Optional[str] = None
+    quality_report: Optional[str] = None
     unreadable: List[str] = field(default_factory=list)
     reference: Tuple[Optional[float], Optional[float]] = (None, None)
     seconds: float = 0.0
@@ -390,12 +415,13 @@ def output_stems(manifest) -> Dict[int, str]:
 
 
 def load_source(source, *, recursive: bool = False, frames_per_set: Optional[int] = None,
-                gap: Optional[float] = None, exclude: Optional[str] = None):
+                gap: Optional[float] = None, exclude: Union[str, Sequence[str], None] = None):
     """The manifest of ``source``: a folder (scanned) or a manifest JSON file.
 
     Files named in a manifest are not checked here: a missing file fails its own set.
-    ``exclude`` (the output folder) drops unmerged entries under it, such as the
-    previews of an earlier run inside the scanned folder.
+    ``exclude`` (the output folder, the quality report's; one or a list) drops
+    unmerged entries under it, such as the previews of an earlier run inside the
+    scanned folder.
 
     Raises
     ------
@@ -412,9 +438,10 @@ def load_source(source, *, recursive: bool = False, frames_per_set: Optional[int
     if os.path.isdir(path):
         manifest = scan_directory(path, recursive=recursive, frames_per_set=frames_per_set, gap=gap)
         if exclude:
-            ex = os.path.abspath(exclude) + os.sep
+            folders = [exclude] if isinstance(exclude, (str, os.PathLike)) else exclude
+            exs = tuple(os.path.abspath(e) + os.sep for e in folders)
             manifest.unmerged = [u for u in manifest.unmerged
-                                 if not all(os.path.abspath(f).startswith(ex) for f in u.files)]
+                                 if not all(os.path.abspath(f).startswith(exs) for f in u.files)]
         return manifest
     if not os.path.exists(path):
         raise InputError(f"{path}: no such folder or manifest file")
@@ -896,6 +923,12 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
                     _rebuild_preview(job, digest, ctx.options)
                     seconds["preview"] = _time.perf_counter() - t1
                     res.warnings.append("preview was missing or stale: rebuilt from the EXR")
+                if ctx.options.report_dir:
+                    res.quality = _current_quality(ctx.options.report_dir, job, digest)
+                    if res.quality is None:
+                        t1 = _time.perf_counter()
+                        _rebuild_quality(res, job, ctx)
+                        seconds["quality"] = _time.perf_counter() - t1
                 return res
         t1 = _time.perf_counter()
         opened = _open_set(job)
@@ -905,6 +938,171 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
         if strict and not isinstance(exc, HdrclError):
             raise
         return _failed(job, exc, seconds, digest)
+
+
+# ----------------------------------------------------------------- quality report
+
+#: Long side of the reduced radiance map the report is made from when no preview is written.
+REPORT_IMAGE_SIZE = 512
+
+
+def _quality_stride(n: int, h: int, w: int, nch: int, dtype) -> int:
+    """1 (whole frames) when the set's frames fit :func:`hdrcl.api.memory_budget`, else
+    the stride of the sampling grid, as for ``hdrcl merge --report``."""
+    from .api import memory_budget
+    from .sampling import grid_stride
+
+    return 1 if n * h * w * nch * np.dtype(dtype).itemsize <= memory_budget() else grid_stride(h, w)
+
+
+class _KeptFrames:
+    """A :class:`hdrcl.io.BracketReader` whose strips pass through unchanged while every
+    ``stride``-th row and column of each frame (all of it for stride 1) is kept, so the
+    quality figures need no second decode. Same grid as ``BracketReader.read_grid``."""
+
+    def __init__(self, reader, stride: int):
+        self._reader = reader
+        self.stride = s = max(1, int(stride))
+        hh, ww = len(range(0, reader.height, s)), len(range(0, reader.width, s))
+        self._shape = (hh, ww)
+        self.kept = [np.empty((hh, ww, reader.nch), reader.dtype) for _ in reader.paths]
+        self.kept_valid: list = [None] * len(reader.paths)
+
+    def __getattr__(self, name):
+        return getattr(self._reader, name)
+
+    def strips(self, rows: int):
+        s = self.stride
+        for y0, y1, frames, valid in self._reader.strips(rows):
+            first = (-y0) % s
+            g0 = (y0 + first) // s
+            for k, (f, v) in enumerate(zip(frames, valid)):
+                part = f[first::s, ::s]
+                self.kept[k][g0:g0 + part.shape[0]] = part
+                if v is not None:
+                    if self.kept_valid[k] is None:
+                        self.kept_valid[k] = np.ones(self._shape, bool)
+                    self.kept_valid[k][g0:g0 + part.shape[0]] = v[first::s, ::s]
+            yield y0, y1, frames, valid
+
+    def bracket(self, files, infos, times, ignore_color):
+        from .api import Bracket, _with_ignore
+
+        return Bracket(frames=self.kept, times=np.asarray(times, np.float64),
+                       valid=_with_ignore(self.kept, self.kept_valid, ignore_color), paths=list(files),
+                       infos=list(infos), grid=self.stride > 1)
+
+
+def _report_stem(job: SetJob) -> str:
+    return os.path.splitext(os.path.basename(job.output))[0]
+
+
+def _quality_for(res: SetResult, job: SetJob, bracket, resp: Response, times, radiance, opts: BatchOptions) -> None:
+    """Measure the set, write its report files and put the figures into ``res``.
+
+    The figures' JSON is stamped with the set's digest, so that a later run that skips
+    the set knows whether they describe its current output. A failure here is a
+    warning: the merge itself succeeded.
+    """
+    from .quality import measure
+    from .report import file_stem, write_set_report
+
+    try:
+        with _FUSE_LOCK:  # leave-one-out fuses on the process's OpenCL device
+            fig = measure(bracket, resp, radiance, weight=opts.weight, times=times, device=opts.device)
+        stem = _report_stem(job)
+        entry = write_set_report(opts.report_dir, stem, fig, resp, radiance, fig.coverage, warnings=res.warnings)
+        payload = entry.to_dict()
+        payload[DIGEST_KEY] = res.digest
+        _atomic_json(os.path.join(opts.report_dir, file_stem(stem) + ".json"), payload)
+        res.quality = fig.to_dict()
+    except Exception as exc:
+        if not isinstance(exc, (HdrclError, OSError, ValueError)):
+            logger.debug("set %d: quality report failed", job.index, exc_info=exc)
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        res.warnings.append(f"quality report not written: {first}")
+
+
+def _current_quality(folder: str, job: SetJob, digest: Optional[str]) -> Optional[dict]:
+    """The figures of a report written for this very output (same digest, every file
+    present), or None."""
+    from .report import REPORT_FORMAT, file_stem
+
+    try:
+        with open(os.path.join(folder, file_stem(_report_stem(job)) + ".json"), encoding="utf-8") as fh:
+            d = json.load(fh)
+    except (OSError, ValueError):
+        return None
+    if not isinstance(d, dict) or d.get("format") != REPORT_FORMAT or digest is None or d.get(DIGEST_KEY) != digest:
+        return None
+    files = d.get("files") or {}
+    if not isinstance(d.get("figures"), dict) or not all(
+            isinstance(f, str) and os.path.isfile(os.path.join(folder, f)) for f in files.values()):
+        return None
+    return d["figures"]
+
+
+def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context) -> None:
+    """The report of a skipped set that has none (or a stale one): the frames are read
+    again (whole or the sampling grid) and the radiance from its EXR."""
+    from .api import Bracket, _with_ignore
+    from .io import BracketReader
+    from .preview import downscale
+    from .writers import read_radiance
+
+    opts = ctx.options
+    try:
+        opened = _open_set(job)
+        resp = _response_of(ctx.responses[job.group])
+        first = opened.infos[0]
+        h, w = first.height, first.width
+        with BracketReader(job.files, opened.infos) as reader:
+            stride = _quality_stride(len(job.files), h, w, reader.nch, reader.dtype)
+            frames, valid = reader.read_all() if stride == 1 else reader.read_grid(stride)
+        bracket = Bracket(frames=frames, times=opened.times, valid=_with_ignore(frames, valid, opts.ignore_color),
+                          paths=list(job.files), infos=opened.infos, grid=stride > 1)
+        rad, _ = read_radiance(job.output)
+        small = downscale(rad, opts.preview_size if job.preview is not None else REPORT_IMAGE_SIZE)
+        del rad
+    except Exception as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        res.warnings.append(f"quality report not written: {first}")
+        return
+    _quality_for(res, job, bracket, resp, opened.times, small, opts)
+
+
+def _contact_sheet(plan: "_Plan", entries: List[dict], folder: str) -> str:
+    """``index.html`` over every set of the manifest, in index order.
+
+    ``entries`` are the report's (this run's and earlier runs' into the same folder).
+    A set's figures and pictures come from the report folder when they describe its
+    current output; failed sets show their reason; sets no run has handled yet are
+    "pending".
+    """
+    from .report import ReportEntry, load_set_report, write_contact_sheet
+
+    known = {e.get("index"): e for e in entries}
+    cards = []
+    for i in sorted(plan.jobs):
+        job = plan.jobs[i]
+        stem = _report_stem(job)
+        e = known.get(i) or {}
+        status = e.get("status")
+        if status == STATUS_FAILED:
+            cards.append(ReportEntry(stem, STATUS_FAILED, error=e.get("error") or "failed",
+                                     warnings=list(e.get("warnings") or [])))
+            continue
+        card = None
+        if status is None or _current_quality(folder, job, e.get("hash")) is not None:
+            card = load_set_report(folder, stem)
+        if card is None:
+            card = ReportEntry(stem, status or "pending", warnings=list(e.get("warnings") or []))
+            if status is not None:
+                card.warnings.append("no quality figures for this output: run the batch again with --report")
+        elif status is not None:
+            card.status = status
+        cards.append(card)
+    return write_contact_sheet(folder, cards)
 
 
 class _Tee:
@@ -949,13 +1147,18 @@ def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResu
             meta.update({DIGEST_KEY: step.digest, "evOffset": round(opened.ev_offset, 6),
                          "exposureRef": _reference_text(job.reference)})
             small = AreaAverage(h, w, nch, opts.preview_size) if job.preview is not None else None
+            # The quality report keeps the frames (or their sampling grid) as they stream
+            # past, and a reduced radiance map: the preview's, or its own without one.
+            kept = _KeptFrames(reader, _quality_stride(len(job.files), h, w, nch, reader.dtype)) \
+                if opts.report_dir else None
+            thumb = small if small is not None or not opts.report_dir else AreaAverage(h, w, nch, REPORT_IMAGE_SIZE)
             writer = RadianceWriter(job.output, w, h, nch, dtype=opts.dtype, compression=opts.compression,
                                     metadata=meta, timestamp=opened.stamp)
             try:
                 has_valid = opts.ignore_color is not None or any(i.nchannels in (2, 4) for i in opened.infos)
-                counts, _ = stream_merge(reader, opened.times, resp, _Tee(writer, small), weight=opts.weight,
-                                         ignore_color=opts.ignore_color, has_valid=has_valid, device=opts.device,
-                                         deghost=opts.deghost)
+                counts, _ = stream_merge(reader if kept is None else kept, opened.times, resp, _Tee(writer, thumb),
+                                         weight=opts.weight, ignore_color=opts.ignore_color, has_valid=has_valid,
+                                         device=opts.device, deghost=opts.deghost)
                 t1 = _time.perf_counter()
                 # Preview first: the EXR, moved into place last, marks the set complete.
                 if small is not None:
@@ -971,10 +1174,18 @@ def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResu
         if counts.get("no_data"):
             notes.append(f"{counts['no_data']} pixel-channels are invalid in every frame and were set to 0")
         keys = ("clipped_high", "clipped_low", "no_data") + (("ghost", "ghost_unresolved") if opts.deghost else ())
-        return SetResult(index=job.index, files=list(job.files), status=STATUS_DONE, output=job.output,
-                         preview=job.preview, warnings=notes, seconds=seconds,
-                         counts={k: int(counts.get(k, 0)) for k in keys},
-                         ev_offset=round(opened.ev_offset, 6), digest=step.digest, response=job.group)
+        res = SetResult(index=job.index, files=list(job.files), status=STATUS_DONE, output=job.output,
+                        preview=job.preview, warnings=notes, seconds=seconds,
+                        counts={k: int(counts.get(k, 0)) for k in keys},
+                        ev_offset=round(opened.ev_offset, 6), digest=step.digest, response=job.group)
+        if kept is not None:
+            # After the EXR is committed: the report never holds back or spoils an output.
+            t3 = _time.perf_counter()
+            bracket = kept.bracket(job.files, opened.infos, opened.times, opts.ignore_color)
+            del kept
+            _quality_for(res, job, bracket, resp, opened.times, thumb.result(), opts)
+            seconds["quality"] = _time.perf_counter() - t3
+        return res
     except Exception as exc:
         if strict and not isinstance(exc, HdrclError):
             raise
@@ -1040,7 +1251,7 @@ def _report_lock(out_dir: str):
     """Serialise read-modify-write of the report between chunks sharing a folder."""
     try:
         import fcntl
-    except ImportError:  # Windows: chunks there should use --report per chunk
+    except ImportError:  # Windows: chunks there should use --report-json per chunk
         yield
         return
     path = os.path.join(out_dir, ".report.lock")
@@ -1145,7 +1356,8 @@ def run_batch(
     force : bool
         Rebuild outputs even when they are up to date.
     report : path, optional
-        Where to write the JSON report [default: ``out_dir/report.json``].
+        Where to write the JSON report [default: ``out_dir/report.json``] (the CLI's
+        ``--report-json``; the quality report folder is ``options.report_dir``).
     calibrate_only : bool
         Prepare (solve or load) the responses of the selected sets and stop.
     progress : callable, optional
@@ -1180,11 +1392,21 @@ def run_batch(
     out_dir = os.path.abspath(os.fspath(out_dir))
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise UsageError(f"{out_dir}: output is not a folder")
-    manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap, exclude=out_dir)
-    try:
-        os.makedirs(out_dir, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"{out_dir}: cannot create the output folder ({exc.strerror or exc})") from None
+    report_dir = None
+    if options.report_dir is not None:
+        report_dir = os.path.abspath(os.fspath(options.report_dir))
+        if os.path.exists(report_dir) and not os.path.isdir(report_dir):
+            raise UsageError(f"{report_dir}: --report is not a folder")
+        options = replace(options, report_dir=report_dir)
+    manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap,
+                           exclude=[out_dir] + ([report_dir] if report_dir else []))
+    for folder, what in ((out_dir, "output"), (report_dir, "report")):
+        if folder is None:
+            continue
+        try:
+            os.makedirs(folder, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"{folder}: cannot create the {what} folder ({exc.strerror or exc})") from None
 
     plan = _plan(manifest, out_dir, options, ranges)
     logger.info("%d set(s) in the manifest, %d selected; reference %s", len(plan.jobs), len(plan.selected),
@@ -1233,6 +1455,10 @@ def run_batch(
     with _report_lock(os.path.dirname(report_path)):
         rep.entries = _merge_entries(report_path, rep.results, plan)
         _atomic_json(report_path, rep.to_dict())
+        if report_dir is not None:
+            # Under the report's lock: of chunks finishing together, the last one to
+            # write the contact sheet sees every other's sets.
+            rep.quality_report = _contact_sheet(plan, rep.entries, report_dir)
     rep.path = report_path
     rep.seconds = _time.perf_counter() - t_start
     return rep

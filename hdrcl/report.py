@@ -538,7 +538,10 @@ def contact_sheet_html(entries: Sequence[ReportEntry], title: str = "hdrcl quali
 
     entries = list(entries)
     failed = sum(1 for e in entries if e.status == STATUS_FAILED)
-    summary = f"{len(entries)} set{'s' if len(entries) != 1 else ''}: {len(entries) - failed} merged, {failed} failed"
+    merged = sum(1 for e in entries if e.status in (STATUS_DONE, STATUS_SKIPPED))
+    other = len(entries) - failed - merged
+    summary = (f"{len(entries)} set{'s' if len(entries) != 1 else ''}: {merged} merged, {failed} failed"
+               + (f", {other} pending" if other else ""))
     cards = "\n".join(_card(e, i) for i, e in enumerate(entries))
     return (
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"

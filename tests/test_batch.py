@@ -10,6 +10,7 @@ import datetime as dt
 import io
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -532,3 +533,92 @@ def test_library_entry_point(clean, tmp_path):
     assert seen[0] == (None, 0, 3) and seen[-1][1:] == (3, 3)
     assert not outputs(tmp_path / "o", ".jpg")
     assert read_radiance(rep.results[0].output)[0].dtype == np.float32
+
+
+# ------------------------------------------------------------- quality report
+
+
+def _chromium():
+    for name in ("chromium", "chromium-browser"):
+        path = shutil.which(name)
+        if path:
+            return path
+    if os.environ.get("HDRCL_REQUIRE_BROWSER", "") not in ("", "0"):
+        pytest.fail("HDRCL_REQUIRE_BROWSER is set but neither chromium nor chromium-browser is on PATH "
+                    "(Debian: apt-get install chromium)")
+    pytest.skip("headless Chromium not found (Debian: apt-get install chromium); "
+                "set HDRCL_REQUIRE_BROWSER=1 to make this an error")
+
+
+def _statuses(page):
+    return dict(re.findall(r'data-set="([^"]+)" data-status="([^"]+)"', page))
+
+
+def test_quality_report_in_chromium(tmp_path):
+    """Done when: the batch's HTML report opens in headless Chromium and shows every set.
+
+    A farm chunk first (the sheet lists the whole manifest, the other sets pending),
+    then the rest in worker processes; the EXRs are those of a run without a report.
+    """
+    from html.parser import HTMLParser
+
+    from hdrcl.batch import load_source
+    from hdrcl.report import format_figures, load_set_report
+
+    browser = _chromium()
+    shoot_dir, out, rep_dir, plain = (tmp_path / n for n in ("shoot", "out", "rep", "plain"))
+    assert run("sample-shoot", shoot_dir).exit_code == 0
+    stems = [output_stems(load_source(shoot_dir))[i] for i in range(3)]
+    assert stems == ["PANO_0001", "PANO_0004", "PANO_0007"]
+
+    res = run("batch", shoot_dir, "-o", out, "--report", rep_dir, "--sets", "0", "--report-json", out / "chunk.json")
+    assert res.exit_code == 0, res.output
+    assert (out / "chunk.json").is_file() and not (out / "report.json").exists()
+    assert _statuses((rep_dir / "index.html").read_text()) == {stems[0]: "done", stems[1]: "pending",
+                                                               stems[2]: "pending"}
+    res = run("batch", shoot_dir, "-o", out, "--report", rep_dir, "--jobs", "2")
+    assert res.exit_code == 0, res.output
+    assert f"quality report: {rep_dir / 'index.html'}" in res.stdout
+    assert run("batch", shoot_dir, "-o", plain).exit_code == 0
+    for name in outputs(plain, ".exr") + outputs(plain, ".jpg"):
+        assert same_bytes(plain / name, out / name), name  # the report adds files, changes none
+
+    sets = report_of(out)["sets"]
+    assert [s["status"] for s in sets] == ["skipped", "done", "done"]
+    entries = [load_set_report(rep_dir, stem) for stem in stems]
+    for s, e in zip(sets, entries):
+        assert set(e.files) == {"response", "coverage", "preview", "json"}
+        assert s["quality"] == e.figures.to_dict()  # report.json carries the same figures
+        assert e.figures.frames == len(s["files"]) and e.figures.loo_rmse is not None
+
+    url = "file://" + os.path.abspath(rep_dir / "index.html")
+    cmd = [browser, "--headless", "--no-sandbox", "--disable-gpu", f"--user-data-dir={tmp_path / 'profile'}",
+           "--virtual-time-budget=5000", "--dump-dom", url]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, f"{' '.join(cmd)} failed:\n{proc.stderr[-2000:]}"
+    dom = proc.stdout
+
+    class Page(HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.imgs, self.text = 0, []
+
+        def handle_starttag(self, tag, attrs):
+            self.imgs += tag == "img"
+
+        def handle_data(self, data):
+            self.text.append(data)
+
+    p = Page()
+    p.feed(dom)
+    text = "".join(p.text)
+    assert _statuses(dom) == {stems[0]: "skipped", stems[1]: "done", stems[2]: "done"}
+    for e in entries:
+        assert e.name in text, f"set {e.name} missing from the rendered page"
+        for label, value in format_figures(e.figures):
+            assert label in text and value in text, (e.name, label, value)
+    # The page's own script counted the images that decoded, after the load event.
+    m = re.search(r'id="image-check" data-loaded="(\d+)" data-total="(\d+)"', dom)
+    assert m, "the page's load handler did not run"
+    assert int(m.group(2)) == p.imgs == 3 * len(stems)  # preview, response plot, coverage map per set
+    assert m.group(1) == m.group(2), f"only {m.group(1)} of {m.group(2)} images loaded"

@@ -143,7 +143,10 @@ class _Progress:
 @click.option("--force", is_flag=True, help="Rebuild outputs that are already up to date.")
 @click.option("--calibrate-only", is_flag=True,
               help="Only solve (or load) and save the responses, e.g. once before submitting farm chunks.")
-@click.option("--report", type=click.Path(dir_okay=False),
+@click.option("--report", "report_dir", type=click.Path(file_okay=False),
+              help="Write a quality report into this folder: per set a response plot, a coverage map, a "
+                   "preview and the figures; an HTML contact sheet (index.html) over the shoot.")
+@click.option("--report-json", "report_json", type=click.Path(dir_okay=False),
               help="Write the JSON report here [default: OUT_DIR/report.json].")
 @click.option("--json", "as_json", is_flag=True, help="Print the report JSON on stdout.")
 @click.option("--preview/--no-preview", default=True, show_default=True,
@@ -158,9 +161,9 @@ class _Progress:
 @output_options
 @device_option
 @click.pass_context
-def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force, calibrate_only, report,
-          as_json, preview, preview_size, recursive, frames_per_set, gap, samples, smoothness, seed, weight,
-          ignore_color, deghost, dtype, compression, device):
+def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force, calibrate_only, report_dir,
+          report_json, as_json, preview, preview_size, recursive, frames_per_set, gap, samples, smoothness, seed,
+          weight, ignore_color, deghost, dtype, compression, device):
     """Merge every bracket set of a folder or manifest into OUT_DIR.
 
     SOURCE is a folder of photographs (grouped as 'hdrcl scan' does) or a manifest
@@ -178,11 +181,11 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
     quiet = bool((ctx.find_root().params or {}).get("quiet"))
     opts = BatchOptions(weight=weight, samples=samples, smoothness=smoothness, seed=seed,
                         ignore_color=ignore_color, deghost=deghost, dtype=dtype, compression=compression,
-                        preview=preview, preview_size=preview_size, device=device)
+                        preview=preview, preview_size=preview_size, device=device, report_dir=report_dir)
     progress = _Progress(sys.stderr, sys.stderr.isatty(), quiet)
     try:
         rep = run_batch(source, out_dir, options=opts, sets=sets, response=response, jobs=jobs,
-                        scheduler=scheduler, retries=retries, force=force, report=report,
+                        scheduler=scheduler, retries=retries, force=force, report=report_json,
                         calibrate_only=calibrate_only, recursive=recursive, frames_per_set=frames_per_set,
                         gap=gap, progress=progress)
     finally:
@@ -207,6 +210,8 @@ def _summary(rep) -> None:
     else:
         click.echo(f"{n} set(s): {rep.count('done')} done, {rep.count('skipped')} skipped, "
                    f"{rep.count('failed')} failed in {rep.seconds:.1f} s; report: {rep.path}")
+    if rep.quality_report:
+        click.echo(f"quality report: {rep.quality_report}")
     for r in rep.results:
         if r.status == "failed":
             click.echo(f"  failed: set {r.index} ({os.path.basename(r.files[0])}): {r.error}")
