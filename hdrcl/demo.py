@@ -25,11 +25,18 @@ class DemoReport:
     dynamic_range: float  # decades of the synthetic scene
     backend: str
     seconds: dict = field(default_factory=dict)
+    shoot: str = ""
+    batch: str = ""
+    batch_done: int = 0
+    batch_failed: int = 0
+    contact_sheet: str = ""
 
 
 def run_demo(folder, *, width: int = 768, height: int = 512, frames: int = 7, step: float = 2.0,
-             decades: float = 4.5, seed: int = 0, device=None) -> DemoReport:
-    """Write a synthetic bracket to ``folder/frames``, merge it, and check the result.
+             decades: float = 4.5, seed: int = 0, device=None, shoot: bool = True) -> DemoReport:
+    """Write a synthetic bracket to ``folder/frames``, merge it, and check the result;
+    then (``shoot``) write a sample shoot to ``folder/shoot`` and batch it into
+    ``folder/batch`` with a quality report.
 
     The camera is an S-shaped curve (:class:`hdrcl.synthetic.Camera`) with a slightly
     different curve per channel; the scene spans ``decades`` orders of magnitude.
@@ -80,6 +87,24 @@ def run_demo(folder, *, width: int = 768, height: int = 512, frames: int = 7, st
         k = np.median(ratio)
         rel.append(np.abs(ratio / k - 1.0))
     rad_err = float(np.median(np.concatenate(rel)))
-    return DemoReport(folder=folder, frames=paths, times=[float(t) for t in times], radiance=exr,
-                      response=rfile, preview=preview, curve_error=curve_err, radiance_error=rad_err,
-                      dynamic_range=decades, backend=res.backend, seconds=res.seconds)
+    rep = DemoReport(folder=folder, frames=paths, times=[float(t) for t in times], radiance=exr,
+                     response=rfile, preview=preview, curve_error=curve_err, radiance_error=rad_err,
+                     dynamic_range=decades, backend=res.backend, seconds=res.seconds)
+    if shoot:
+        _demo_batch(rep, device)
+    return rep
+
+
+def _demo_batch(rep: DemoReport, device) -> None:
+    """The shoot job: a sample shoot with EXIF, merged by ``hdrcl batch`` with a report."""
+    from .batch import BatchOptions, run_batch
+    from .sample import write_sample_shoot
+
+    rep.shoot = os.path.join(rep.folder, "shoot")
+    rep.batch = os.path.join(rep.folder, "batch")
+    write_sample_shoot(rep.shoot)
+    out = run_batch(rep.shoot, rep.batch, options=BatchOptions(device=device,
+                                                               report_dir=os.path.join(rep.batch, "report")))
+    rep.batch_done = sum(1 for r in out.results if r.status in ("done", "skipped"))
+    rep.batch_failed = sum(1 for r in out.results if r.status == "failed")
+    rep.contact_sheet = out.quality_report or ""

@@ -139,6 +139,9 @@ def test_demo(tmp_path, cl_device):
     assert (tmp_path / "demo" / "demo.exr").is_file() and (tmp_path / "demo" / "preview.jpg").is_file()
     err = float(r.output.split("response curve error:")[1].split()[0])
     assert err < 0.05
+    assert "3 set(s) merged, 0 failed" in r.output  # the shoot job ran a batch
+    assert (tmp_path / "demo" / "batch" / "report" / "index.html").is_file()
+    assert len(list((tmp_path / "demo" / "batch").glob("*.exr"))) == 3
 
 
 def test_devices_lists_the_selected_device(cl_device):

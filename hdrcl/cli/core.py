@@ -171,13 +171,16 @@ def expose(radiance, output, response, time_, bits, motion_blur, device):
 @click.option("--size", default="768x512", show_default=True, metavar="WxH")
 @click.option("--frames", type=click.IntRange(min=2, max=32), default=7, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--no-shoot", is_flag=True, help="Skip the sample shoot and its batch.")
 @device_option
-def demo(folder, size, frames, seed, device):
-    """Synthesise a bracket with a known camera, merge it, and check the result.
+def demo(folder, size, frames, seed, no_shoot, device):
+    """Synthesise a bracket with a known camera, merge it, and check the result; then
+    batch a generated sample shoot.
 
     Writes FOLDER/frames/*.png with times.txt, FOLDER/demo.exr, FOLDER/response.json
-    and FOLDER/preview.jpg, then prints how close the recovered curve and radiance
-    are to the truth.
+    and FOLDER/preview.jpg, and prints how close the recovered curve and radiance are
+    to the truth. Then writes a small shoot of JPEGs with EXIF to FOLDER/shoot, runs
+    the batch into FOLDER/batch and writes its quality report (FOLDER/batch/report).
     """
     from ..demo import run_demo
     from ..errors import UsageError
@@ -188,12 +191,16 @@ def demo(folder, size, frames, seed, device):
         raise UsageError(f"--size: expected WxH, not '{size}'") from None
     if w < 16 or h < 16:
         raise UsageError("--size: at least 16x16")
-    rep = run_demo(folder, width=w, height=h, frames=frames, seed=seed, device=device)
+    rep = run_demo(folder, width=w, height=h, frames=frames, seed=seed, device=device, shoot=not no_shoot)
     click.echo(f"synthetic bracket: {len(rep.frames)} frames in {os.path.join(folder, 'frames')} "
                f"(scene spans {rep.dynamic_range:g} decades)")
     click.echo(f"merged with {'OpenCL' if rep.backend == 'opencl' else 'NumPy'} -> {rep.radiance}")
     click.echo(f"response curve error: {rep.curve_error:.4f} (max |g - g_true|, ln units, levels 10-245)")
     click.echo(f"radiance error: {100 * rep.radiance_error:.2f} % (median, well-exposed pixels)")
     click.echo(f"response: {rep.response}   preview: {rep.preview}")
+    if rep.shoot:
+        click.echo(f"sample shoot: {rep.shoot} -> batch: {rep.batch_done} set(s) merged, {rep.batch_failed} failed "
+                   f"into {rep.batch}")
+        click.echo(f"quality report: {rep.contact_sheet}")
     click.echo("next: hdrcl expose {0} -o bright.jpg --response {1} --time {2:.4g}".format(
         rep.radiance, rep.response, rep.times[-1]))
