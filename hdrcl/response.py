@@ -255,7 +255,6 @@ def solve_curve(
         g at :func:`knot_positions` (float64), shifted so that ``g(levels // 2) = 0``.
     """
     import scipy.sparse as sp
-    from scipy.sparse.linalg import spsolve
 
     smoothness = _check_smoothness(smoothness, weight)
     levels = 1 << bits
@@ -294,13 +293,20 @@ def solve_curve(
     a = sp.csr_matrix((v, (r, c)), shape=(nrows, k + n))
     b = np.zeros(nrows)
     b[:m] = b_data
-    # A sample with no usable measurement leaves its ln E column empty; pin it to 0.
-    empty = np.flatnonzero(np.bincount(si, minlength=n) == 0)
+    # Normal equations [[G, B], [B^T, D]] [g; lnE] = [u; e]. Each ln E_i appears only in
+    # its own sample's rows, so D is diagonal and the ln E block is eliminated exactly
+    # (Schur complement), leaving a small dense levels x levels system for g:
+    # (G - B D^-1 B^T) g = u - B D^-1 e. Same solution as solving the whole system.
     ata = (a.T @ a).tocsc()
-    if empty.size:
-        ata = ata + sp.csc_matrix((np.ones(empty.size), (k + empty, k + empty)), shape=ata.shape)
-    x = spsolve(ata, a.T @ b)
-    g = x[:k]
+    atb = a.T @ b
+    d = ata.diagonal()[k:].copy()
+    empty = d <= 0  # a sample with no usable measurement: its ln E is free; pin it to 0
+    d[empty] = 1.0
+    gb = ata[:k, k:]
+    dinv = sp.diags(1.0 / d)
+    schur = ata[:k, :k].toarray() - (gb @ dinv @ gb.T).toarray()
+    rhs = atb[:k] - gb @ (atb[k:] / d)
+    g = np.linalg.solve(schur, rhs)
     # Re-anchor exactly at Zmid = levels // 2 (equal to a knot for 8-bit data).
     zmid = levels // 2
     i, f = _segments(np.array([float(zmid)]), knots)
