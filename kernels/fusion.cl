@@ -8,9 +8,10 @@
  *
  *   fuse      the fast path. Each work item takes 4 pixels (4*NCH consecutive values,
  *             so every lane's channel is known at compile time), loads them as
- *             uchar4/ushort4 vectors and gathers from one table per frame that folds
- *             weight and log exposure together: lut[p][c][z] = w(z)(g_c(z) - ln dt_p)/ln 2.
- *             One division and one exp2 per value, none per sample. A value whose
+ *             uchar4/ushort4 vectors and makes one 8-byte gather per sample from a
+ *             table per frame that folds weight and log exposure together:
+ *             lut[p][c][z] = (w(z)(g_c(z) - ln dt_p)/ln 2, w(z)). One division and one
+ *             exp2 per value, none per sample. A value whose
  *             weights sum to zero is written as -1 (impossible radiance) and counted.
  *   fuse_fix  run only when fuse counted such values: one work item per pixel applies
  *             the twin's rule to them. Clipped high (the shortest valid frame reads
@@ -28,8 +29,8 @@
  *   frames   PIXEL_T [P][plane]  codes of a strip: frame p starts at p*plane, pixels
  *                                row-major, channels interleaved (i*NCH + c)
  *   valid    uchar [P][vplane]   1 where frame p measures pixel i (HAS_VALID only)
- *   lut      float [P][NCH][L]   w(z) (g_c(z) - ln dt_p) / ln 2, log2 exposure units
- *   wlut     float [L]           w(z), dimensionless
+ *   lut      float2 [P][NCH][L]  (w(z) (g_c(z) - ln dt_p) / ln 2, w(z)): log2 exposure
+ *                                units times weight, and the dimensionless weight
  *   hi, lo   float [P][NCH]      (g_c(L-1) - ln dt_p) / ln 2 and (g_c(0) - ln dt_p) / ln 2
  *   out      float [npix*NCH]    linear relative radiance E, channels interleaved
  *   counts   uint [4]            clipped high, black, valid nowhere, zero weight (fuse)
@@ -49,14 +50,14 @@
 #define PIXEL4 CAT(PIXEL_T, 4)
 #define LOAD4(i, p) convert_int4(vload4((i), (p)))
 
-/* Contribution of one 4-lane vector of codes whose lanes have channels c0..c3. */
+/* Contribution of one 4-lane vector of codes whose lanes have channels c0..c3: one
+ * float2 gather (weighted log exposure, weight) per lane. */
 #define GATHER(z, c0, c1, c2, c3, l, num, den, ok)                                   \
     do {                                                                             \
-        const float4 n_ = (float4)(l[(c0) * levels + (z).s0], l[(c1) * levels + (z).s1], \
-                                   l[(c2) * levels + (z).s2], l[(c3) * levels + (z).s3]); \
-        const float4 d_ = (float4)(wlut[(z).s0], wlut[(z).s1], wlut[(z).s2], wlut[(z).s3]); \
-        num += select((float4)0.0f, n_, (ok));                                       \
-        den += select((float4)0.0f, d_, (ok));                                       \
+        const float2 t0_ = l[(c0) * levels + (z).s0], t1_ = l[(c1) * levels + (z).s1]; \
+        const float2 t2_ = l[(c2) * levels + (z).s2], t3_ = l[(c3) * levels + (z).s3]; \
+        num += select((float4)0.0f, (float4)(t0_.x, t1_.x, t2_.x, t3_.x), (ok));     \
+        den += select((float4)0.0f, (float4)(t0_.y, t1_.y, t2_.y, t3_.y), (ok));     \
     } while (0)
 
 inline float4 finish(const float4 num, const float4 den, __global uint *counts)
@@ -69,9 +70,8 @@ inline float4 finish(const float4 num, const float4 den, __global uint *counts)
 
 /* Scalar version of one value, for the ragged end of a strip. */
 inline float one_value(__global const PIXEL_T *frames, __global const uchar *valid,
-                       __global const float *lut, __global const float *wlut,
-                       __global uint *counts, const int i, const int c, const int nframes,
-                       const int levels, const int plane, const int vplane)
+                       __global const float2 *lut, __global uint *counts, const int i, const int c,
+                       const int nframes, const int levels, const int plane, const int vplane)
 {
     float num = 0.0f, den = 0.0f;
     for (int p = 0; p < nframes; ++p) {
@@ -80,8 +80,9 @@ inline float one_value(__global const PIXEL_T *frames, __global const uchar *val
             continue;
 #endif
         const int z = frames[(size_t)p * plane + (size_t)i * NCH + c];
-        num += lut[(p * NCH + c) * levels + z];
-        den += wlut[z];
+        const float2 t = lut[(p * NCH + c) * levels + z];
+        num += t.x;
+        den += t.y;
     }
     if (den > 0.0f)
         return exp2(num / den);
@@ -91,8 +92,7 @@ inline float one_value(__global const PIXEL_T *frames, __global const uchar *val
 
 __kernel void fuse(__global const PIXEL_T *frames,
                    __global const uchar *valid,
-                   __global const float *lut,
-                   __global const float *wlut,
+                   __global const float2 *lut,
                    __global float *out,
                    __global uint *counts,
                    const int npix,
@@ -108,8 +108,8 @@ __kernel void fuse(__global const PIXEL_T *frames,
     if (i0 + 4 > npix) { /* ragged end */
         for (int i = i0; i < npix; ++i)
             for (int c = 0; c < NCH; ++c)
-                out[(size_t)i * NCH + c] = one_value(frames, valid, lut, wlut, counts, i, c, nframes,
-                                                     levels, plane, vplane);
+                out[(size_t)i * NCH + c] = one_value(frames, valid, lut, counts, i, c, nframes, levels,
+                                                     plane, vplane);
         return;
     }
     const size_t v0 = (size_t)i0 * NCH;
@@ -120,7 +120,7 @@ __kernel void fuse(__global const PIXEL_T *frames,
 #endif
     for (int p = 0; p < nframes; ++p) {
         __global const PIXEL_T *f = frames + (size_t)p * plane + v0;
-        __global const float *l = lut + p * NCH * levels;
+        __global const float2 *l = lut + p * NCH * levels;
 #ifdef HAS_VALID
         const int4 m = convert_int4(vload4(0, valid + (size_t)p * vplane + i0)) != 0;
 #else

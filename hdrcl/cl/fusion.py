@@ -32,10 +32,12 @@ class FusionPlan:
         self.fix = proc.ctx.kernel("fusion", "fuse_fix", opts)
         log_t = np.asarray(log_times, np.float64)
         wt = np.asarray(weights, np.float64)
-        # Folded table, log2 units: exp2(num / den) = exp(ln E).
-        lut = wt[None, None, :] * (tables[None, :, :] - log_t[:, None, None]) * _LOG2E
-        self.lut = proc.constant("lut", lut.astype(np.float32))
-        self.wlut = proc.constant("wlut", wt.astype(np.float32))
+        # Folded table, log2 units (exp2(num / den) = exp(ln E)), interleaved with the
+        # weight so that each sample costs one 8-byte gather.
+        lut = np.empty((len(log_t), nch, self.levels, 2), np.float32)
+        lut[..., 0] = wt[None, None, :] * (tables[None, :, :] - log_t[:, None, None]) * _LOG2E
+        lut[..., 1] = wt[None, None, :]
+        self.lut = proc.constant("lut", lut)
         self.hi = proc.constant("hi", ((tables[None, :, -1] - log_t[:, None]) * _LOG2E).astype(np.float32))
         self.lo = proc.constant("lo", ((tables[None, :, 0] - log_t[:, None]) * _LOG2E).astype(np.float32))
         self.counts = np.zeros(4, np.uint32)
@@ -65,7 +67,7 @@ class FusionPlan:
                 v = self._ones[:npix] if valid[j] is None else np.ascontiguousarray(valid[j], dtype=np.uint8)
                 cl.enqueue_copy(q, self.valid_b, v, dst_offset=j * self.spix, is_blocking=False)
         args = (np.int32(npix), np.int32(self.p), np.int32(self.levels), np.int32(self.plane), np.int32(self.spix))
-        self.knl(q, (round_up((npix + 3) // 4),), None, self.frames_b, self.valid_b, self.lut, self.wlut,
+        self.knl(q, (round_up((npix + 3) // 4),), None, self.frames_b, self.valid_b, self.lut,
                  self.out_b, self.counts_b, *args)
         cl.enqueue_copy(q, self.counts, self.counts_b, is_blocking=True)
         if self.counts[3] != self._zero_weight_seen:  # some values need the zero-weight rule
@@ -122,3 +124,26 @@ class FusionProcessor(OpenCLProcessor):
                             [None if v is None else v[r0:r1] for v in valid] if has_valid else None,
                             out[r0:r1])
         return out, plan.result_counts()
+
+
+def profile_kernel(proc: FusionProcessor, frames, log_times, tables, weights, repeats: int = 3) -> float:
+    """Seconds the ``fuse`` kernel alone takes over whole in-memory ``frames`` (best of
+    ``repeats``), measured by OpenCL profiling events with the data already on the
+    device: the figure behind "kernel bandwidth" in ``scripts/bench.py``."""
+    ctx = proc.ctx
+    h, w, c = frames[0].shape
+    dtype = frames[0].dtype
+    plan = FusionPlan(proc, len(frames), w, c, dtype, log_times, tables, weights, False)
+    q = cl.CommandQueue(ctx.context, properties=cl.command_queue_properties.PROFILING_ENABLE)
+    npix = h * w
+    mf = cl.mem_flags
+    packed = np.stack([np.ascontiguousarray(f).reshape(-1) for f in frames])
+    fb = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=packed)
+    ob = cl.Buffer(ctx.context, mf.READ_WRITE, npix * c * 4)
+    best = float("inf")
+    for _ in range(max(1, repeats)):
+        ev = plan.knl(q, (round_up((npix + 3) // 4),), None, fb, plan.valid_b, plan.lut, ob, plan.counts_b, np.int32(npix), np.int32(len(frames)), np.int32(plan.levels),
+                      np.int32(npix * c), np.int32(npix))
+        ev.wait()
+        best = min(best, (ev.profile.end - ev.profile.start) * 1e-9)
+    return best
