@@ -12,8 +12,9 @@
  *             table per frame that folds weight and log exposure together:
  *             lut[p][c][z] = (w(z)(g_c(z) - ln dt_p)/ln 2, w(z)). One division and one
  *             exp2 per value, none per sample. A value whose
- *             weights sum to zero is written as -1 (impossible radiance) and counted.
- *   fuse_fix  run only when fuse counted such values: one work item per pixel applies
+ *             weights sum to zero is written as -1 (impossible radiance) and raises a
+ *             flag (a plain store of 1: no atomics on the fast path).
+ *   fuse_fix  run only when fuse raised the flag: one work item per pixel applies
  *             the twin's rule to them. Clipped high (the shortest valid frame reads
  *             2Z >= L) -> g_c(Zmax) - ln dt_shortest; otherwise black ->
  *             g_c(Zmin) - ln dt_longest; valid in no frame -> 0.
@@ -24,6 +25,7 @@
  *   -DPIXEL_T=uchar|ushort  integer type of the codes (default uchar)
  *   -DNCH=1|3               channels per pixel (default 3)
  *   -DHAS_VALID             per-frame validity masks are given
+ *   -DLEVELS=256|65536      code values (must equal the levels argument)
  *
  * Arguments (units, layout)
  *   frames   PIXEL_T [P][plane]  codes of a strip: frame p starts at p*plane, pixels
@@ -33,7 +35,8 @@
  *                                units times weight, and the dimensionless weight
  *   hi, lo   float [P][NCH]      (g_c(L-1) - ln dt_p) / ln 2 and (g_c(0) - ln dt_p) / ln 2
  *   out      float [npix*NCH]    linear relative radiance E, channels interleaved
- *   counts   uint [4]            clipped high, black, valid nowhere, zero weight (fuse)
+ *   counts   uint [4]            clipped high, black, valid nowhere (counts); [3] is the
+ *                                fast path's zero-weight flag, cleared by the host
  *   npix                         pixels in this strip
  *   nframes, levels              P, L
  *   plane, vplane                elements between frames in `frames` and `valid`
@@ -44,27 +47,37 @@
 #ifndef NCH
 #define NCH 3
 #endif
+/* Code values: fixed by the pixel type, so table offsets fold into constants. */
+#ifndef LEVELS
+#define LEVELS 256
+#endif
 
 #define CAT_(a, b) a##b
 #define CAT(a, b) CAT_(a, b)
 #define PIXEL4 CAT(PIXEL_T, 4)
-#define LOAD4(i, p) convert_int4(vload4((i), (p)))
+#define LOAD4(i, p) vload4((i), (p))
+
+#ifdef HAS_VALID
+#define MASK(v, ok) select((float4)0.0f, (v), (ok))
+#else
+#define MASK(v, ok) (v)
+#endif
 
 /* Contribution of one 4-lane vector of codes whose lanes have channels c0..c3: one
  * float2 gather (weighted log exposure, weight) per lane. */
 #define GATHER(z, c0, c1, c2, c3, l, num, den, ok)                                   \
     do {                                                                             \
-        const float2 t0_ = l[(c0) * levels + (z).s0], t1_ = l[(c1) * levels + (z).s1]; \
-        const float2 t2_ = l[(c2) * levels + (z).s2], t3_ = l[(c3) * levels + (z).s3]; \
-        num += select((float4)0.0f, (float4)(t0_.x, t1_.x, t2_.x, t3_.x), (ok));     \
-        den += select((float4)0.0f, (float4)(t0_.y, t1_.y, t2_.y, t3_.y), (ok));     \
+        const float2 t0_ = l[(c0) * LEVELS + (z).s0], t1_ = l[(c1) * LEVELS + (z).s1]; \
+        const float2 t2_ = l[(c2) * LEVELS + (z).s2], t3_ = l[(c3) * LEVELS + (z).s3]; \
+        num += MASK((float4)(t0_.x, t1_.x, t2_.x, t3_.x), (ok));                     \
+        den += MASK((float4)(t0_.y, t1_.y, t2_.y, t3_.y), (ok));                     \
     } while (0)
 
 inline float4 finish(const float4 num, const float4 den, __global uint *counts)
 {
     const int4 zero = den <= 0.0f;
     if (any(zero))
-        atomic_add(&counts[3], (uint)(-(zero.s0 + zero.s1 + zero.s2 + zero.s3)));
+        counts[3] = 1u; /* a flag, not a count: every writer stores the same value */
     return select(exp2(num / den), (float4)(-1.0f), zero);
 }
 
@@ -86,7 +99,7 @@ inline float one_value(__global const PIXEL_T *frames, __global const uchar *val
     }
     if (den > 0.0f)
         return exp2(num / den);
-    atomic_inc(&counts[3]);
+    counts[3] = 1u;
     return -1.0f;
 }
 
@@ -120,7 +133,7 @@ __kernel void fuse(__global const PIXEL_T *frames,
 #endif
     for (int p = 0; p < nframes; ++p) {
         __global const PIXEL_T *f = frames + (size_t)p * plane + v0;
-        __global const float2 *l = lut + p * NCH * levels;
+        __global const float2 *l = lut + p * NCH * LEVELS;
 #ifdef HAS_VALID
         const int4 m = convert_int4(vload4(0, valid + (size_t)p * vplane + i0)) != 0;
 #else
@@ -128,12 +141,12 @@ __kernel void fuse(__global const PIXEL_T *frames,
 #endif
 #if NCH == 3
         /* values 0..11 = pixels 0..3 x RGB: lanes (R G B R) (G B R G) (B R G B) */
-        const int4 a = LOAD4(0, f), b = LOAD4(1, f), c = LOAD4(2, f);
+        const PIXEL4 a = LOAD4(0, f), b = LOAD4(1, f), c = LOAD4(2, f);
         GATHER(a, 0, 1, 2, 0, l, na, da, m.s0001);
         GATHER(b, 1, 2, 0, 1, l, nb, db, m.s1122);
         GATHER(c, 2, 0, 1, 2, l, nc, dc, m.s2333);
 #else
-        const int4 a = LOAD4(0, f);
+        const PIXEL4 a = LOAD4(0, f);
         GATHER(a, 0, 0, 0, 0, l, na, da, m);
 #endif
     }

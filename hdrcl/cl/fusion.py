@@ -27,7 +27,8 @@ class FusionPlan:
             raise ValueError(f"fusion handles 1 or 3 channels, not {nch}")
         self.levels = tables.shape[1]
         self.has_valid = has_valid
-        opts = (f"-DPIXEL_T={_PIXEL_T[self.dtype]}", f"-DNCH={nch}") + (("-DHAS_VALID",) if has_valid else ())
+        opts = (f"-DPIXEL_T={_PIXEL_T[self.dtype]}", f"-DNCH={nch}", f"-DLEVELS={self.levels}") + (
+            ("-DHAS_VALID",) if has_valid else ())
         self.knl = proc.ctx.kernel("fusion", "fuse", opts)
         self.fix = proc.ctx.kernel("fusion", "fuse_fix", opts)
         log_t = np.asarray(log_times, np.float64)
@@ -49,7 +50,7 @@ class FusionPlan:
         self.valid_b = proc.buffer("valid", nframes * self.spix if has_valid else 4, cl.mem_flags.READ_ONLY)
         self.out_b = proc.buffer("out", self.plane * 4, cl.mem_flags.READ_WRITE)
         self._ones = np.ones(self.spix, np.uint8) if has_valid else None
-        self._zero_weight_seen = 0
+        self._zero = np.zeros(1, np.uint32)
 
     def fuse_strip(self, frames: Sequence[np.ndarray], valid: Optional[Sequence[Optional[np.ndarray]]],
                    out: np.ndarray) -> None:
@@ -70,10 +71,10 @@ class FusionPlan:
         self.knl(q, (round_up((npix + 3) // 4),), None, self.frames_b, self.valid_b, self.lut,
                  self.out_b, self.counts_b, *args)
         cl.enqueue_copy(q, self.counts, self.counts_b, is_blocking=True)
-        if self.counts[3] != self._zero_weight_seen:  # some values need the zero-weight rule
-            self._zero_weight_seen = int(self.counts[3])
+        if self.counts[3]:  # the fast path flagged values that need the zero-weight rule
             self.fix(q, (round_up(npix),), None, self.frames_b, self.valid_b, self.hi, self.lo, self.out_b,
                      self.counts_b, *args)
+            cl.enqueue_copy(q, self.counts_b, self._zero, dst_offset=12, is_blocking=False)
         cl.enqueue_copy(q, out, self.out_b, is_blocking=True)
 
     def result_counts(self) -> dict:
