@@ -22,6 +22,18 @@ MAX_GRID_PIXELS = 250_000
 MAX_BINS = 64
 
 
+def _box_sum(a: np.ndarray, k: int, mode: str) -> np.ndarray:
+    """Sum over the k x k window centred on each pixel (summed-area table), the image
+    extended by ``mode`` ("constant": zeros, "edge": nearest pixel). NumPy only, so
+    calibration does not pay for importing scipy.ndimage."""
+    r = k // 2
+    p = np.pad(a, r, mode=mode) if mode == "edge" else np.pad(a, r)
+    c = np.zeros((p.shape[0] + 1, p.shape[1] + 1))
+    c[1:, 1:] = p.cumsum(0).cumsum(1)
+    h, w = a.shape
+    return c[k:k + h, k:k + w] - c[:h, k:k + w] - c[k:k + h, :w] + c[:h, :w]
+
+
 def grid_stride(height: int, width: int) -> int:
     """Stride of the decimated grid that sample selection works on."""
     return max(1, int(np.ceil(np.sqrt(height * width / MAX_GRID_PIXELS))))
@@ -76,8 +88,6 @@ def select_samples(
     random among the smoothest quarter (lowest 5x5 variance of the key), which spreads
     the samples over the image while keeping them away from edges.
     """
-    from scipy import ndimage
-
     h, w = frames[0].shape[:2]
     stride = grid_stride(h, w) if decimate else 1
     key = np.zeros((len(range(0, h, stride)), len(range(0, w, stride))), np.float64)
@@ -90,12 +100,13 @@ def select_samples(
     usable = np.ones(key.shape, bool) if valid is None else valid[::stride, ::stride].copy()
     # Stay clear of invalid areas and of the image border: samples must sit inside
     # smooth, fully measured neighbourhoods.
-    usable = ndimage.binary_erosion(usable, np.ones((5, 5), bool), border_value=0) if min(key.shape) > 8 else usable
+    if min(key.shape) > 8:
+        usable = _box_sum(usable.astype(np.float64), 5, "constant") > 24.5  # 5x5 erosion, outside = 0
     # A pixel clipped in every frame and channel carries no measurement.
     usable &= (key > 0) & (key < top)
 
-    mean = ndimage.uniform_filter(key, 5, mode="nearest")
-    var = ndimage.uniform_filter(key * key, 5, mode="nearest") - mean * mean
+    mean = _box_sum(key, 5, "edge") / 25.0
+    var = _box_sum(key * key, 5, "edge") / 25.0 - mean * mean
 
     cand = np.flatnonzero(usable)
     if cand.size == 0:

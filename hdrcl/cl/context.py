@@ -153,7 +153,8 @@ def _candidates() -> List["cl.Device"]:
 def _usable(ctx: DeviceContext) -> Optional[str]:
     """None if the device builds our kernels, else the reason it does not."""
     try:
-        ctx.kernel("fusion", "fuse", ("-DPIXEL_T=uchar",))
+        # the variant an 8-bit RGB merge uses, so the probe's build is not wasted
+        ctx.kernel("fusion", "fuse", ("-DPIXEL_T=uchar", "-DNCH=3", "-DLEVELS=256"))
         return None
     except HdrclError as exc:
         return str(exc).splitlines()[0]
