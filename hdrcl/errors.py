@@ -28,3 +28,17 @@ class InputError(HdrclError):
     """An input file is missing, unreadable, truncated or inconsistent (exit code 3)."""
 
     exit_code = 3
+
+
+def check_readable(name: str) -> None:
+    """Raise :class:`InputError` unless ``name`` is an existing, readable, non-empty file."""
+    import os
+
+    if not os.path.exists(name):
+        raise InputError(f"{name}: no such file")
+    if os.path.isdir(name):
+        raise InputError(f"{name}: is a folder, not an image")
+    if not os.access(name, os.R_OK):
+        raise InputError(f"{name}: permission denied")
+    if os.path.getsize(name) == 0:
+        raise InputError(f"{name}: empty file")

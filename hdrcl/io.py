@@ -32,7 +32,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, check_readable
 from .raw import is_raw
 from .metadata import FrameInfo
 
@@ -106,14 +106,7 @@ def _open_input(path):
     """
     oiio = _oiio()
     name = _name(path)
-    if not os.path.exists(name):
-        raise InputError(f"{name}: no such file")
-    if os.path.isdir(name):
-        raise InputError(f"{name}: is a folder, not an image")
-    if not os.access(name, os.R_OK):
-        raise InputError(f"{name}: permission denied")
-    if os.path.getsize(name) == 0:
-        raise InputError(f"{name}: empty file")
+    check_readable(name)
     inp = oiio.ImageInput.open(name, _config())
     if inp is None:
         detail = _clean_error(oiio.geterror(), name)

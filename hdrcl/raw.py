@@ -56,7 +56,7 @@ from typing import NamedTuple, Optional, Sequence, Union
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, check_readable
 from .metadata import FrameInfo
 
 logger = logging.getLogger(__name__)
@@ -140,15 +140,7 @@ def _rawpy(path: str):
     return rawpy
 
 
-def _check_file(name: str) -> None:
-    if not os.path.exists(name):
-        raise InputError(f"{name}: no such file")
-    if os.path.isdir(name):
-        raise InputError(f"{name}: is a folder, not an image")
-    if not os.access(name, os.R_OK):
-        raise InputError(f"{name}: permission denied")
-    if os.path.getsize(name) == 0:
-        raise InputError(f"{name}: empty file")
+_check_file = check_readable
 
 
 def _libraw_message(exc: BaseException) -> str:

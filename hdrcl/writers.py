@@ -310,6 +310,25 @@ def write_radiance(path, image, *, dtype="half", compression="zip", metadata=Non
     return warnings
 
 
+def _ldr_target(path, pixels, channels):
+    """Checked target path, extension and ``(H, W, C)`` integer pixels of an LDR write."""
+    target = os.fspath(path)
+    ext = _ext(target)
+    if ext not in LDR_EXTENSIONS:
+        raise UsageError(
+            f"{target}: unsupported image format '{ext or '(none)'}'; "
+            f"use {', '.join(LDR_EXTENSIONS)}"
+        )
+    px = np.asarray(pixels)
+    if px.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"pixels must be uint8 or uint16, got {px.dtype}")
+    if px.ndim == 2:
+        px = px[:, :, None]
+    if px.ndim != 3 or px.shape[2] not in channels:
+        raise ValueError(f"pixels must be (H, W, C) with C in {channels}, got {px.shape}")
+    return target, ext, px
+
+
 def write_ldr(path, pixels, *, metadata=None) -> None:
     """Write an 8- or 16-bit image (a virtual photograph, a preview) atomically.
 
@@ -333,20 +352,7 @@ def write_ldr(path, pixels, *, metadata=None) -> None:
     ValueError
         Wrong dtype or shape (caller bugs).
     """
-    target = os.fspath(path)
-    ext = _ext(target)
-    if ext not in LDR_EXTENSIONS:
-        raise UsageError(
-            f"{target}: unsupported image format '{ext or '(none)'}'; "
-            f"use {', '.join(LDR_EXTENSIONS)}"
-        )
-    px = np.asarray(pixels)
-    if px.dtype not in (np.uint8, np.uint16):
-        raise ValueError(f"pixels must be uint8 or uint16, got {px.dtype}")
-    if px.ndim == 2:
-        px = px[:, :, None]
-    if px.ndim != 3 or px.shape[2] not in (1, 2, 3, 4):
-        raise ValueError(f"pixels must be (H, W, C) with C in 1..4, got {px.shape}")
+    target, ext, px = _ldr_target(path, pixels, (1, 2, 3, 4))
     px = np.ascontiguousarray(px)
     attrs = _metadata_attributes(metadata)
     if ext in (".jpg", ".jpeg"):
@@ -500,20 +506,7 @@ def write_photo(path, pixels, exif: Optional[Mapping] = None) -> None:
     ProcessingError
         OpenImageIO failed to write the file.
     """
-    target = os.fspath(path)
-    ext = _ext(target)
-    if ext not in LDR_EXTENSIONS:
-        raise UsageError(
-            f"{target}: unsupported image format '{ext or '(none)'}'; "
-            f"use {', '.join(LDR_EXTENSIONS)}"
-        )
-    px = np.asarray(pixels)
-    if px.dtype not in (np.uint8, np.uint16):
-        raise ValueError(f"pixels must be uint8 or uint16, got {px.dtype}")
-    if px.ndim == 2:
-        px = px[:, :, None]
-    if px.ndim != 3 or px.shape[2] not in (1, 3):
-        raise ValueError(f"pixels must be (H, W, 1) or (H, W, 3), got {px.shape}")
+    target, ext, px = _ldr_target(path, pixels, (1, 3))
     if ext in (".jpg", ".jpeg") and px.dtype != np.uint8:
         raise UsageError(f"{target}: JPEG holds 8-bit data only; write .png or .tif")
     attrs = []
