@@ -508,6 +508,7 @@ def merge_files(
     resp = _as_response(response)
     t0 = _time.perf_counter()
     paths, infos, rel = _open_files(paths, times, times_file)
+    warm = _warm_up(device, calibrating=resp is None)
     first = infos[0]
     nch = 3 if first.nchannels >= 3 else 1
     h, w = first.height, first.width
@@ -549,6 +550,7 @@ def merge_files(
         ignore = rgb
     rel = exposures_used(resp, rel)
     t2 = _time.perf_counter()
+    warm.join()
     backend = "numpy" if get_processor("fusion", device) is None else "opencl"
     result = MergeResult(radiance=None, response=resp, counts={}, times=rel, paths=paths, backend=backend,
                          shape=(h, w, nch), warnings=list(resp.warnings), output=output, shifts=shifts)
@@ -612,6 +614,26 @@ def _align(frames, valid, times, device):
         logger.info("align: frame %d (%s) shifted by dy=%d dx=%d", i, format_time(times[i]), sh[0], sh[1])
     out, masks, box = apply_shifts(frames, shifts, valid)
     return list(out), list(masks), shifts, box
+
+
+def _warm_up(device, calibrating: bool):
+    """Open the OpenCL device (and import the solver) on a helper thread while the
+    frames decode: both take a few tenths of a second that need not add up."""
+    import threading
+
+    def work():
+        try:
+            if calibrating:
+                import scipy.sparse  # noqa: F401
+            from .backend import get_processor
+
+            get_processor("fusion", device)
+        except Exception:  # the main thread meets the same error and reports it
+            pass
+
+    t = threading.Thread(target=work, name="hdrcl-warm-up", daemon=True)
+    t.start()
+    return t
 
 
 def _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, nch, neutral, reference_patch,
