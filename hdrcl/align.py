@@ -46,13 +46,11 @@ behind the processor's interface) is also the fallback when OpenCL is off
 from __future__ import annotations
 
 import logging
-import os
 from dataclasses import dataclass
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .errors import HdrclError
 
 logger = logging.getLogger(__name__)
 
@@ -255,16 +253,6 @@ class NumpyAligner:
 
 # ---------------------------------------------------------------- processor choice
 
-_processors: Dict[Any, Any] = {}
-_warned: set = set()
-
-
-def _warn_once(msg: str) -> None:
-    if msg not in _warned:
-        _warned.add(msg)
-        logger.warning(msg)
-
-
 def get_aligner(device: Optional[str] = None):
     """The process-wide :class:`~hdrcl.cl.align.AlignProcessor` for ``device``, or a
     :class:`NumpyAligner` (the twins).
@@ -273,33 +261,10 @@ def get_aligner(device: Optional[str] = None):
     twins; a device that cannot be opened falls back to them with a warning, unless
     ``HDRCL_REQUIRE_OPENCL=1`` or a ``device`` was named, which make it an error.
     """
-    from .backend import opencl_enabled, opencl_required
+    from .backend import get_processor
 
-    if not opencl_enabled():
-        if opencl_required():
-            raise HdrclError("HDRCL_OPENCL=0 contradicts HDRCL_REQUIRE_OPENCL=1")
-        _warn_once("OpenCL disabled (HDRCL_OPENCL=0): aligning with the NumPy reference path (slower)")
-        return NumpyAligner()
-    key = (device, os.environ.get("PYOPENCL_CTX") or None)
-    proc = _processors.get(key)
-    if proc is not None:
-        return proc
-    try:
-        from .cl.align import AlignProcessor
-
-        proc = AlignProcessor(device=device)
-    except HdrclError as exc:
-        if opencl_required() or device is not None:
-            raise
-        _warn_once(f"{exc}; aligning with the NumPy reference path (slower)")
-        return NumpyAligner()
-    except Exception as exc:  # a broken driver or ICD raises all sorts
-        if opencl_required() or device is not None:
-            raise HdrclError(f"OpenCL could not be initialised: {exc}") from exc
-        _warn_once(f"OpenCL could not be initialised ({exc}); aligning with the NumPy reference path (slower)")
-        return NumpyAligner()
-    _processors[key] = proc
-    return proc
+    proc = get_processor("align", device)
+    return NumpyAligner() if proc is None else proc
 
 
 # ------------------------------------------------------------------------- search

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 from typing import Optional
 
 from .errors import HdrclError
@@ -39,10 +40,16 @@ def _warn_once(msg: str) -> None:
 
 
 def get_processor(kind: str, device: Optional[str] = None):
-    """The process-wide OpenCL processor of ``kind`` ('fusion' or 'exposure'), or None.
+    """The process-wide OpenCL processor of ``kind`` ('fusion', 'exposure' or 'align'),
+    or None.
 
-    None means: use :mod:`hdrcl.reference`.
+    None means: use the NumPy twins (:mod:`hdrcl.reference`, :mod:`hdrcl.align`).
     """
+    with _lock:
+        return _get_processor(kind, device)
+
+
+def _get_processor(kind: str, device: Optional[str]):
     if not opencl_enabled():
         if opencl_required():
             raise HdrclError("HDRCL_OPENCL=0 contradicts HDRCL_REQUIRE_OPENCL=1")
@@ -55,6 +62,8 @@ def get_processor(kind: str, device: Optional[str] = None):
     try:
         if kind == "fusion":
             from .cl.fusion import FusionProcessor as cls
+        elif kind == "align":
+            from .cl.align import AlignProcessor as cls
         else:
             from .cl.exposure import ExposureProcessor as cls
         proc = cls(device=device)
@@ -73,6 +82,7 @@ def get_processor(kind: str, device: Optional[str] = None):
 
 
 _processors: dict = {}
+_lock = threading.RLock()
 
 
 def device_name(device: Optional[str] = None) -> str:

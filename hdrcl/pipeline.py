@@ -10,7 +10,7 @@ from __future__ import annotations
 import concurrent.futures
 import logging
 from collections import deque
-from typing import List, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
