@@ -321,6 +321,7 @@ class MergeResult:
     shape: tuple = ()
     thumbnail: Optional[np.ndarray] = None
     shifts: Optional[list] = None  # (dy, dx) per frame when aligned
+    nominal: Optional[np.ndarray] = None  # the set's own exposures before any refinement
 
     def __post_init__(self):
         if not self.shape and self.radiance is not None:
@@ -358,7 +359,8 @@ def merge_bracket(
         warnings.append(f"{res.counts['no_data']} pixel-channels are invalid in every frame and were set to 0")
     return MergeResult(radiance=res.radiance, response=response, counts=res.counts, times=times,
                        paths=bracket.paths, backend=res.backend,
-                       seconds={"calibrate": t1 - t0, "fuse": t2 - t1}, warnings=warnings)
+                       seconds={"calibrate": t1 - t0, "fuse": t2 - t1}, warnings=warnings,
+                       nominal=np.asarray(bracket.times, np.float64))
 
 
 def merge(
@@ -407,8 +409,7 @@ def _provenance(result: MergeResult, response_source: str) -> dict:
         "software": "hdrcl",
         "sources": [os.path.basename(p) for p in result.paths],
         "exposures": [float(t) for t in result.times],
-        "exposuresNominal": [float(e.get("nominal", t)) for e, t in zip(r.exposures or [{}] * len(result.times),
-                                                                        result.times)],
+        "exposuresNominal": [float(t) for t in (result.nominal if result.nominal is not None else result.times)],
         "exposureText": ", ".join(format_time(t) for t in result.times),
         "response": response_source,
         "responseSmoothness": float(r.smoothness),
@@ -498,11 +499,14 @@ def merge_files(
     ext = os.path.splitext(output)[1].lower()
     if ext not in RADIANCE_EXTENSIONS:
         raise UsageError(f"{output}: unsupported output type '{ext}'; use one of {', '.join(RADIANCE_EXTENSIONS)}")
-    if not os.path.isdir(os.path.dirname(os.path.abspath(output))):
-        raise UsageError(f"{output}: output folder does not exist")
+    for target in (output, ghost_mask):
+        if target is not None and not os.path.isdir(os.path.dirname(os.path.abspath(os.fspath(target)))):
+            raise UsageError(f"{os.fspath(target)}: output folder does not exist")
     rgb = _parse_ignore_color(ignore_color)
     if crop and not align:
         raise UsageError("--crop needs --align")
+    if ghost_mask is not None and not deghost:
+        raise UsageError("--ghost-mask needs --deghost")
     source_name = os.fspath(response) if isinstance(response, (str, os.PathLike)) else (
         "given" if response is not None else "calibrated from these frames")
     resp = _as_response(response)
@@ -548,23 +552,24 @@ def merge_files(
     else:
         source = BracketReader(paths, infos)
         ignore = rgb
+    nominal = rel
     rel = exposures_used(resp, rel)
     t2 = _time.perf_counter()
     warm.join()
     backend = "numpy" if get_processor("fusion", device) is None else "opencl"
     result = MergeResult(radiance=None, response=resp, counts={}, times=rel, paths=paths, backend=backend,
-                         shape=(h, w, nch), warnings=list(resp.warnings), output=output, shifts=shifts)
-    has_valid = rgb is not None or any(i.nchannels in (2, 4) for i in infos)
+                         shape=(h, w, nch), warnings=list(resp.warnings), output=output, shifts=shifts,
+                         nominal=nominal)
+    # Any per-frame mask (alpha, ignore colour, or pixels an aligned frame lost) must
+    # reach the kernel.
+    has_valid = (rgb is not None or any(i.nchannels in (2, 4) for i in infos)
+                 or any(v is not None for v in getattr(source, "valid", [])))
     thumb = Thumbnail(h, w, nch, thumbnail) if thumbnail else None
     keep = ArraySink(h, w, nch) if keep_radiance else None
-    if ghost_mask is not None and not deghost:
-        raise UsageError("--ghost-mask needs --deghost")
-    if crop and not align:
-        raise UsageError("--crop needs --align")
     mask = np.zeros((h, w), bool) if ghost_mask is not None else None
-    factors, units = _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, nch,
-                                          neutral, reference_patch, absolute)
     try:
+        factors, units = _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, nch,
+                                              neutral, reference_patch, absolute, h, w)
         meta = _provenance(result, source_name)
         meta.update(units)
         if shifts is not None:
@@ -637,7 +642,7 @@ def _warm_up(device, calibrating: bool):
 
 
 def _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, nch, neutral, reference_patch,
-                         absolute):
+                         absolute, h, w):
     """Per-channel factors (or None) and metadata for white balance and absolute scale."""
     from . import radiometry as rm
 
@@ -646,8 +651,7 @@ def _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, n
     units = {"units": "relative"}
     if neutral is None and reference_patch is None and not absolute:
         return None, units
-    h, w = infos[0].height, infos[0].width
-    factors = np.ones(nch)
+    factors = np.ones(nch)  # h, w: the output's size (cropped when aligned with --crop)
 
     def patch_radiance(patch):
         from .fusion import fuse_frames
@@ -765,7 +769,8 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
             frames, valid = reader.read_all()
         else:
             frames, valid = reader.read_grid(grid_stride(h, w))
-    br = Bracket(frames=frames, times=np.asarray(result.times), valid=_with_ignore(frames, valid, rgb),
+    nominal = result.nominal if result.nominal is not None else result.times
+    br = Bracket(frames=frames, times=np.asarray(nominal), valid=_with_ignore(frames, valid, rgb),
                  paths=paths, infos=infos)
     preview = result.thumbnail if result.thumbnail is not None else result.radiance
     fig = measure(br, result.response, preview, weight=weight, times=result.times, device=device, loo=loo)

@@ -50,3 +50,49 @@ def test_crop_needs_align(handheld):
     paths, times, d = handheld
     r = CliRunner().invoke(main, ["merge", *paths, "--times", "1,2,4,8", "-o", str(d / "b.exr"), "--crop"])
     assert r.exit_code == 2 and "--align" in r.output
+
+
+def test_align_masks_reach_the_kernel(handheld, monkeypatch, cl_device):
+    """Pixels an aligned frame no longer covers are masked on the OpenCL path too:
+    the OpenCL and NumPy merges agree."""
+    import hdrcl
+
+    paths, times, d = handheld
+    a = hdrcl.merge_files(paths, d / "cl.exr", times=list(times), align=True, dtype="float", keep_radiance=True,
+                          fit_exposures="off")
+    monkeypatch.setenv("HDRCL_OPENCL", "0")
+    monkeypatch.delenv("HDRCL_REQUIRE_OPENCL", raising=False)
+    b = hdrcl.merge_files(paths, d / "np.exr", times=list(times), align=True, dtype="float", keep_radiance=True,
+                          fit_exposures="off", response=a.response)
+    np.testing.assert_allclose(a.radiance, b.radiance, rtol=2e-5)
+
+
+def test_align_masks_decide_the_clipping_rule(tmp_path, monkeypatch, cl_device):
+    """A border an aligned frame lost, where every other frame is clipped: with its mask
+    honoured the pixel is 'clipped high'; read as a real black sample it would turn
+    'clipped low'. OpenCL and NumPy must agree."""
+    import hdrcl
+    from test_align import textured_radiance
+
+    from hdrcl.writers import write_ldr
+
+    cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
+    big = textured_radiance(200, 260, seed=4)
+    big[:, :40] *= 1e4  # a window blown out in every exposure
+    times = s.stops(3, 2.0, centre=1.0 / float(np.median(big)))
+    shifts = [(0, 6), (0, 0), (0, 0)]  # the shortest frame moved: its left edge is lost
+    paths = []
+    for k, ((dy, dx), t) in enumerate(zip(shifts, times)):
+        view = big[30 + dy:170 + dy, 30 + dx:230 + dx]
+        p = tmp_path / f"c{k}.png"
+        write_ldr(str(p), s.bracket(view, [t], cam, noise=0.5, seed=k)[0])
+        paths.append(str(p))
+    a = hdrcl.merge_files(paths, tmp_path / "cl.exr", times=list(times), align=True, dtype="float",
+                          keep_radiance=True, fit_exposures="off")
+    assert a.shifts[0] == (0, -6)
+    monkeypatch.setenv("HDRCL_OPENCL", "0")
+    monkeypatch.delenv("HDRCL_REQUIRE_OPENCL", raising=False)
+    b = hdrcl.merge_files(paths, tmp_path / "np.exr", times=list(times), align=True, dtype="float",
+                          keep_radiance=True, fit_exposures="off", response=a.response)
+    np.testing.assert_allclose(a.radiance, b.radiance, rtol=2e-5)
+    assert a.radiance[:, :6].min() > np.median(a.radiance)  # the lost border stays bright

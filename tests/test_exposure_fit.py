@@ -73,3 +73,22 @@ def test_memorial_times_stay_untouched(memorial_bracket, cl_device):
     np.testing.assert_array_equal(used, br.times)  # the memorial metadata is right
     fitted = np.array([e["fitted"] for e in resp.exposures])
     assert np.all(np.abs(np.log2(fitted / br.times)) < 0.5)
+
+
+def test_file_merge_records_nominal_and_used_times(bracket, tmp_path, cl_device):
+    from hdrcl.writers import read_metadata, write_ldr
+
+    frames, times = bracket
+    paths = []
+    for k, f in enumerate(frames):
+        paths.append(str(tmp_path / f"e{k}.png"))
+        write_ldr(paths[-1], f)
+    wrong = [float(t) for t in times]
+    wrong[2] *= 1.7
+    res = hdrcl.merge_files(paths, tmp_path / "m.exr", times=wrong)
+    np.testing.assert_allclose(res.nominal, wrong)
+    assert abs(np.log2(res.times[2] / times[2])) < 0.1  # refined back to the truth
+    meta = read_metadata(str(tmp_path / "m.exr"))
+    got = meta["exposuresNominal"]
+    got = __import__("json").loads(got) if isinstance(got, str) else got
+    np.testing.assert_allclose(got, wrong, rtol=1e-6)

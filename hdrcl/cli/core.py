@@ -102,8 +102,12 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
           align, crop, report, dtype, compression, device):
     """Merge one bracket set into a radiance map."""
     from ..api import merge_files
+    from ..errors import UsageError
     from ..metadata import format_time
 
+    for target in (save_response,):  # fail before the merge, not after it
+        if target and not os.path.isdir(os.path.dirname(os.path.abspath(target))):
+            raise UsageError(f"{target}: output folder does not exist")
     res = merge_files(list(images), output, times=times, times_file=times_file, response=response,
                       weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness, seed=seed,
                       dtype=dtype, compression=compression, device=device, fit_exposures=fit_exposures,
