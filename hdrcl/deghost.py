@@ -57,13 +57,30 @@ def _estimates(frames, log_times, tables, valid, j):
     return z, ln_e, ok
 
 
+def grow(raw: np.ndarray, above: Optional[np.ndarray] = None, below: Optional[np.ndarray] = None) -> np.ndarray:
+    """Dilate a raw ghost mask by ``GROW`` pixels. ``above``/``below`` are the raw masks'
+    neighbouring rows from the strips before and after (up to ``GROW`` rows each), so
+    that strips grow exactly as the whole image would."""
+    if not GROW:
+        return raw
+    parts = [p for p in (above, raw, below) if p is not None]
+    stack = np.concatenate(parts) if len(parts) > 1 else raw
+    if not stack.any():
+        return np.zeros_like(raw)
+    from scipy import ndimage
+
+    top = 0 if above is None else above.shape[0]
+    return ndimage.binary_dilation(stack, iterations=GROW)[top:top + raw.shape[0]]
+
+
 def detect(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.ndarray,
-           valid: Optional[Sequence[Optional[np.ndarray]]], fused: np.ndarray) -> np.ndarray:
+           valid: Optional[Sequence[Optional[np.ndarray]]], fused: np.ndarray, dilate: bool = True) -> np.ndarray:
     """Ghost mask ``(H, W)`` of a strip or image.
 
     ``fused`` is the radiance the plain weighted average gave; a frame that measures a
     pixel within its working range and departs from it by more than
     ``max(K_SIGMA * g'(Z) * SIGMA_Z, FLOOR)`` (ln units) marks the pixel.
+    ``dilate=False`` returns the raw mask, for :func:`grow` across strips.
     """
     levels = tables.shape[1]
     scale = levels / 256.0
@@ -77,11 +94,7 @@ def detect(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.
         sig = slope[chan, z] * SIGMA_Z * scale
         bad = ok & (fused > 0) & (np.abs(ln_e - ln_f) > np.maximum(K_SIGMA * sig, FLOOR))
         ghost |= bad.any(axis=2)
-    if GROW and ghost.any():
-        from scipy import ndimage
-
-        ghost = ndimage.binary_dilation(ghost, iterations=GROW)
-    return ghost
+    return grow(ghost) if dilate else ghost
 
 
 def replace(radiance: np.ndarray, frames, log_times, tables, ghost: np.ndarray, valid, ref: int) -> int:

@@ -26,6 +26,12 @@ logger = logging.getLogger(__name__)
 NUMPY_STRIP_PIXELS = 1 << 18
 
 
+def _grow_rows() -> int:
+    from .deghost import GROW
+
+    return GROW
+
+
 class ArraySource:
     """In-memory frames presented as strips (same protocol as BracketReader)."""
 
@@ -137,9 +143,30 @@ def stream_merge(
     counts = {"clipped_high": 0, "clipped_low": 0, "no_data": 0}
     ghosts = {"ghost": 0, "ghost_unresolved": 0}
     ref = len(order) // 2  # middle exposure, in exposure order
-    # Three output strips: one being fused, one being written, one queued.
-    buffers = deque(np.empty((rows, source.width, nch), np.float32) for _ in range(3))
+    # Output strips: one being fused, one held back (deghost: its mask's growth into the
+    # next strip is not known yet), two being written or queued.
+    buffers = deque(np.empty((rows, source.width, nch), np.float32) for _ in range(4))
     pending: deque = deque()
+    held = None  # deghost: (y0, y1, frames, valid, out, raw mask) awaiting the next strip
+    above = None  # deghost: last raw-mask rows of the strip before ``held``
+
+    def emit(y0, y1, out):
+        if thumbnail is not None:
+            thumbnail.add(y0, y1, out)
+        pending.append(writer.submit(sink.write_rows, y0, y1, out))
+
+    def finish_ghosts(item, below):
+        from . import deghost as dg
+
+        y0, y1, frames, vv, out, raw = item
+        mask = dg.grow(raw, above, below)
+        ghosts["ghost_unresolved"] += dg.replace(out, frames, log_t, tables, mask, vv, ref)
+        ghosts["ghost"] += int(np.count_nonzero(mask))
+        if ghost_mask is not None:
+            ghost_mask[y0:y1] = mask
+        emit(y0, y1, out)
+        return raw[-max(1, _grow_rows()):]
+
     with concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="hdrcl-write") as writer:
         for y0, y1, frames, valid in source.strips(rows):
             frames = [frames[i] for i in order]
@@ -147,7 +174,7 @@ def stream_merge(
             if ignore_color is not None:
                 valid = [(~ignore_color_mask(f, ignore_color)) if v is None else (v & ~ignore_color_mask(f, ignore_color))
                          for f, v in zip(frames, valid)]
-            if len(pending) == len(buffers) - 1:
+            while len(pending) >= len(buffers) - 2:
                 pending.popleft().result()  # bounded memory; also re-raises write errors
             buf = buffers[0]
             buffers.rotate(-1)
@@ -163,14 +190,14 @@ def stream_merge(
                 from . import deghost as dg
 
                 vv = valid if has_valid else None
-                mask = dg.detect(frames, log_t, tables, vv, out)
-                ghosts["ghost_unresolved"] += dg.replace(out, frames, log_t, tables, mask, vv, ref)
-                ghosts["ghost"] += int(np.count_nonzero(mask))
-                if ghost_mask is not None:
-                    ghost_mask[y0:y1] = mask
-            if thumbnail is not None:
-                thumbnail.add(y0, y1, out)
-            pending.append(writer.submit(sink.write_rows, y0, y1, out))
+                raw = dg.detect(frames, log_t, tables, vv, out, dilate=False)
+                if held is not None:
+                    above = finish_ghosts(held, raw[:_grow_rows()])
+                held = (y0, y1, frames, vv, out, raw)
+            else:
+                emit(y0, y1, out)
+        if held is not None:
+            finish_ghosts(held, None)
         for fut in pending:
             fut.result()
     if plan is not None:

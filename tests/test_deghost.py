@@ -69,3 +69,33 @@ def test_streaming_deghost_matches_in_memory(moving, cl_device):
     # strips are dilated separately, so only rows at strip seams may differ
     assert (mask != whole.ghost_mask).mean() < 0.002
     assert abs(counts["ghost"] - whole.counts["ghost"]) <= 0.02 * whole.counts["ghost"]
+
+
+def test_strip_seams_grow_like_the_whole_image(monkeypatch, cl_device):
+    """A ghost straddling a strip seam grows across it exactly as in one piece."""
+    import hdrcl.cl.processing as proc
+    import hdrcl.pipeline as pl
+    from hdrcl.backend import _processors
+    from hdrcl.pipeline import ArraySink, ArraySource, stream_merge
+
+    cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
+    rad = s.radiance_field(64, 64, decades=2.0, seed=5)
+    times = s.stops(3, 1.5, centre=1.0 / float(np.median(rad)))
+    frames = []
+    for k, t in enumerate(times):
+        scene = rad.copy()
+        if k == 2:
+            scene[29:32, 20:30] *= 20  # only in the longest frame, across the seam at row 32
+        frames.append(s.bracket(scene, [t], cam, noise=0.3, seed=k)[0])
+    resp = recover_response(frames, times, samples=300)
+    whole = fuse_frames(frames, times, resp, deghost=True)
+    monkeypatch.setattr(proc, "STRIP_PIXELS", 64 * 32)
+    monkeypatch.setattr(pl, "NUMPY_STRIP_PIXELS", 64 * 32)
+    _processors.clear()
+    mask = np.zeros((64, 64), bool)
+    sink = ArraySink(64, 64, 3)
+    stream_merge(ArraySource(frames, [None] * 3), times, resp, sink, deghost=True, ghost_mask=mask)
+    _processors.clear()
+    np.testing.assert_array_equal(mask, whole.ghost_mask)
+    assert mask[32:34].any()  # the growth did cross the seam
+    np.testing.assert_allclose(sink.array, whole.radiance, rtol=2e-5)
