@@ -322,6 +322,7 @@ class MergeResult:
     thumbnail: Optional[np.ndarray] = None
     shifts: Optional[list] = None  # (dy, dx) per frame when aligned
     nominal: Optional[np.ndarray] = None  # the set's own exposures before any refinement
+    crop: Optional[tuple] = None  # (y0, y1, x0, x1) of the input kept, with align + crop
 
     def __post_init__(self):
         if not self.shape and self.radiance is not None:
@@ -523,7 +524,7 @@ def merge_files(
         resp.exposures = [{"file": os.path.basename(p), "nominal": float(t), "fitted": None, "used": float(t)}
                           for p, t in zip(paths, rel)]
     t1 = _time.perf_counter()
-    shifts = None
+    shifts = crop_box = None
     itemsize = 1 if first.bits == 8 else 2
     in_memory = align or (resp is None and len(paths) * h * w * nch * itemsize <= memory_budget())
     if in_memory:
@@ -533,7 +534,7 @@ def merge_files(
         if align:
             frames, valid, shifts, box = _align(frames, valid, rel, device)
             if crop:
-                y0, y1, x0, x1 = box
+                y0, y1, x0, x1 = crop_box = box
                 frames = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in frames]
                 valid = [None if v is None else np.ascontiguousarray(v[y0:y1, x0:x1]) for v in valid]
                 h, w = y1 - y0, x1 - x0
@@ -559,7 +560,7 @@ def merge_files(
     backend = "numpy" if get_processor("fusion", device) is None else "opencl"
     result = MergeResult(radiance=None, response=resp, counts={}, times=rel, paths=paths, backend=backend,
                          shape=(h, w, nch), warnings=list(resp.warnings), output=output, shifts=shifts,
-                         nominal=nominal)
+                         nominal=nominal, crop=crop_box)
     # Any per-frame mask (alpha, ignore colour, or pixels an aligned frame lost) must
     # reach the kernel.
     has_valid = (rgb is not None or any(i.nchannels in (2, 4) for i in infos)
@@ -765,13 +766,22 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
     rgb = _parse_ignore_color(ignore_color)
     h, w, c = result.shape
     with BracketReader(paths, infos) as reader:
-        if len(paths) * h * w * c * reader.dtype.itemsize <= memory_budget():
+        if result.shifts is not None or len(paths) * h * w * c * reader.dtype.itemsize <= memory_budget():
             frames, valid = reader.read_all()
         else:
             frames, valid = reader.read_grid(grid_stride(h, w))
+    valid = _with_ignore(frames, valid, rgb)
+    if result.shifts is not None:  # measure what was merged: the aligned (and cropped) frames
+        from .align import apply_shifts
+
+        frames, valid, _box = apply_shifts(frames, result.shifts, valid)
+        frames, valid = list(frames), list(valid)
+        if result.crop is not None:
+            y0, y1, x0, x1 = result.crop
+            frames = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in frames]
+            valid = [None if v is None else v[y0:y1, x0:x1] for v in valid]
     nominal = result.nominal if result.nominal is not None else result.times
-    br = Bracket(frames=frames, times=np.asarray(nominal), valid=_with_ignore(frames, valid, rgb),
-                 paths=paths, infos=infos)
+    br = Bracket(frames=frames, times=np.asarray(nominal), valid=valid, paths=paths, infos=infos)
     preview = result.thumbnail if result.thumbnail is not None else result.radiance
     fig = measure(br, result.response, preview, weight=weight, times=result.times, device=device, loo=loo)
     stem = name or os.path.splitext(os.path.basename(result.output or paths[0]))[0]

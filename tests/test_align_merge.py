@@ -96,3 +96,14 @@ def test_align_masks_decide_the_clipping_rule(tmp_path, monkeypatch, cl_device):
                           keep_radiance=True, fit_exposures="off", response=a.response)
     np.testing.assert_allclose(a.radiance, b.radiance, rtol=2e-5)
     assert a.radiance[:, :6].min() > np.median(a.radiance)  # the lost border stays bright
+
+
+def test_report_measures_the_aligned_cropped_frames(handheld, tmp_path, cl_device):
+    import hdrcl
+    from hdrcl.api import write_quality_report
+
+    paths, times, d = handheld
+    res = hdrcl.merge_files(paths, d / "r.exr", times=list(times), align=True, crop=True, thumbnail=64)
+    fig, entry = write_quality_report(res, tmp_path / "rep", loo=False)
+    assert fig.coverage.shape == res.shape[:2]
+    assert (tmp_path / "rep" / "index.html").is_file()
