@@ -194,6 +194,57 @@ def _exr_compression(compression: str) -> str:
     return text
 
 
+def _radiance_header(path, nch: int, dtype: str, compression: str, metadata, timestamp):
+    """Checked target, extension, and the OIIO header of a radiance file.
+
+    Returns ``(target, ext, fmt, attrs, channelnames, warnings)``; shared by
+    :func:`write_radiance` and :class:`RadianceWriter`.
+    """
+    target = os.fspath(path)
+    ext = _ext(target)
+    if ext not in RADIANCE_EXTENSIONS:
+        raise UsageError(
+            f"{target}: unsupported radiance format '{ext or '(none)'}'; "
+            f"use {', '.join(RADIANCE_EXTENSIONS)}"
+        )
+    if dtype not in ("half", "float"):
+        raise UsageError(f"--dtype: '{dtype}' is not one of half, float")
+    warnings = []
+    attrs = _metadata_attributes(metadata)  # validates keys for every format
+    attrs.append(("oiio:ColorSpace", LINEAR_COLORSPACE))
+    fmt = "float"
+    channelnames = None
+    if ext == ".exr":
+        oiio = _oiio()
+        fmt = dtype
+        attrs.append(("compression", _exr_compression(compression)))
+        attrs.append(("chromaticities", oiio.TypeDesc("float[8]"), REC709_CHROMATICITIES))
+        if timestamp is not None:
+            # OIIO stamps the time of writing unless DateTime is set ("" leaves it out).
+            attrs.append(("DateTime", str(timestamp)))
+        if nch == 1:
+            channelnames = ("Y",)
+    elif ext in (".tif", ".tiff"):
+        comp = str(compression).strip().lower()
+        if comp not in TIFF_COMPRESSIONS:
+            warnings.append(f"{target}: TIFF has no '{compression}' compression; used zip")
+            comp = "zip"
+        attrs = [a for a in attrs if not a[0].startswith(METADATA_PREFIX)]
+        desc = _description(metadata)
+        if desc:
+            attrs.append(("ImageDescription", desc))
+        attrs.append(("compression", comp))
+        # OIIO 3.2 reports "failed TIFFWriteCustomDirectory() of the Exif data" on
+        # every TIFF it writes unless the (here useless) EXIF directory is skipped.
+        attrs.append(("tiff:write_exif", 0))
+    else:
+        if metadata:
+            logger.debug("%s: %s cannot store metadata; %d entries not written",
+                         target, ext, len(metadata))
+        attrs = [a for a in attrs if not a[0].startswith(METADATA_PREFIX)]
+    return target, ext, fmt, attrs, channelnames, warnings
+
+
 def write_radiance(path, image, *, dtype="half", compression="zip", metadata=None,
                    timestamp=None) -> list:
     """Write a floating-point radiance map; the format follows the extension.
@@ -236,74 +287,30 @@ def write_radiance(path, image, *, dtype="half", compression="zip", metadata=Non
     ValueError
         ``image`` has the wrong shape or a metadata key is too long (caller bugs).
     """
-    target = os.fspath(path)
-    ext = _ext(target)
-    if ext not in RADIANCE_EXTENSIONS:
-        raise UsageError(
-            f"{target}: unsupported radiance format '{ext or '(none)'}'; "
-            f"use {', '.join(RADIANCE_EXTENSIONS)}"
-        )
-    if dtype not in ("half", "float"):
-        raise UsageError(f"--dtype: '{dtype}' is not one of half, float")
     img = np.asarray(image, dtype=np.float32)
     if img.ndim == 2:
         img = img[:, :, None]
     if img.ndim != 3 or img.shape[2] not in (1, 3) or img.shape[0] < 1 or img.shape[1] < 1:
         raise ValueError(f"radiance image must be (H, W, 1) or (H, W, 3), got {img.shape}")
     img = np.ascontiguousarray(img)
-
-    warnings = []
+    target, ext, fmt, attrs, channelnames, warnings = _radiance_header(
+        path, img.shape[2], dtype, compression, metadata, timestamp)
     finite = np.isfinite(img)
     if not finite.all():
         bad = img.size - int(np.count_nonzero(finite))
         warnings.append(f"{target}: {bad} value(s) are NaN or infinite")
-    attrs = _metadata_attributes(metadata)  # validates keys for every format
-    attrs.append(("oiio:ColorSpace", LINEAR_COLORSPACE))
-    fmt = "float"
-    channelnames = None
-
-    if ext == ".exr":
-        oiio = _oiio()
-        fmt = dtype
-        if dtype == "half":
-            over = int(np.count_nonzero(np.abs(img[finite]) > HALF_MAX))
-            if over:
-                pct = 100.0 * over / img.size
-                warnings.append(
-                    f"{target}: {pct:.2g}% of values exceed the half-float range "
-                    f"({HALF_MAX:g}); use --dtype float or scale"
-                )
-        attrs.append(("compression", _exr_compression(compression)))
-        attrs.append(("chromaticities", oiio.TypeDesc("float[8]"), REC709_CHROMATICITIES))
-        if timestamp is not None:
-            # OIIO stamps the time of writing unless DateTime is set ("" leaves it out).
-            attrs.append(("DateTime", str(timestamp)))
+    if ext == ".exr" and dtype == "half":
+        over = int(np.count_nonzero(np.abs(img[finite]) > HALF_MAX))
+        if over:
+            warnings.append(
+                f"{target}: {100.0 * over / img.size:.2g}% of values exceed the half-float range "
+                f"({HALF_MAX:g}); use --dtype float or scale"
+            )
+    if ext == ".hdr":
+        if np.any(img[finite] < 0):
+            warnings.append(f"{target}: negative values are written as 0 in RGBE")
         if img.shape[2] == 1:
-            channelnames = ("Y",)
-    elif ext in (".tif", ".tiff"):
-        comp = str(compression).strip().lower()
-        if comp not in TIFF_COMPRESSIONS:
-            warnings.append(f"{target}: TIFF has no '{compression}' compression; used zip")
-            comp = "zip"
-        attrs = [a for a in attrs if not a[0].startswith(METADATA_PREFIX)]
-        desc = _description(metadata)
-        if desc:
-            attrs.append(("ImageDescription", desc))
-        attrs.append(("compression", comp))
-        # OIIO 3.2 reports "failed TIFFWriteCustomDirectory() of the Exif data" on
-        # every TIFF it writes unless the (here useless) EXIF directory is skipped.
-        attrs.append(("tiff:write_exif", 0))
-    else:
-        if metadata:
-            logger.debug("%s: %s cannot store metadata; %d entries not written",
-                         target, ext, len(metadata))
-        attrs = [a for a in attrs if not a[0].startswith(METADATA_PREFIX)]
-        if ext == ".hdr":
-            if np.any(img[finite] < 0):
-                warnings.append(f"{target}: negative values are written as 0 in RGBE")
-            if img.shape[2] == 1:
-                img = np.ascontiguousarray(np.repeat(img, 3, axis=2))
-
+            img = np.ascontiguousarray(np.repeat(img, 3, axis=2))
     _write(target, img, fmt, attrs, channelnames)
     for w in warnings:
         logger.warning("%s", w)
@@ -540,53 +547,19 @@ class RadianceWriter:
 
     def __init__(self, path, width: int, height: int, nch: int, *, dtype: str = "half",
                  compression: str = "zip", metadata=None, timestamp=None):
-        target = os.fspath(path)
-        ext = _ext(target)
-        if ext not in RADIANCE_EXTENSIONS:
-            raise UsageError(
-                f"{target}: unsupported radiance format '{ext or '(none)'}'; "
-                f"use {', '.join(RADIANCE_EXTENSIONS)}"
-            )
-        if dtype not in ("half", "float"):
-            raise UsageError(f"--dtype: '{dtype}' is not one of half, float")
         if nch not in (1, 3):
             raise ValueError(f"radiance must have 1 or 3 channels, not {nch}")
+        target, ext, fmt, attrs, channelnames, warnings = _radiance_header(
+            path, nch, dtype, compression, metadata, timestamp)
         self.path, self.ext = target, ext
         self.width, self.height, self.nch = int(width), int(height), int(nch)
         self.dtype = dtype
-        self.warnings: list = []
+        self.warnings: list = warnings
         self._nonfinite = 0
         self._over_half = 0
         self._negative = 0
         self._next_row = 0
-        attrs = _metadata_attributes(metadata)
-        attrs.append(("oiio:ColorSpace", LINEAR_COLORSPACE))
-        fmt = "float"
-        channelnames = None
-        self._expand = False
-        if ext == ".exr":
-            oiio = _oiio()
-            fmt = dtype
-            attrs.append(("compression", _exr_compression(compression)))
-            attrs.append(("chromaticities", oiio.TypeDesc("float[8]"), REC709_CHROMATICITIES))
-            if timestamp is not None:
-                attrs.append(("DateTime", str(timestamp)))
-            if nch == 1:
-                channelnames = ("Y",)
-        elif ext in (".tif", ".tiff"):
-            comp = str(compression).strip().lower()
-            if comp not in TIFF_COMPRESSIONS:
-                self.warnings.append(f"{target}: TIFF has no '{compression}' compression; used zip")
-                comp = "zip"
-            attrs = [a for a in attrs if not a[0].startswith(METADATA_PREFIX)]
-            desc = _description(metadata)
-            if desc:
-                attrs.append(("ImageDescription", desc))
-            attrs.append(("compression", comp))
-            attrs.append(("tiff:write_exif", 0))
-        else:
-            attrs = [a for a in attrs if not a[0].startswith(METADATA_PREFIX)]
-            self._expand = ext == ".hdr" and nch == 1  # RGBE has no grey
+        self._expand = ext == ".hdr" and nch == 1  # RGBE has no grey
         self._attrs, self._fmt, self._channelnames = attrs, fmt, channelnames
         self._whole = np.empty((height, width, nch), np.float32) if ext == ".pfm" else None
         self._ctx = atomic_output(target)
