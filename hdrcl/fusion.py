@@ -27,6 +27,21 @@ class FusionResult:
     ghost_mask: Optional[np.ndarray] = None
 
 
+def fusion_tables(response: Response, dtype, nch: int, weight: str = "hat"):
+    """``g`` per channel at every code, shape (C, L), and the weights (L,) for frames of
+    ``dtype`` with ``nch`` channels; UsageError when the response's depth differs."""
+    tables = response.table_for(nch)
+    levels = tables.shape[1]
+    if int(np.iinfo(dtype).max) + 1 != levels:
+        from .errors import UsageError
+
+        raise UsageError(
+            f"the response describes {response.bits}-bit images but the frames are "
+            f"{8 * np.dtype(dtype).itemsize}-bit"
+        )
+    return tables, weight_table(levels, weight)
+
+
 def fuse_frames(
     frames: Sequence[np.ndarray],
     times: Sequence[float],
@@ -47,17 +62,7 @@ def fuse_frames(
     frames = [frames[i] for i in order]
     log_t = np.log(np.asarray(times, np.float64)[order])
     vals = None if valid is None else [valid[i] for i in order]
-    nch = frames[0].shape[2]
-    tables = response.table_for(nch)
-    levels = tables.shape[1]
-    if int(np.iinfo(frames[0].dtype).max) + 1 != levels:
-        from .errors import UsageError
-
-        raise UsageError(
-            f"the response describes {response.bits}-bit images but the frames are "
-            f"{8 * frames[0].dtype.itemsize}-bit"
-        )
-    wts = weight_table(levels, weight)
+    tables, wts = fusion_tables(response, frames[0].dtype, frames[0].shape[2], weight)
     proc = get_processor("fusion", device)
     if proc is None:
         rad, counts = reference.fuse(frames, log_t, tables, wts, vals)

@@ -16,9 +16,8 @@ import numpy as np
 
 from . import reference
 from .backend import get_processor
-from .errors import UsageError
 from .response import Response
-from .weights import weight_table
+from .fusion import fusion_tables
 
 logger = logging.getLogger(__name__)
 
@@ -122,14 +121,7 @@ def stream_merge(
     order = np.argsort(np.asarray(times, np.float64), kind="stable")
     log_t = np.log(np.asarray(times, np.float64)[order])
     nch = source.nch
-    tables = response.table_for(nch)
-    levels = tables.shape[1]
-    if int(np.iinfo(source.dtype).max) + 1 != levels:
-        raise UsageError(
-            f"the response describes {response.bits}-bit images but the frames are "
-            f"{8 * np.dtype(source.dtype).itemsize}-bit"
-        )
-    wts = weight_table(levels, weight)
+    tables, wts = fusion_tables(response, source.dtype, nch, weight)
     proc = get_processor("fusion", device)
     if has_valid is None:
         has_valid = ignore_color is not None or any(
