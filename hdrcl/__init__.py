@@ -3,7 +3,7 @@
 Implements Debevec & Malik, "Recovering High Dynamic Range Radiance Maps from
 Photographs" (SIGGRAPH 1997): the response curve is solved on the CPU (scipy), fusion
 and virtual exposures run as OpenCL kernels (``kernels/``), with float64 NumPy twins in
-:mod:`hdrcl.reference`.
+:mod:`hdrcl.core.reference`.
 
 Importing hdrcl is cheap: no OpenCL device scan and no OpenImageIO load happen until
 they are needed.
@@ -18,15 +18,15 @@ __all__ = [
 
 def __getattr__(name):
     if name in ("calibrate", "merge", "expose", "merge_files", "expose_file", "load_bracket", "merge_bracket"):
-        from . import api
+        from hdrcl import api
 
         return getattr(api, name)
     if name == "Response":
-        from .response import Response
+        from hdrcl.core.response import Response
 
         return Response
     if name == "HdrclError":
-        from .errors import HdrclError
+        from hdrcl.errors import HdrclError
 
         return HdrclError
     raise AttributeError(f"module 'hdrcl' has no attribute {name!r}")

@@ -1,5 +1,5 @@
 """``python -m hdrcl`` runs the command line."""
-from .cli import main
+from hdrcl.cli import main
 
 if __name__ == "__main__":
     main(prog_name="hdrcl")

@@ -124,7 +124,7 @@ def size_label(mp: float, frames: int) -> str:
 class Scene:
     """A photographic-looking HDR scene, evaluated in horizontal strips.
 
-    Log10 radiance = a smooth low-resolution field (``hdrcl.synthetic.radiance_field``,
+    Log10 radiance = a smooth low-resolution field (``hdrcl.core.synthetic.radiance_field``,
     about 4 decades) upsampled bilinearly, plus hard-edged "buildings" with rows of
     windows (sharp colour edges), plus two tiled band-limited textures (fine and medium
     grain). Nothing is white noise except the camera's read noise (0.5 codes). Any strip
@@ -134,7 +134,7 @@ class Scene:
     def __init__(self, width: int, height: int, seed: int = 0, decades: float = 4.0):
         from scipy.ndimage import gaussian_filter
 
-        from hdrcl.synthetic import radiance_field
+        from hdrcl.core.synthetic import radiance_field
 
         self.width, self.height = width, height
         rng = np.random.default_rng(seed)
@@ -202,14 +202,14 @@ class Scene:
 
 
 def camera():
-    from hdrcl.synthetic import Camera
+    from hdrcl.core.synthetic import Camera
 
     return Camera(a=1.1, x0=(1.0, 0.95, 1.08))
 
 
 def exposure_times(frames: int) -> list:
     """Exposure ladder two stops apart, exact binary fractions of a second (1/4096 .. 1)."""
-    from hdrcl.synthetic import stops
+    from hdrcl.core.synthetic import stops
 
     return [float(t) for t in stops(frames, 2.0, 1.0 / 64.0)]
 
@@ -490,7 +490,7 @@ def _exr_encoder(path: str, radiance: np.ndarray):
     else whole through ``write_radiance``, else plain OpenImageIO."""
     h, w, c = radiance.shape
     try:
-        from hdrcl.writers import RadianceWriter
+        from hdrcl.io.writers import RadianceWriter
     except ImportError:
         RadianceWriter = None
     if RadianceWriter is not None:
@@ -504,12 +504,12 @@ def _exr_encoder(path: str, radiance: np.ndarray):
             with RadianceWriter(path, w, h, c, dtype="half", compression="zip") as wr:
                 for y0 in range(0, h, rows):
                     wr.write_rows(y0, min(h, y0 + rows), radiance[y0:y0 + rows])
-        return encode, f"hdrcl.writers.RadianceWriter, strips of {rows} rows (half, zip)"
+        return encode, f"hdrcl.io.writers.RadianceWriter, strips of {rows} rows (half, zip)"
     try:
-        from hdrcl.writers import write_radiance
+        from hdrcl.io.writers import write_radiance
 
         return (lambda: write_radiance(path, radiance, dtype="half", compression="zip"),
-                "hdrcl.writers.write_radiance (half, zip)")
+                "hdrcl.io.writers.write_radiance (half, zip)")
     except ImportError:
         import OpenImageIO as oiio
 
@@ -540,7 +540,7 @@ def worker_inproc(spec: dict) -> dict:
     out["decode_threads"] = workers
     h, w, c = frames[0].shape
 
-    from hdrcl.response import recover_response
+    from hdrcl.core.solve import recover_response
 
     resp = recover_response(frames, times)  # warm-up (scipy imports, first allocations)
     _, _, resp = _best(lambda: recover_response(frames, times), repeat, out, "solve_8bit")
@@ -548,7 +548,7 @@ def worker_inproc(spec: dict) -> dict:
 
     radiance = None
     try:
-        from hdrcl.fusion import fuse_frames
+        from hdrcl.core.fusion import fuse_frames
 
         res = fuse_frames(frames, times, resp)  # warm-up: device, program build, buffers
         kr = max(3, repeat)
@@ -564,9 +564,9 @@ def worker_inproc(spec: dict) -> dict:
             # The kernel alone: data already on the device, timed by profiling events.
             import numpy as _np
 
-            from hdrcl.backend import get_processor
+            from hdrcl.cl.backend import get_processor
             from hdrcl.cl.fusion import profile_kernel
-            from hdrcl.weights import weight_table
+            from hdrcl.core.weights import weight_table
 
             order = _np.argsort(times)
             out["kernel_s"] = profile_kernel(get_processor("fusion"), [frames[i] for i in order],

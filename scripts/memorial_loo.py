@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 import hdrcl
-from hdrcl.quality import leave_one_out_all
+from hdrcl.report.quality import leave_one_out_all
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "memorial"
 

@@ -16,9 +16,9 @@ import sys
 import numpy as np
 
 import hdrcl
-from hdrcl import synthetic as s
-from hdrcl.radiometry import motion_blur
-from hdrcl.writers import write_ldr
+from hdrcl.core import synthetic as s
+from hdrcl.core.radiometry import motion_blur
+from hdrcl.io.writers import write_ldr
 
 
 def main(argv=None):

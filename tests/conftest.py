@@ -4,7 +4,6 @@ OpenCL tests use the ``cl_device`` fixture: it skips only when no OpenCL device 
 used *and* ``HDRCL_REQUIRE_OPENCL`` is unset; CI sets it, so there a missing device
 fails the run instead of passing silently.
 """
-import os
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +14,7 @@ MEMORIAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "memorial"
 
 @pytest.fixture(scope="session")
 def cl_device():
-    from hdrcl.backend import get_processor, opencl_required
+    from hdrcl.cl.backend import get_processor, opencl_required
 
     try:
         proc = get_processor("fusion")
@@ -46,7 +45,7 @@ def memorial_bracket(memorial):
 @pytest.fixture(scope="session")
 def scene():
     """A synthetic scene with known truth: radiance, camera, times, 8-bit bracket."""
-    from hdrcl import synthetic as s
+    from hdrcl.core import synthetic as s
 
     cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
     rad = s.radiance_field(120, 160, decades=4.5, seed=1)

@@ -10,8 +10,8 @@ import logging
 import numpy as np
 import pytest
 
-from hdrcl import align as A
-from hdrcl import synthetic as s
+from hdrcl.core import align as A
+from hdrcl.core import synthetic as s
 from hdrcl.errors import HdrclError
 
 H, W = 301, 457
@@ -224,7 +224,7 @@ def test_apply_shifts_masks_exactly_the_uncovered_borders():
 def test_align_restores_the_reference_geometry(cl_device, caplog):
     shifts = random_shifts(5, seed=21)
     frames, truth = shifted_bracket(shifts, bits=16, seed=7)
-    with caplog.at_level(logging.INFO, logger="hdrcl.align"):
+    with caplog.at_level(logging.INFO, logger="hdrcl.core.align"):
         res = A.align(frames)
     assert isinstance(res, A.AlignResult) and res.reference == 2
     assert res.shifts == shifts  # texture this sharp: exact

@@ -3,17 +3,19 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from hdrcl import synthetic as s
 from hdrcl.cli import main
+from hdrcl.core import synthetic as s
 
 SHIFTS = [(7, -12), (-25, 31), (0, 0), (40, -40)]  # the middle exposure (index 2) is the reference
 
 
 @pytest.fixture()
 def handheld(tmp_path):
-    from hdrcl.writers import write_ldr
+    from test_align import (
+        textured_radiance,  # texture at several scales: something to align on
+    )
 
-    from test_align import textured_radiance  # texture at several scales: something to align on
+    from hdrcl.io.writers import write_ldr
 
     cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
     big = textured_radiance(300, 400, seed=21)
@@ -33,7 +35,7 @@ def test_merge_align_recovers_shifts_and_crops(handheld, cl_device):
     r = CliRunner().invoke(main, ["merge", *paths, "--times", tt, "-o", str(d / "a.exr"), "--align", "--crop"])
     assert r.exit_code == 0, r.output
     line = [ln for ln in r.output.splitlines() if "aligned:" in ln][0]
-    from hdrcl.writers import read_radiance
+    from hdrcl.io.radiance import read_radiance
 
     rad, meta = read_radiance(str(d / "a.exr"))
     got = [tuple(v) for v in __import__("json").loads(meta["alignShifts"])] if isinstance(meta["alignShifts"], str) \
@@ -71,10 +73,10 @@ def test_align_masks_decide_the_clipping_rule(tmp_path, monkeypatch, cl_device):
     """A border an aligned frame lost, where every other frame is clipped: with its mask
     honoured the pixel is 'clipped high'; read as a real black sample it would turn
     'clipped low'. OpenCL and NumPy must agree."""
-    import hdrcl
     from test_align import textured_radiance
 
-    from hdrcl.writers import write_ldr
+    import hdrcl
+    from hdrcl.io.writers import write_ldr
 
     cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
     big = textured_radiance(200, 260, seed=4)
@@ -100,7 +102,7 @@ def test_align_masks_decide_the_clipping_rule(tmp_path, monkeypatch, cl_device):
 
 def test_report_measures_the_aligned_cropped_frames(handheld, tmp_path, cl_device):
     import hdrcl
-    from hdrcl.api import write_quality_report
+    from hdrcl.report.merge_report import write_quality_report
 
     paths, times, d = handheld
     res = hdrcl.merge_files(paths, d / "r.exr", times=list(times), align=True, crop=True, thumbnail=64)

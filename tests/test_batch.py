@@ -22,11 +22,13 @@ import pytest
 from click.testing import CliRunner
 
 import hdrcl
-from hdrcl.batch import BatchOptions, SetResult, output_stems, parse_sets, select_sets
 from hdrcl.cli import main
 from hdrcl.errors import UsageError
-from hdrcl.grouping import BracketSet, Manifest
-from hdrcl.writers import read_metadata, read_radiance, write_photo
+from hdrcl.io.radiance import read_metadata, read_radiance
+from hdrcl.io.writers import write_photo
+from hdrcl.shoot.jobs import BatchOptions, SetResult
+from hdrcl.shoot.manifest import BracketSet, Manifest
+from hdrcl.shoot.plan import output_stems, parse_sets, select_sets
 
 try:
     import shootgen
@@ -45,7 +47,7 @@ def run(*args):
 
 def make_clean_shoot(folder, sets=3, frames=3, width=64, height=48, seed=0):
     """A shoot with no bad files: ``sets`` hand brackets of ``frames`` frames, 60 s apart."""
-    from hdrcl import synthetic
+    from hdrcl.core import synthetic
 
     os.makedirs(folder, exist_ok=True)
     cam = synthetic.Camera(a=1.1, x0=(1.0, 1.15, 0.85))
@@ -221,7 +223,7 @@ def test_bad_set_fails_alone(shoot, tmp_path):
 
 
 def test_missing_exposure_and_wrong_size_fail_alone(tmp_path):
-    from hdrcl import synthetic
+    from hdrcl.core import synthetic
 
     scene = synthetic.radiance_field(48, 64, decades=3.0, seed=3) * 60.0
     cam = synthetic.Camera()
@@ -438,7 +440,7 @@ def test_output_names_are_unique_and_stable():
 
 
 def test_preview_tone_map():
-    from hdrcl.preview import AreaAverage, downscale, preview, tone_map
+    from hdrcl.report.preview import AreaAverage, downscale, preview, tone_map
 
     rng = np.random.default_rng(0)
     rad = np.exp(rng.normal(0, 2, (31, 47, 3))).astype(np.float32)
@@ -523,7 +525,7 @@ def test_exit_codes(clean, tmp_path, args, code):
 
 
 def test_library_entry_point(clean, tmp_path):
-    from hdrcl.batch import run_batch
+    from hdrcl.shoot.run import run_batch
 
     folder, groups = clean
     seen = []
@@ -562,8 +564,8 @@ def test_quality_report_in_chromium(tmp_path):
     """
     from html.parser import HTMLParser
 
-    from hdrcl.batch import load_source
-    from hdrcl.report import format_figures, load_set_report
+    from hdrcl.report.pages import format_figures, load_set_report
+    from hdrcl.shoot.plan import load_source
 
     browser = _chromium()
     shoot_dir, out, rep_dir, plain = (tmp_path / n for n in ("shoot", "out", "rep", "plain"))

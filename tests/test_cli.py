@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from hdrcl import synthetic as s
 from hdrcl.cli import main
+from hdrcl.core import synthetic as s
 
 
 @pytest.fixture()
 def bracket_files(tmp_path):
-    from hdrcl.writers import write_ldr
+    from hdrcl.io.writers import write_ldr
 
     cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
     rad = s.radiance_field(37, 53, decades=4.0, seed=5)
@@ -41,7 +41,7 @@ def test_calibrate_merge_expose(bracket_files, cl_device):
             "--response", d / "r.json", "-o", d / "out.exr", "--dtype", "float")
     assert r.exit_code == 0, r.output
     assert "OpenCL" in r.output
-    from hdrcl.writers import read_radiance
+    from hdrcl.io.radiance import read_radiance
 
     rad, meta = read_radiance(str(d / "out.exr"))
     assert rad.shape == (37, 53, 3) and np.all(np.isfinite(rad)) and rad.min() > 0
@@ -51,7 +51,7 @@ def test_calibrate_merge_expose(bracket_files, cl_device):
     t = bracket_files["times"][2]
     r = run("expose", d / "out.exr", "-o", d / "v.png", "--response", d / "r.json", "--time", repr(float(t)))
     assert r.exit_code == 0, r.output
-    from hdrcl.io import read_image
+    from hdrcl.io.frames import read_image
 
     v = read_image(str(d / "v.png")).pixels.astype(int)
     real = read_image(bracket_files["paths"][2]).pixels.astype(int)
@@ -82,7 +82,7 @@ def test_single_frame_is_an_input_error(bracket_files):
 
 
 def test_size_mismatch(bracket_files, tmp_path):
-    from hdrcl.writers import write_ldr
+    from hdrcl.io.writers import write_ldr
 
     odd = tmp_path / "odd.png"
     write_ldr(str(odd), np.zeros((10, 10, 3), np.uint8))

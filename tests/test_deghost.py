@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from hdrcl import synthetic as s
-from hdrcl.fusion import fuse_frames
-from hdrcl.response import recover_response
+from hdrcl.core import synthetic as s
+from hdrcl.core.fusion import fuse_frames
+from hdrcl.core.solve import recover_response
 
 POS = [40 + 40 * k for k in range(5)]
 
@@ -58,7 +58,7 @@ def test_static_scene_has_no_ghosts(scene, cl_device):
 
 
 def test_streaming_deghost_matches_in_memory(moving, cl_device):
-    from hdrcl.pipeline import ArraySink, ArraySource, stream_merge
+    from hdrcl.core.pipeline import ArraySink, ArraySource, stream_merge
 
     rad, times, frames, _ = moving
     resp = recover_response(frames, times)
@@ -74,9 +74,9 @@ def test_streaming_deghost_matches_in_memory(moving, cl_device):
 def test_strip_seams_grow_like_the_whole_image(monkeypatch, cl_device):
     """A ghost straddling a strip seam grows across it exactly as in one piece."""
     import hdrcl.cl.processing as proc
-    import hdrcl.pipeline as pl
-    from hdrcl.backend import _processors
-    from hdrcl.pipeline import ArraySink, ArraySource, stream_merge
+    import hdrcl.core.pipeline as pl
+    from hdrcl.cl.backend import _processors
+    from hdrcl.core.pipeline import ArraySink, ArraySource, stream_merge
 
     cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
     rad = s.radiance_field(64, 64, decades=2.0, seed=5)

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 import hdrcl
-from hdrcl import synthetic as s
-from hdrcl.api import Bracket, exposures_used
-from hdrcl.quality import leave_one_out_all
-from hdrcl.response import fit_exposures
+from hdrcl.core import synthetic as s
+from hdrcl.core.bracket import Bracket
+from hdrcl.core.calibrate import exposures_used
+from hdrcl.core.exposure_fit import fit_exposures
+from hdrcl.report.quality import leave_one_out_all
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +77,8 @@ def test_memorial_times_stay_untouched(memorial_bracket, cl_device):
 
 
 def test_file_merge_records_nominal_and_used_times(bracket, tmp_path, cl_device):
-    from hdrcl.writers import read_metadata, write_ldr
+    from hdrcl.io.radiance import read_metadata
+    from hdrcl.io.writers import write_ldr
 
     frames, times = bracket
     paths = []

@@ -9,19 +9,16 @@ import random
 import pytest
 
 from hdrcl.errors import InputError, UsageError
-from hdrcl.grouping import (
+from hdrcl.io.metadata import FrameInfo
+from hdrcl.shoot.grouping import format_exposure, group_frames, unmergeable_reason
+from hdrcl.shoot.manifest import (
     BracketSet,
     Manifest,
     Unmerged,
-    format_exposure,
-    format_table,
-    group_frames,
     load_manifest,
     save_manifest,
-    scan_directory,
-    unmergeable_reason,
 )
-from hdrcl.metadata import FrameInfo
+from hdrcl.shoot.scan import format_table, scan_directory
 
 try:
     import shootgen

@@ -11,7 +11,8 @@ import pytest
 oiio = pytest.importorskip("OpenImageIO")
 
 from hdrcl.errors import InputError  # noqa: E402
-from hdrcl.io import ignore_color_mask, read_image, read_images, read_info  # noqa: E402
+from hdrcl.io.frames import read_image, read_images, read_info  # noqa: E402
+from hdrcl.io.reader import ignore_color_mask  # noqa: E402
 
 
 def _write(path, pixels, attrs=(), channelnames=None, alpha=None):
@@ -186,7 +187,7 @@ def test_ignore_color_mask():
 
 
 def test_import_does_not_load_oiio():
-    code = ("import sys, hdrcl.io, hdrcl.writers, hdrcl.metadata; "
+    code = ("import sys, hdrcl.io.frames, hdrcl.io.reader, hdrcl.io.writers, hdrcl.io.radiance, hdrcl.io.metadata; "
             "sys.exit('OpenImageIO' in sys.modules)")
     root = Path(__file__).resolve().parents[1]
     env = dict(os.environ, PYTHONPATH=str(root))

@@ -7,7 +7,7 @@ OpenCV's CalibrateDebevec + MergeDebevec scores 5.4 here.
 import numpy as np
 import pytest
 
-from hdrcl.quality import leave_one_out_all
+from hdrcl.report.quality import leave_one_out_all
 
 
 @pytest.mark.slow

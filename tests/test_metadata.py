@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from hdrcl.errors import InputError, UsageError
-from hdrcl.metadata import (
+from hdrcl.io.metadata import (
     Exposure,
     FrameInfo,
     format_time,

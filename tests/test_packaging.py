@@ -22,7 +22,7 @@ def test_wheel_contains_the_kernels(tmp_path):
 
 
 def test_kernel_dir_finds_sources():
-    from hdrcl.resources import kernel_dir
+    from hdrcl.cl.resources import kernel_dir
 
     assert (kernel_dir() / "fusion.cl").is_file() and (kernel_dir() / "exposure.cl").is_file()
 

@@ -3,14 +3,14 @@ import numpy as np
 import pytest
 
 import hdrcl
-from hdrcl import synthetic as s
-from hdrcl.errors import ProcessingError
-from hdrcl.writers import RadianceWriter, read_radiance
+from hdrcl.core import synthetic as s
+from hdrcl.io.radiance import read_radiance
+from hdrcl.io.writers import RadianceWriter
 
 
 @pytest.fixture()
 def files(tmp_path):
-    from hdrcl.writers import write_ldr
+    from hdrcl.io.writers import write_ldr
 
     cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
     rad = s.radiance_field(131, 97, decades=4.0, seed=8)
@@ -32,7 +32,7 @@ def test_file_merge_equals_in_memory_merge(files, budget, monkeypatch, cl_device
     paths, times, d = files
     monkeypatch.setenv("HDRCL_MEMORY_MB", budget)
     monkeypatch.setattr(proc, "STRIP_PIXELS", 1000)  # many strips, a ragged last one
-    from hdrcl.backend import _processors
+    from hdrcl.cl.backend import _processors
 
     _processors.clear()
     res = hdrcl.merge_files(paths, d / "out.exr", times=times, dtype="float", keep_radiance=True,

@@ -4,9 +4,16 @@ import json
 import numpy as np
 import pytest
 
-from hdrcl import synthetic as s
-from hdrcl.api import Bracket, load_bracket, merge_bracket
-from hdrcl.quality import NO_DATA, QualityFigures, decimate, dynamic_range_stops, measure
+from hdrcl.core import synthetic as s
+from hdrcl.core.bracket import Bracket, load_bracket
+from hdrcl.core.merge import merge_bracket
+from hdrcl.report.quality import (
+    NO_DATA,
+    QualityFigures,
+    decimate,
+    dynamic_range_stops,
+    measure,
+)
 
 CAM = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
 

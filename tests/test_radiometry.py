@@ -3,15 +3,15 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from hdrcl import radiometry as rm
-from hdrcl import synthetic as s
 from hdrcl.cli import main
+from hdrcl.core import radiometry as rm
+from hdrcl.core import synthetic as s
 from hdrcl.errors import UsageError
 
 
 @pytest.fixture()
 def files(tmp_path):
-    from hdrcl.writers import write_photo
+    from hdrcl.io.writers import write_photo
 
     cam = s.Camera(a=1.1, x0=(1.0, 1.0, 1.0))
     rad = s.radiance_field(40, 60, decades=2.0, seed=4)
@@ -26,7 +26,7 @@ def files(tmp_path):
 
 
 def _read(p):
-    from hdrcl.writers import read_radiance
+    from hdrcl.io.radiance import read_radiance
 
     return read_radiance(str(p))
 

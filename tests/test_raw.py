@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 import hdrcl
-from hdrcl import raw as hr
-from hdrcl import synthetic
+from hdrcl.core import synthetic
+from hdrcl.core.response import Response, linear_response
 from hdrcl.errors import InputError
-from hdrcl.response import Response
+from hdrcl.io import raw as hr
 
 sys.path.insert(0, os.path.dirname(__file__))
 import rawgen  # noqa: E402
@@ -78,7 +78,7 @@ def test_missing_rawpy_names_the_extra(monkeypatch, tmp_path):
 
 
 def test_linear_response_is_ln_linear():
-    resp = hr.linear_response()
+    resp = linear_response()
     assert resp.bits == 16 and resp.channels == ("R", "G", "B") and resp.knots.size == 65536
     t = resp.tables()
     assert t.shape == (3, 65536)
@@ -91,7 +91,7 @@ def test_linear_response_is_ln_linear():
     back = Response.from_dict(resp.to_dict())
     np.testing.assert_allclose(back.tables(), t, atol=1e-8)
     assert back.channels == resp.channels and back.bits == 16 and not back.monotonic_problems()
-    assert hr.linear_response(1).tables().shape == (1, 65536)
+    assert linear_response(1).tables().shape == (1, 65536)
 
 
 def test_clip_to_saturation():
@@ -255,7 +255,7 @@ def test_white_balance(rawpy_mod, radiance, tmp_path):
 
 def test_merge_end_to_end(bracket, radiance):
     frames, times = bracket["frames"], bracket["times"]
-    rad = hdrcl.merge([f.pixels for f in frames], times, response=hr.linear_response())
+    rad = hdrcl.merge([f.pixels for f in frames], times, response=linear_response())
     assert rad.shape == (H, W, 3) and rad.dtype == np.float32
     measured = ~frames[0].saturated  # unclipped in the shortest frame at least
     q = rad[measured].astype(np.float64) / radiance[measured]
@@ -291,7 +291,7 @@ def test_cli_merge_of_raw_files_skips_calibration(bracket, radiance, tmp_path):
     from click.testing import CliRunner
 
     from hdrcl.cli import main
-    from hdrcl.writers import read_radiance
+    from hdrcl.io.radiance import read_radiance
 
     out = tmp_path / "raw.exr"
     r = CliRunner().invoke(main, ["merge", *bracket["paths"], "-o", str(out), "--dtype", "float"])
@@ -300,7 +300,7 @@ def test_cli_merge_of_raw_files_skips_calibration(bracket, radiance, tmp_path):
     assert meta["response"] == "linear (RAW input)"
     frames = [hr.read_raw(p, white_balance=hr.camera_white_balance(bracket["paths"][0])).pixels
               for p in bracket["paths"]]
-    want = hdrcl.merge(frames, bracket["times"], response=hr.linear_response())
+    want = hdrcl.merge(frames, bracket["times"], response=linear_response())
     np.testing.assert_allclose(rad, want, rtol=1e-5)
     r = CliRunner().invoke(main, ["calibrate", *bracket["paths"], "-o", str(tmp_path / "r.json")])
     assert r.exit_code == 0, r.output
@@ -308,10 +308,10 @@ def test_cli_merge_of_raw_files_skips_calibration(bracket, radiance, tmp_path):
 
 
 def test_mixing_raw_and_jpeg_is_an_error(bracket, tmp_path):
-    from hdrcl.io import BracketReader
+    from hdrcl.io.reader import BracketReader
 
     jpg = tmp_path / "x.jpg"
-    from hdrcl.writers import write_ldr
+    from hdrcl.io.writers import write_ldr
 
     f = hr.read_raw(bracket["paths"][0]).pixels
     write_ldr(str(jpg), (f >> 8).astype(np.uint8))

@@ -15,11 +15,19 @@ from html.parser import HTMLParser
 import numpy as np
 import pytest
 
-from hdrcl import synthetic as s
-from hdrcl.api import load_bracket, merge_bracket
-from hdrcl.quality import measure
-from hdrcl.report import (INDEX_NAME, ReportEntry, coverage_image, format_figures, load_set_report,
-                          response_plot, write_contact_sheet, write_set_report)
+from hdrcl.core import synthetic as s
+from hdrcl.core.bracket import load_bracket
+from hdrcl.core.merge import merge_bracket
+from hdrcl.report.pages import (
+    INDEX_NAME,
+    ReportEntry,
+    format_figures,
+    load_set_report,
+    write_contact_sheet,
+    write_set_report,
+)
+from hdrcl.report.plots import coverage_image, response_plot
+from hdrcl.report.quality import measure
 
 # (name, height, width, decades, frames): odd sizes; the last set is clipped at both ends.
 SETS = [
@@ -64,7 +72,7 @@ def test_set_files(report):
 
 
 def test_plots_are_images():
-    from hdrcl.response import Response
+    from hdrcl.core.response import Response
 
     g = np.stack([np.linspace(-5, 5, 256) + k * 0.1 for k in range(3)])
     img = response_plot(Response(bits=8, g=g, knots=np.arange(256.0)))

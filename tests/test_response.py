@@ -4,11 +4,11 @@ import json
 import numpy as np
 import pytest
 
-from hdrcl import synthetic as s
+from hdrcl.core import synthetic as s
+from hdrcl.core.response import BINS_16BIT, Response, knot_positions
+from hdrcl.core.solve import recover_response, recover_response_pooled, solve_curve
+from hdrcl.core.weights import weight_values
 from hdrcl.errors import InputError, UsageError
-from hdrcl.response import (BINS_16BIT, Response, knot_positions, recover_response,
-                            recover_response_pooled, solve_curve)
-from hdrcl.weights import weight_values
 
 
 def _dense_paper_solve(z, log_t, lam, levels=256):

@@ -4,15 +4,12 @@ import pytest
 
 oiio = pytest.importorskip("OpenImageIO")
 
-from hdrcl import writers  # noqa: E402
 from hdrcl.errors import InputError, UsageError  # noqa: E402
-from hdrcl.io import read_image  # noqa: E402
-from hdrcl.writers import (  # noqa: E402
-    atomic_output,
-    read_radiance,
-    write_ldr,
-    write_radiance,
-)
+from hdrcl.io import writers  # noqa: E402
+from hdrcl.io.atomic import atomic_output
+from hdrcl.io.frames import read_image  # noqa: E402
+from hdrcl.io.radiance import read_radiance
+from hdrcl.io.writers import write_ldr, write_radiance
 
 
 def _radiance(channels=3, seed=0, sigma=2.0):

@@ -1,8 +1,8 @@
 """Host side of ``kernels/align.cl``: grey pyramids, bit-packed threshold bitmaps and
 shift costs on the device.
 
-The search (coarse to fine, thresholds, the tie rule) lives in :mod:`hdrcl.align`,
-which drives this processor or its NumPy twin :class:`hdrcl.align.NumpyAligner`
+The search (coarse to fine, thresholds, the tie rule) lives in :mod:`hdrcl.core.align`,
+which drives this processor or its NumPy twin :class:`hdrcl.core.align.NumpyAligner`
 through the same three calls: :meth:`~AlignProcessor.grey_pyramid`,
 :meth:`~AlignProcessor.bitmaps` and :meth:`~AlignProcessor.costs`.
 """
@@ -14,8 +14,8 @@ from typing import List, Sequence, Tuple
 import numpy as np
 import pyopencl as cl
 
-from ..align import GreyPyramid, level_shapes
-from .processing import OpenCLProcessor, round_up
+from hdrcl.cl.processing import OpenCLProcessor, round_up
+from hdrcl.cl.pyramid import GreyPyramid, level_shapes
 
 _PIXEL_T = {np.dtype(np.uint8): "uchar", np.dtype(np.uint16): "ushort"}
 #: Work-group size asked of shift_cost (a power of two; less where the device allows less).
@@ -43,7 +43,7 @@ def words(w: int) -> int:
 class AlignProcessor(OpenCLProcessor):
     """Median threshold bitmaps and their shift costs on the device.
 
-    Contract: the twins in :mod:`hdrcl.align` (``grey_image``, ``downsample``,
+    Contract: the twins in :mod:`hdrcl.core.align` (``grey_image``, ``downsample``,
     ``threshold_bitmaps``, ``shift_costs``); results are equal, not merely close.
     Buffers belong to a *slot* (``"ref"``, ``"frame"``) and are reused from one call to
     the next: a pyramid or its bitmaps stay valid until their slot is rebuilt.
@@ -117,7 +117,7 @@ class AlignProcessor(OpenCLProcessor):
 
     def costs(self, ref: DeviceBitmaps, frm: DeviceBitmaps, level: int, cy: int, cx: int) -> np.ndarray:
         """Mismatch counts ``(3, 3)`` int64 of the shifts ``(cy + j - 1, cx + i - 1)`` at
-        ``level``; contract: :func:`hdrcl.align.shift_costs`."""
+        ``level``; contract: :func:`hdrcl.core.align.shift_costs`."""
         if ref.shapes[level] != frm.shapes[level]:
             raise ValueError(f"pyramid levels differ in shape: {ref.shapes[level]} vs {frm.shapes[level]}")
         knl = self._cost_kernel()

@@ -13,8 +13,8 @@ from typing import Dict, List, Optional, Tuple
 
 import pyopencl as cl
 
-from ..errors import HdrclError, UsageError
-from ..resources import kernel_source
+from hdrcl.cl.resources import kernel_source
+from hdrcl.errors import HdrclError, UsageError
 
 logger = logging.getLogger(__name__)
 

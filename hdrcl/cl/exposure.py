@@ -4,12 +4,15 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
-from ..reference import monotone_tables
-from .processing import OpenCLProcessor, round_up
+from hdrcl.cl.processing import OpenCLProcessor, round_up
 
 
 class ExposureProcessor(OpenCLProcessor):
-    """Renders ``Z = g^-1(ln E + ln dt)`` in strips; contract: :func:`hdrcl.reference.expose`."""
+    """Renders ``Z = g^-1(ln E + ln dt)`` in strips; contract: :func:`hdrcl.core.reference.expose`.
+
+    ``tables`` must already be non-decreasing (:func:`hdrcl.core.reference.monotone_tables`),
+    as the kernel's inversion by search requires.
+    """
 
     source = "exposure"
 
@@ -18,7 +21,7 @@ class ExposureProcessor(OpenCLProcessor):
         levels = tables.shape[1]
         otype = np.uint8 if out_bits == 8 else np.uint16
         knl = self.ctx.kernel("exposure", "expose", ("-DOUT_T=" + ("uchar" if out_bits == 8 else "ushort"),))
-        g_b = self.constant("gtab", monotone_tables(tables).astype(np.float32))
+        g_b = self.constant("gtab", np.asarray(tables, np.float32))
         outmax = (1 << out_bits) - 1
         rows = self.strip_rows(w)
         nmax = rows * w * c

@@ -7,7 +7,7 @@ from typing import Optional, Sequence
 import numpy as np
 import pyopencl as cl
 
-from .processing import OpenCLProcessor, round_up
+from hdrcl.cl.processing import OpenCLProcessor, round_up
 
 _PIXEL_T = {np.dtype(np.uint8): "uchar", np.dtype(np.uint16): "ushort"}
 _LOG2E = 1.0 / math.log(2.0)
@@ -86,7 +86,7 @@ class FusionPlan:
 class FusionProcessor(OpenCLProcessor):
     """Weighted log-domain fusion, streamed through the device in horizontal strips.
 
-    The numeric contract is :func:`hdrcl.reference.fuse` (its docstring has the
+    The numeric contract is :func:`hdrcl.core.reference.fuse` (its docstring has the
     equations and the zero-weight rule).
     """
 
@@ -106,7 +106,7 @@ class FusionProcessor(OpenCLProcessor):
     ):
         """Fuse whole in-memory ``frames`` (ordered by increasing exposure).
 
-        Parameters are those of :func:`hdrcl.reference.fuse`; ``out`` may be a
+        Parameters are those of :func:`hdrcl.core.reference.fuse`; ``out`` may be a
         preallocated ``(H, W, C)`` float32 array.
 
         Returns

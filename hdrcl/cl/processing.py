@@ -6,7 +6,7 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 import pyopencl as cl
 
-from .context import DeviceContext, get_context
+from hdrcl.cl.context import DeviceContext, get_context
 
 #: Pixels per strip: bounds device memory whatever the image size (about 1 M pixels).
 STRIP_PIXELS = 1 << 20

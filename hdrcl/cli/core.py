@@ -6,21 +6,28 @@ import os
 
 import click
 
-from . import main
-from .options import (device_option, exposure_options, fit_options, output_options, seconds_callback,
-                      solve_options, weight_option)
+from hdrcl.cli.group import main
+from hdrcl.cli.options import (
+    device_option,
+    exposure_options,
+    fit_options,
+    output_options,
+    seconds_callback,
+    solve_options,
+    weight_option,
+)
 
 
 @main.command()
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 def devices(as_json):
     """List the OpenCL devices and the one hdrcl would use."""
-    from ..backend import opencl_enabled
+    from hdrcl.cl.backend import opencl_enabled
 
     if not opencl_enabled():
         click.echo("OpenCL disabled (HDRCL_OPENCL=0): the NumPy reference path is used.")
         return
-    from ..cl.context import get_context, list_devices
+    from hdrcl.cl.context import get_context, list_devices
 
     rows = list_devices()
     chosen = None
@@ -56,7 +63,7 @@ def devices(as_json):
 def calibrate(images, output, times, times_file, ignore_color, samples, smoothness, seed, weight, fit_exposures,
               exposure_tolerance):
     """Recover the camera response curve from one bracket set."""
-    from ..api import calibrate as _calibrate
+    from hdrcl.core.calibrate import calibrate as _calibrate
 
     resp = _calibrate(list(images), times, times_file=times_file, samples=samples, smoothness=smoothness,
                       weight=weight, ignore_color=ignore_color, seed=seed, fit_exposures=fit_exposures,
@@ -101,9 +108,9 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
           seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, neutral, reference_patch, absolute,
           align, crop, report, dtype, compression, device):
     """Merge one bracket set into a radiance map."""
-    from ..api import merge_files
-    from ..errors import UsageError
-    from ..metadata import format_time
+    from hdrcl.core.merge import merge_files
+    from hdrcl.errors import UsageError
+    from hdrcl.io.metadata import format_time
 
     for target in (save_response,):  # fail before the merge, not after it
         if target and not os.path.isdir(os.path.dirname(os.path.abspath(target))):
@@ -132,8 +139,8 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
     if cnt.get("clipped_high") or cnt.get("clipped_low"):
         click.echo(f"  clipped in every frame: {cnt['clipped_high']} high, {cnt['clipped_low']} low (pixel-channels)")
     if report:
-        from ..api import write_quality_report
-        from ..report import format_figures
+        from hdrcl.report.merge_report import write_quality_report
+        from hdrcl.report.pages import format_figures
 
         fig, _entry = write_quality_report(res, report, ignore_color=ignore_color, weight=weight, device=device)
         click.echo(f"quality report: {os.path.join(report, 'index.html')}")
@@ -154,8 +161,8 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
 @device_option
 def expose(radiance, output, response, time_, bits, motion_blur, device):
     """Render a virtual photograph from a radiance map."""
-    from ..api import expose_file
-    from ..errors import UsageError
+    from hdrcl.core.exposure import expose_file
+    from hdrcl.errors import UsageError
 
     blur = None
     if motion_blur is not None:
@@ -186,8 +193,8 @@ def demo(folder, size, frames, seed, no_shoot, device):
     to the truth. Then writes a small shoot of JPEGs with EXIF to FOLDER/shoot, runs
     the batch into FOLDER/batch and writes its quality report (FOLDER/batch/report).
     """
-    from ..demo import run_demo
-    from ..errors import UsageError
+    from hdrcl.errors import UsageError
+    from hdrcl.shoot.demo import run_demo
 
     try:
         w, h = (int(v) for v in size.lower().split("x"))

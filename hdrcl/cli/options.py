@@ -3,14 +3,14 @@ from __future__ import annotations
 
 import click
 
-from ..response import DEFAULT_SMOOTHNESS
-from ..weights import WEIGHTS
+from hdrcl.core.response import DEFAULT_SMOOTHNESS
+from hdrcl.core.weights import WEIGHTS
 
 
 def _times(ctx, param, value):
     if value is None:
         return None
-    from ..metadata import parse_times
+    from hdrcl.io.metadata import parse_times
 
     try:
         return parse_times(value)
@@ -21,7 +21,7 @@ def _times(ctx, param, value):
 def _seconds(ctx, param, value):
     if value is None:
         return None
-    from ..metadata import parse_times
+    from hdrcl.io.metadata import parse_times
 
     try:
         vals = parse_times(value)

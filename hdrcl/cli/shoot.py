@@ -13,10 +13,16 @@ import time
 
 import click
 
-from . import main
-from .options import (deghost_option, device_option, grouping_options, ignore_color_option, output_options,
-                      solve_options, weight_option)
-
+from hdrcl.cli.group import main
+from hdrcl.cli.options import (
+    deghost_option,
+    device_option,
+    grouping_options,
+    ignore_color_option,
+    output_options,
+    solve_options,
+    weight_option,
+)
 
 # ------------------------------------------------------------------------- scan
 
@@ -39,8 +45,9 @@ def scan(ctx, source, recursive, frames_per_set, gap, output, as_json):
     hdrcl scan shoot/ -o shoot/manifest.json
     hdrcl scan shoot/manifest.json          # after editing it
     """
-    from ..batch import check_manifest, load_source
-    from ..grouping import format_table, save_manifest
+    from hdrcl.shoot.manifest import save_manifest
+    from hdrcl.shoot.plan import check_manifest, load_source
+    from hdrcl.shoot.scan import format_table
 
     manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap)
     problems = {} if os.path.isdir(source) else check_manifest(manifest)
@@ -176,7 +183,8 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
     completed; see report.json); 2 usage error; 3 unreadable folder, manifest
     or response file.
     """
-    from ..batch import BatchOptions, run_batch
+    from hdrcl.shoot.jobs import BatchOptions
+    from hdrcl.shoot.run import run_batch
 
     quiet = bool((ctx.find_root().params or {}).get("quiet"))
     opts = BatchOptions(weight=weight, samples=samples, smoothness=smoothness, seed=seed,
@@ -238,8 +246,8 @@ def sample_shoot(folder, size, seed):
     \b
     hdrcl sample-shoot shoot/ && hdrcl batch shoot/ -o out/
     """
-    from ..errors import UsageError
-    from ..sample import write_sample_shoot
+    from hdrcl.errors import UsageError
+    from hdrcl.shoot.sample import write_sample_shoot
 
     try:
         w, h = (int(v) for v in size.lower().split("x"))

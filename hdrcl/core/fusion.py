@@ -1,0 +1,81 @@
+"""Fusing a bracket into a radiance map: the OpenCL kernel or its NumPy twin."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+from hdrcl.cl.backend import get_processor
+from hdrcl.core import reference
+from hdrcl.core.response import Response
+from hdrcl.core.weights import weight_table
+
+
+@dataclass
+class FusionResult:
+    """A radiance map and what happened making it.
+
+    ``counts`` are pixel-channel samples: ``clipped_high`` (clipped in every frame,
+    value taken from the shortest exposure at the top code), ``clipped_low`` (black in
+    every frame, from the longest exposure), ``no_data`` (invalid in every frame; 0).
+    """
+
+    radiance: np.ndarray
+    counts: dict = field(default_factory=dict)
+    backend: str = "opencl"
+    ghost_mask: Optional[np.ndarray] = None
+
+
+def fusion_tables(response: Response, dtype, nch: int, weight: str = "hat"):
+    """``g`` per channel at every code, shape (C, L), and the weights (L,) for frames of
+    ``dtype`` with ``nch`` channels; UsageError when the response's depth differs."""
+    tables = response.table_for(nch)
+    levels = tables.shape[1]
+    if int(np.iinfo(dtype).max) + 1 != levels:
+        from hdrcl.errors import UsageError
+
+        raise UsageError(
+            f"the response describes {response.bits}-bit images but the frames are "
+            f"{8 * np.dtype(dtype).itemsize}-bit"
+        )
+    return tables, weight_table(levels, weight)
+
+
+def fuse_frames(
+    frames: Sequence[np.ndarray],
+    times: Sequence[float],
+    response: Response,
+    *,
+    weight: str = "hat",
+    valid: Optional[Sequence[Optional[np.ndarray]]] = None,
+    device: Optional[str] = None,
+    deghost: bool = False,
+) -> FusionResult:
+    """Radiance map of ``frames`` with exposures ``times`` (any order) and ``response``.
+
+    ``deghost`` replaces pixels where the frames disagree by the middle exposure's own
+    estimate (:mod:`hdrcl.core.deghost`); ``counts`` then has ``ghost`` and
+    ``ghost_unresolved``, and ``ghost_mask`` the (H, W) mask.
+    """
+    order = np.argsort(np.asarray(times, np.float64), kind="stable")
+    frames = [frames[i] for i in order]
+    log_t = np.log(np.asarray(times, np.float64)[order])
+    vals = None if valid is None else [valid[i] for i in order]
+    tables, wts = fusion_tables(response, frames[0].dtype, frames[0].shape[2], weight)
+    proc = get_processor("fusion", device)
+    if proc is None:
+        rad, counts = reference.fuse(frames, log_t, tables, wts, vals)
+        res = FusionResult(rad.astype(np.float32), counts, "numpy")
+    else:
+        rad, counts = proc.fuse(frames, log_t, tables, wts, vals)
+        res = FusionResult(rad, counts, "opencl")
+    if deghost:
+        from hdrcl.core import deghost as dg
+
+        ref = len(frames) // 2
+        mask = dg.detect(frames, log_t, tables, vals, res.radiance)
+        res.counts["ghost_unresolved"] = dg.replace(res.radiance, frames, log_t, tables, mask, vals, ref)
+        res.counts["ghost"] = int(np.count_nonzero(mask))
+        res.ghost_mask = mask
+    return res

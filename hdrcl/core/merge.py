@@ -1,0 +1,336 @@
+"""The merge engine: a loaded bracket (:func:`merge_bracket`) or files streamed strip by
+strip into a radiance file (:func:`merge_files`), with provenance metadata.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import time as _time
+from dataclasses import dataclass, field
+from typing import List, Optional, Sequence, Union
+
+import numpy as np
+
+from hdrcl.core.bracket import (
+    Bracket,
+    _all_raw,
+    _grid_bracket,
+    _open_files,
+    _parse_ignore_color,
+    _with_ignore,
+    memory_budget,
+)
+from hdrcl.core.calibrate import calibrate, exposures_used
+from hdrcl.core.response import Response, _as_response
+from hdrcl.core.scale import _radiometric_factors
+from hdrcl.errors import UsageError
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class MergeResult:
+    """A merged radiance map with what went into it."""
+
+    radiance: Optional[np.ndarray]
+    response: Response
+    counts: dict
+    times: np.ndarray
+    paths: List[str]
+    backend: str
+    seconds: dict = field(default_factory=dict)
+    warnings: List[str] = field(default_factory=list)
+    output: Optional[str] = None
+    shape: tuple = ()
+    thumbnail: Optional[np.ndarray] = None
+    shifts: Optional[list] = None  # (dy, dx) per frame when aligned
+    nominal: Optional[np.ndarray] = None  # the set's own exposures before any refinement
+    crop: Optional[tuple] = None  # (y0, y1, x0, x1) of the input kept, with align + crop
+
+    def __post_init__(self):
+        if not self.shape and self.radiance is not None:
+            self.shape = tuple(self.radiance.shape)
+
+
+def merge_bracket(
+    bracket: Bracket,
+    response: Optional[Response] = None,
+    *,
+    weight: str = "hat",
+    samples: Optional[int] = None,
+    smoothness: Optional[float] = None,
+    seed: int = 0,
+    device: Optional[str] = None,
+    fit_exposures: str = "auto",
+    exposure_tolerance: Optional[float] = None,
+    deghost: bool = False,
+) -> MergeResult:
+    """Fuse a loaded :class:`Bracket`, calibrating from it when no response is given
+    (then with the exposures that calibration refined, see :func:`calibrate`)."""
+    from hdrcl.core.fusion import fuse_frames
+
+    t0 = _time.perf_counter()
+    if response is None:
+        response = calibrate(bracket, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
+                             fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance)
+    t1 = _time.perf_counter()
+    times = exposures_used(response, bracket.times)
+    res = fuse_frames(bracket.frames, times, response, weight=weight, valid=bracket.valid, device=device,
+                      deghost=deghost)
+    t2 = _time.perf_counter()
+    warnings = list(response.warnings)
+    if res.counts.get("no_data"):
+        warnings.append(f"{res.counts['no_data']} pixel-channels are invalid in every frame and were set to 0")
+    return MergeResult(radiance=res.radiance, response=response, counts=res.counts, times=times,
+                       paths=bracket.paths, backend=res.backend,
+                       seconds={"calibrate": t1 - t0, "fuse": t2 - t1}, warnings=warnings,
+                       nominal=np.asarray(bracket.times, np.float64))
+
+
+def _provenance(result: MergeResult, response_source: str) -> dict:
+    from hdrcl.io.metadata import format_time
+
+    r = result.response
+    meta = {
+        "software": "hdrcl",
+        "sources": [os.path.basename(p) for p in result.paths],
+        "exposures": [float(t) for t in result.times],
+        "exposuresNominal": [float(t) for t in (result.nominal if result.nominal is not None else result.times)],
+        "exposureText": ", ".join(format_time(t) for t in result.times),
+        "response": response_source,
+        "responseSmoothness": float(r.smoothness),
+        "responseSamples": int(r.samples),
+        "weight": r.weight,
+        "backend": result.backend,
+    }
+    if result.counts:  # a streamed file's header is written before the counts are known
+        meta.update({"clippedHigh": int(result.counts.get("clipped_high", 0)),
+                     "clippedLow": int(result.counts.get("clipped_low", 0)),
+                     "noData": int(result.counts.get("no_data", 0))})
+    if r.camera:
+        meta["camera"] = " ".join(str(r.camera[k]) for k in ("make", "model") if k in r.camera)
+    return meta
+
+
+def merge_files(
+    paths: Sequence[Union[str, os.PathLike]],
+    output: Union[str, os.PathLike],
+    *,
+    times: Optional[Sequence[float]] = None,
+    times_file=None,
+    response: Union[Response, str, os.PathLike, None] = None,
+    weight: str = "hat",
+    ignore_color=None,
+    samples: Optional[int] = None,
+    smoothness: Optional[float] = None,
+    seed: int = 0,
+    dtype: str = "half",
+    compression: str = "zip",
+    device: Optional[str] = None,
+    keep_radiance: bool = False,
+    thumbnail: int = 0,
+    fit_exposures: str = "auto",
+    exposure_tolerance: Optional[float] = None,
+    deghost: bool = False,
+    ghost_mask: Union[str, os.PathLike, None] = None,
+    neutral=None,
+    reference_patch=None,
+    absolute: bool = False,
+    align: bool = False,
+    crop: bool = False,
+) -> MergeResult:
+    """Merge image files into a radiance file (EXR, HDR, TIFF or PFM by extension).
+
+    The frames are decoded, fused and written strip by strip, with decoding, fusion and
+    encoding overlapping, so memory stays bounded whatever the image size. Without a
+    ``response`` the set calibrates itself: frames up to :func:`memory_budget` are held
+    in memory for that; larger sets are read twice (a decimated grid, then the strips).
+    The output is written atomically: nothing appears at ``output`` unless the whole
+    merge succeeded.
+
+    Parameters
+    ----------
+    keep_radiance : bool
+        Also return the whole radiance map in ``result.radiance`` (memory grows with the
+        image); otherwise it is None.
+    thumbnail : int
+        If > 0, ``result.thumbnail`` holds every k-th pixel of the radiance, with the
+        long side about this many pixels (for previews).
+    deghost : bool
+        Take pixels where the frames disagree (moving objects) from the middle exposure
+        alone (:mod:`hdrcl.core.deghost`); ``result.counts["ghost"]`` counts them.
+    ghost_mask : path, optional
+        With ``deghost``, also write the ghost mask as an 8-bit PNG/TIFF (255 = ghost).
+    neutral : "x,y,w,h", optional
+        White balance: scale the channels so this patch comes out neutral
+        (:mod:`hdrcl.core.radiometry`).
+    reference_patch : "x,y,w,h=VALUE", optional
+        Absolute scale: the patch's mean luminance becomes VALUE (cd/m^2).
+    absolute : bool
+        Approximate absolute scale (cd/m^2) from the first frame's f-number and ISO.
+    align : bool
+        Align hand-held frames by translation (median threshold bitmaps, Ward 2003;
+        :mod:`hdrcl.core.align`) to the middle exposure; ``result.shifts`` holds each
+        frame's ``(dy, dx)``. Pixels a shifted frame no longer covers are masked in that
+        frame. The frames are held in memory for this.
+    crop : bool
+        With ``align``: crop the output to the box every frame covers.
+    """
+    from hdrcl.cl.backend import get_processor
+    from hdrcl.core.pipeline import ArraySink, ArraySource, Thumbnail, stream_merge
+    from hdrcl.io.reader import BracketReader
+    from hdrcl.io.writers import RADIANCE_EXTENSIONS, RadianceWriter
+
+    output = os.fspath(output)
+    ext = os.path.splitext(output)[1].lower()
+    if ext not in RADIANCE_EXTENSIONS:
+        raise UsageError(f"{output}: unsupported output type '{ext}'; use one of {', '.join(RADIANCE_EXTENSIONS)}")
+    for target in (output, ghost_mask):
+        if target is not None and not os.path.isdir(os.path.dirname(os.path.abspath(os.fspath(target)))):
+            raise UsageError(f"{os.fspath(target)}: output folder does not exist")
+    rgb = _parse_ignore_color(ignore_color)
+    if crop and not align:
+        raise UsageError("--crop needs --align")
+    if ghost_mask is not None and not deghost:
+        raise UsageError("--ghost-mask needs --deghost")
+    source_name = os.fspath(response) if isinstance(response, (str, os.PathLike)) else (
+        "given" if response is not None else "calibrated from these frames")
+    resp = _as_response(response)
+    t0 = _time.perf_counter()
+    paths, infos, rel = _open_files(paths, times, times_file)
+    warm = _warm_up(device, calibrating=resp is None)
+    first = infos[0]
+    nch = 3 if first.nchannels >= 3 else 1
+    h, w = first.height, first.width
+    if resp is None and _all_raw(paths):
+        from hdrcl.core.response import linear_response
+
+        resp, source_name = linear_response(nch), "linear (RAW input)"
+        resp.exposures = [{"file": os.path.basename(p), "nominal": float(t), "fitted": None, "used": float(t)}
+                          for p, t in zip(paths, rel)]
+    t1 = _time.perf_counter()
+    shifts = crop_box = None
+    itemsize = 1 if first.bits == 8 else 2
+    in_memory = align or (resp is None and len(paths) * h * w * nch * itemsize <= memory_budget())
+    if in_memory:
+        with BracketReader(paths, infos) as reader:
+            frames, valid = reader.read_all()
+        valid = _with_ignore(frames, valid, rgb)
+        if align:
+            frames, valid, shifts, box = _align(frames, valid, rel, device)
+            if crop:
+                y0, y1, x0, x1 = crop_box = box
+                frames = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in frames]
+                valid = [None if v is None else np.ascontiguousarray(v[y0:y1, x0:x1]) for v in valid]
+                h, w = y1 - y0, x1 - x0
+        if resp is None:
+            br = Bracket(frames=frames, times=rel, valid=valid, paths=paths, infos=infos)
+            resp = calibrate(br, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
+                             fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance)
+        source = ArraySource(frames, valid)
+        ignore = None
+    elif resp is None:
+        resp = calibrate(_grid_bracket(paths, infos, rel, rgb), samples=samples, smoothness=smoothness,
+                         weight=weight, seed=seed, fit_exposures=fit_exposures,
+                         exposure_tolerance=exposure_tolerance)
+        source = BracketReader(paths, infos)
+        ignore = rgb
+    else:
+        source = BracketReader(paths, infos)
+        ignore = rgb
+    nominal = rel
+    rel = exposures_used(resp, rel)
+    t2 = _time.perf_counter()
+    warm.join()
+    backend = "numpy" if get_processor("fusion", device) is None else "opencl"
+    result = MergeResult(radiance=None, response=resp, counts={}, times=rel, paths=paths, backend=backend,
+                         shape=(h, w, nch), warnings=list(resp.warnings), output=output, shifts=shifts,
+                         nominal=nominal, crop=crop_box)
+    # Any per-frame mask (alpha, ignore colour, or pixels an aligned frame lost) must
+    # reach the kernel.
+    has_valid = (rgb is not None or any(i.nchannels in (2, 4) for i in infos)
+                 or any(v is not None for v in getattr(source, "valid", [])))
+    thumb = Thumbnail(h, w, nch, thumbnail) if thumbnail else None
+    keep = ArraySink(h, w, nch) if keep_radiance else None
+    mask = np.zeros((h, w), bool) if ghost_mask is not None else None
+    try:
+        factors, units = _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, nch,
+                                              neutral, reference_patch, absolute, h, w)
+        meta = _provenance(result, source_name)
+        meta.update(units)
+        if shifts is not None:
+            meta["alignShifts"] = [list(map(int, sh)) for sh in shifts]
+        with RadianceWriter(output, w, h, nch, dtype=dtype, compression=compression, metadata=meta) as writer:
+            sink = writer if keep is None else _Tee(writer, keep)
+            if factors is not None:
+                from hdrcl.core.radiometry import ScaledSink
+
+                sink = ScaledSink(sink, factors)
+            counts, backend = stream_merge(source, rel, resp, sink, weight=weight, ignore_color=ignore,
+                                           has_valid=has_valid, device=device, thumbnail=thumb,
+                                           deghost=deghost, ghost_mask=mask)
+        result.warnings += writer.warnings
+        if mask is not None:
+            from hdrcl.io.writers import write_ldr
+
+            write_ldr(ghost_mask, (mask.astype(np.uint8) * 255)[..., None])
+    finally:
+        if hasattr(source, "close"):
+            source.close()
+    result.counts = counts
+    result.backend = backend
+    result.radiance = keep.array if keep is not None else None
+    result.thumbnail = thumb.array if thumb is not None else None
+    if counts.get("no_data"):
+        msg = f"{output}: {counts['no_data']} pixel-channels are invalid in every frame and were set to 0"
+        logger.warning(msg)
+        result.warnings.append(msg)
+    if deghost:
+        logger.info("%s: ghost pixels %.2f %%", output, 100.0 * counts.get("ghost", 0) / max(h * w, 1))
+    result.seconds = {"open": t1 - t0, "calibrate": t2 - t1, "fuse_and_write": _time.perf_counter() - t2}
+    return result
+
+
+def _align(frames, valid, times, device):
+    """Shift ``frames`` onto the middle exposure; returns frames, masks, shifts, common box."""
+    from hdrcl.core.align import apply_shifts, estimate_shifts
+    from hdrcl.io.metadata import format_time
+
+    order = np.argsort(np.asarray(times, np.float64), kind="stable")
+    est = estimate_shifts([frames[i] for i in order], device=device)
+    shifts = [None] * len(frames)
+    for pos, i in enumerate(order):
+        shifts[i] = tuple(int(v) for v in est[pos])
+    for i, sh in enumerate(shifts):
+        logger.info("align: frame %d (%s) shifted by dy=%d dx=%d", i, format_time(times[i]), sh[0], sh[1])
+    out, masks, box = apply_shifts(frames, shifts, valid)
+    return list(out), list(masks), shifts, box
+
+
+def _warm_up(device, calibrating: bool):
+    """Open the OpenCL device (and import the solver) on a helper thread while the
+    frames decode: both take a few tenths of a second that need not add up."""
+    import threading
+
+    def work():
+        try:
+            if calibrating:
+                import scipy.sparse  # noqa: F401
+            from hdrcl.cl.backend import get_processor
+
+            get_processor("fusion", device)
+        except Exception:  # the main thread meets the same error and reports it
+            pass
+
+    t = threading.Thread(target=work, name="hdrcl-warm-up", daemon=True)
+    t.start()
+    return t
+
+
+class _Tee:
+    def __init__(self, *sinks):
+        self.sinks = sinks
+
+    def write_rows(self, y0, y1, data):
+        for s in self.sinks:
+            s.write_rows(y0, y1, data)

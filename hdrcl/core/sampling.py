@@ -1,0 +1,151 @@
+"""Automatic choice of the pixels that calibrate the response curve.
+
+The paper picked its 28-50 pixels by hand and asked for an automatic choice: pixels in
+smooth regions (so small misregistration or blur does not matter), spread over the
+image, never invalid, and together covering the whole brightness range. This module
+does that deterministically for a given seed.
+"""
+from __future__ import annotations
+
+import logging
+from typing import Optional, Sequence
+
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+#: Selection works on a decimated grid of at most this many pixels, so its cost does not
+#: grow with the photograph.
+MAX_GRID_PIXELS = 250_000
+
+#: Number of brightness strata; the samples are shared out among them.
+MAX_BINS = 64
+
+
+def _box_sum(a: np.ndarray, k: int, mode: str) -> np.ndarray:
+    """Sum over the k x k window centred on each pixel (summed-area table), the image
+    extended by ``mode`` ("constant": zeros, "edge": nearest pixel). NumPy only, so
+    calibration does not pay for importing scipy.ndimage."""
+    r = k // 2
+    p = np.pad(a, r, mode=mode) if mode == "edge" else np.pad(a, r)
+    c = np.zeros((p.shape[0] + 1, p.shape[1] + 1))
+    c[1:, 1:] = p.cumsum(0).cumsum(1)
+    h, w = a.shape
+    return c[k:k + h, k:k + w] - c[:h, k:k + w] - c[k:k + h, :w] + c[:h, :w]
+
+
+def grid_stride(height: int, width: int) -> int:
+    """Stride of the decimated grid that sample selection works on."""
+    return max(1, int(np.ceil(np.sqrt(height * width / MAX_GRID_PIXELS))))
+
+
+def default_sample_count(knots: int, frames: int) -> int:
+    """Samples needed for a well-posed solve with some margin.
+
+    The system is over-determined when ``N (P - 1) > levels``; three times that, and
+    never fewer than 200 pixels, keeps noise in any one pixel from bending the curve.
+    """
+    needed = int(np.ceil(3.0 * knots / max(frames - 1, 1)))
+    return int(min(max(1000, needed), 5000))
+
+
+def select_samples(
+    frames: Sequence[np.ndarray],
+    valid: Optional[np.ndarray],
+    n: int,
+    seed: int = 0,
+    decimate: bool = True,
+) -> np.ndarray:
+    """Choose ``n`` calibration pixels.
+
+    Parameters
+    ----------
+    frames : sequence of ndarray
+        The bracket, each ``(H, W, C)`` integer codes.
+    valid : ndarray of bool, shape (H, W), optional
+        Pixels usable in *every* frame (alpha and ignore-colour already applied).
+    n : int
+        Number of pixels wanted.
+    seed : int
+        Seed of the random choice within each stratum; the result depends only on it
+        and the data.
+    decimate : bool
+        Work on the :func:`grid_stride` grid (the default). False when ``frames`` are
+        that grid already, read so by :meth:`hdrcl.io.reader.BracketReader.read_grid`.
+
+    Returns
+    -------
+    numpy.ndarray
+        Flat indices (row * W + col) into the full-resolution image, at most ``n`` of
+        them, sorted. Fewer are returned only when fewer usable pixels exist.
+
+    Notes
+    -----
+    The key that orders pixels by brightness is the sum of their codes over all frames
+    and channels: each frame adds a monotonic function of the scene radiance, so the key
+    is monotonic in radiance and roughly linear in log radiance over the bracketed
+    range. Pixels are stratified into equal-width key bins; within a bin the choice is
+    random among the smoothest quarter (lowest 5x5 variance of the key), which spreads
+    the samples over the image while keeping them away from edges.
+    """
+    h, w = frames[0].shape[:2]
+    stride = grid_stride(h, w) if decimate else 1
+    key = np.zeros((len(range(0, h, stride)), len(range(0, w, stride))), np.float64)
+    top = 0.0
+    for f in frames:
+        sub = f[::stride, ::stride]
+        key += sub.reshape(sub.shape[0], sub.shape[1], -1).sum(axis=2, dtype=np.float64)
+        top += sub.shape[2] * float(np.iinfo(f.dtype).max)
+
+    usable = np.ones(key.shape, bool) if valid is None else valid[::stride, ::stride].copy()
+    # Stay clear of invalid areas and of the image border: samples must sit inside
+    # smooth, fully measured neighbourhoods.
+    if min(key.shape) > 8:
+        usable = _box_sum(usable.astype(np.float64), 5, "constant") > 24.5  # 5x5 erosion, outside = 0
+    # A pixel clipped in every frame and channel carries no measurement.
+    usable &= (key > 0) & (key < top)
+
+    mean = _box_sum(key, 5, "edge") / 25.0
+    var = _box_sum(key * key, 5, "edge") / 25.0 - mean * mean
+
+    cand = np.flatnonzero(usable)
+    if cand.size == 0:
+        return np.zeros(0, np.int64)
+    n = int(min(n, cand.size))
+    kv = key.ravel()[cand]
+    vv = var.ravel()[cand]
+    nbins = int(min(MAX_BINS, n))
+    lo, hi = kv.min(), kv.max()
+    bins = np.minimum(((kv - lo) / max(hi - lo, 1e-12) * nbins).astype(np.int64), nbins - 1)
+
+    rng = np.random.default_rng(seed)
+    order = np.argsort(bins, kind="stable")
+    starts = np.searchsorted(bins[order], np.arange(nbins + 1))
+    chosen: list = []
+    pools: list = []
+    quota = n / nbins
+    owed = 0.0
+    for b in range(nbins):
+        members = order[starts[b]:starts[b + 1]]
+        owed += quota
+        if members.size == 0:
+            continue
+        smooth = members[vv[members] <= np.quantile(vv[members], 0.25)]
+        take = int(min(np.floor(owed + 1e-9), smooth.size))
+        pick = rng.choice(smooth, size=take, replace=False) if take else np.zeros(0, np.int64)
+        chosen.append(pick)
+        owed -= take
+        pools.append(np.setdiff1d(members, pick, assume_unique=True))
+    sel = np.concatenate(chosen) if chosen else np.zeros(0, np.int64)
+    missing = n - sel.size
+    if missing > 0:
+        # Sparse strata could not fill their share: take the smoothest of the rest.
+        rest = np.concatenate(pools)
+        rest = rest[np.argsort(vv[rest], kind="stable")[:missing]]
+        sel = np.concatenate([sel, rest])
+
+    flat = cand[sel]
+    rows, cols = np.divmod(flat, key.shape[1])
+    full = (rows * stride) * w + cols * stride
+    logger.debug("selected %d samples on a %dx%d grid (stride %d)", full.size, key.shape[0], key.shape[1], stride)
+    return np.sort(full.astype(np.int64))

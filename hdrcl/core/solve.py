@@ -1,0 +1,289 @@
+"""Recovering the camera response g = ln f^-1 (CPU, scipy.sparse least squares).
+
+The paper's objective, exactly::
+
+    O = sum_ij [w(Z_ij) (g(Z_ij) - ln E_i - ln dt_j)]^2
+      + sum_{z=Zmin+1}^{Zmax-1} [lambda w(z) g''(z)]^2        (rows carry lambda w [1,-2,1])
+
+with ``g(Zmid) = 0``. One curve per channel. 8-bit data solves for all 256 levels;
+16-bit data solves for ``BINS_16BIT`` knots at bin centres, the data rows interpolating
+g linearly between knots, so the system never has 65536 columns.
+"""
+from __future__ import annotations
+
+import logging
+from typing import Optional, Sequence
+
+import numpy as np
+
+from hdrcl.core.response import Response, _check_smoothness, _segments, knot_positions
+from hdrcl.core.weights import weight_values
+from hdrcl.errors import InputError, UsageError
+
+logger = logging.getLogger(__name__)
+
+
+def solve_curve(
+    z: np.ndarray,
+    log_times: np.ndarray,
+    bits: int,
+    smoothness: Optional[float] = None,
+    weight: str = "hat",
+    usable: Optional[np.ndarray] = None,
+) -> np.ndarray:
+    """Solve one channel's curve from sampled codes.
+
+    Parameters
+    ----------
+    z : ndarray, shape (N, P)
+        Integer codes of N sampled pixels in P frames.
+    log_times : ndarray, shape (P,) or (N, P)
+        ``ln dt_j``; a 2-D array gives each sample its own exposures (samples pooled
+        from several bracket sets, padded with ``usable = False``).
+    bits : int
+        8 or 16.
+    smoothness : float, optional
+        lambda; default :func:`default_smoothness` of ``weight``.
+    weight : str
+        Weighting function name (:mod:`hdrcl.core.weights`).
+    usable : ndarray of bool, shape (N, P), optional
+        False drops a sample (invalid pixel in that frame).
+
+    Returns
+    -------
+    numpy.ndarray
+        g at :func:`knot_positions` (float64), shifted so that ``g(levels // 2) = 0``.
+    """
+    import scipy.sparse as sp
+
+    smoothness = _check_smoothness(smoothness, weight)
+    levels = 1 << bits
+    knots = knot_positions(bits)
+    k = knots.size
+    z = np.asarray(z, np.float64)
+    n, p = z.shape
+    w = weight_values(z, levels, weight)
+    if usable is not None:
+        w = np.where(usable, w, 0.0)
+    keep = w > 0
+    si, sj = np.nonzero(keep)
+    ws = w[si, sj]
+    seg, frac = _segments(z[si, sj], knots)
+    m = si.size
+    rows_d = np.arange(m)
+    # Data rows: w*g(z) (interpolated between knots) - w*lnE_i = w*ln dt_j
+    r = np.concatenate([rows_d, rows_d, rows_d])
+    c = np.concatenate([seg, seg + 1, k + si])
+    v = np.concatenate([ws * (1.0 - frac), ws * frac, -ws])
+    lt = np.broadcast_to(np.asarray(log_times, np.float64), z.shape)
+    b_data = ws * lt[si, sj]
+    # Smoothness rows: lambda w(z) [1, -2, 1] at interior knots.
+    interior = np.arange(1, k - 1)
+    wk = smoothness * weight_values(knots[interior], levels, weight)
+    rows_s = m + np.arange(interior.size)
+    r = np.concatenate([r, rows_s, rows_s, rows_s])
+    c = np.concatenate([c, interior - 1, interior, interior + 1])
+    v = np.concatenate([v, wk, -2.0 * wk, wk])
+    # g(mid knot) = 0 fixes the free additive constant.
+    row_c = m + interior.size
+    r = np.concatenate([r, [row_c]])
+    c = np.concatenate([c, [k // 2]])
+    v = np.concatenate([v, [1.0]])
+    nrows = row_c + 1
+    a = sp.csr_matrix((v, (r, c)), shape=(nrows, k + n))
+    b = np.zeros(nrows)
+    b[:m] = b_data
+    # Normal equations [[G, B], [B^T, D]] [g; lnE] = [u; e]. Each ln E_i appears only in
+    # its own sample's rows, so D is diagonal and the ln E block is eliminated exactly
+    # (Schur complement), leaving a small dense levels x levels system for g:
+    # (G - B D^-1 B^T) g = u - B D^-1 e. Same solution as solving the whole system.
+    ata = (a.T @ a).tocsc()
+    atb = a.T @ b
+    d = ata.diagonal()[k:].copy()
+    empty = d <= 0  # a sample with no usable measurement: its ln E is free; pin it to 0
+    d[empty] = 1.0
+    gb = ata[:k, k:]
+    dinv = sp.diags(1.0 / d)
+    schur = ata[:k, :k].toarray() - (gb @ dinv @ gb.T).toarray()
+    rhs = atb[:k] - gb @ (atb[k:] / d)
+    g = np.linalg.solve(schur, rhs)
+    # Re-anchor exactly at Zmid = levels // 2 (equal to a knot for 8-bit data).
+    zmid = levels // 2
+    i, f = _segments(np.array([float(zmid)]), knots)
+    g = g - (g[i[0]] * (1 - f[0]) + g[i[0] + 1] * f[0])
+    return g
+
+
+def recover_response(
+    frames: Sequence[np.ndarray],
+    times: Sequence[float],
+    *,
+    valid: Optional[np.ndarray] = None,
+    samples: Optional[int] = None,
+    smoothness: Optional[float] = None,
+    weight: str = "hat",
+    seed: int = 0,
+    channels: Optional[Sequence[str]] = None,
+    decimate: bool = True,
+) -> Response:
+    """Recover the response of a bracket.
+
+    Parameters
+    ----------
+    frames : sequence of ndarray
+        P images ``(H, W, C)`` of uint8 or uint16 codes, same shape.
+    times : sequence of float
+        Relative exposure of each frame (seconds).
+    valid : ndarray of bool (H, W), optional
+        Pixels measured in every frame (alpha, ignore-colour); others are never sampled.
+    samples : int, optional
+        Number of pixels; default :func:`hdrcl.core.sampling.default_sample_count`.
+    smoothness, weight, seed, decimate
+        See :func:`solve_curve` and :func:`hdrcl.core.sampling.select_samples`.
+
+    Returns
+    -------
+    Response
+    """
+    from hdrcl.core.sampling import default_sample_count, select_samples
+
+    if len(frames) < 2:
+        raise UsageError("calibration needs at least two exposures")
+    smoothness = _check_smoothness(smoothness, weight)
+    dtype = frames[0].dtype
+    if dtype == np.uint8:
+        bits = 8
+    elif dtype == np.uint16:
+        bits = 16
+    else:
+        raise UsageError(f"frames must be uint8 or uint16, not {dtype}")
+    nch = frames[0].shape[2] if frames[0].ndim == 3 else 1
+    log_t = np.log(np.asarray(times, np.float64))
+    knots = knot_positions(bits)
+    n = int(samples) if samples else default_sample_count(knots.size, len(frames))
+    if n < 1:
+        raise UsageError(f"--samples must be positive, not {samples}")
+    idx = select_samples(frames, valid, n, seed=seed, decimate=decimate)
+    if idx.size * (len(frames) - 1) <= knots.size // 4:
+        raise InputError(
+            f"only {idx.size} usable calibration pixels were found; the frames may be blank, "
+            "clipped or masked almost everywhere"
+        )
+    if idx.size * (len(frames) - 1) <= knots.size:
+        logger.warning(
+            "%d samples x %d frames leave the response under-determined "
+            "(N(P-1) should exceed %d); the curve leans on smoothness", idx.size, len(frames), knots.size,
+        )
+    zs = np.stack([f.reshape(-1, nch)[idx] for f in frames], axis=1)  # (N, P, C)
+    return _finish(zs, np.broadcast_to(log_t, zs.shape[:2]), None, bits, smoothness, weight, seed, channels)
+
+
+#: A sample whose residual (weighted RMS over its frames, ln units) exceeds this many
+#: times the median sample's, and 0.1, is dropped before a second solve: a pixel that
+#: moved between frames, or sits on an edge that misregistration smears, must not bend
+#: the curve.
+OUTLIER_FACTOR = 6.0
+
+
+def _sample_residuals(z, log_t, usable, g_tables, weight, levels):
+    """Weighted RMS residual of each sample under curves ``g_tables`` (C, levels)."""
+    nch = z.shape[2]
+    res = np.zeros(z.shape[0])
+    for ch in range(nch):
+        zc = z[:, :, ch].astype(np.int64)
+        w = weight_values(zc, levels, weight)
+        if usable is not None:
+            w = np.where(usable, w, 0.0)
+        x = g_tables[ch][zc] - log_t
+        sw = w.sum(axis=1)
+        ln_e = np.where(sw > 0, (w * x).sum(axis=1) / np.maximum(sw, 1e-12), 0.0)
+        r2 = (w * (x - ln_e[:, None]) ** 2).sum(axis=1) / np.maximum(sw, 1e-12)
+        res = np.maximum(res, np.sqrt(r2))
+    return res
+
+
+def _finish(zs, log_t, usable, bits, smoothness, weight, seed, channels) -> Response:
+    nch = zs.shape[2]
+    smoothness = _check_smoothness(smoothness, weight)
+    knots = knot_positions(bits)
+
+    def solve(keep):
+        u = None if usable is None else usable[keep]
+        return np.stack([solve_curve(zs[keep][:, :, ch], log_t[keep], bits, smoothness, weight, u)
+                         for ch in range(nch)])
+
+    keep = np.ones(zs.shape[0], bool)
+    g = solve(keep)
+    probe = Response(bits=bits, g=g, knots=knots, channels=("R", "G", "B")[:nch] if nch == 3 else ("Y",) * nch)
+    res = _sample_residuals(zs, log_t, usable, probe.tables(), weight, 1 << bits)
+    limit = max(OUTLIER_FACTOR * float(np.median(res)), 0.1)
+    outliers = res > limit
+    if outliers.any() and outliers.mean() < 0.5:
+        keep = ~outliers
+        g = solve(keep)
+        logger.info("response: dropped %d of %d samples as outliers (residual > %.3f)",
+                    int(outliers.sum()), outliers.size, limit)
+    names = tuple(channels) if channels else (("R", "G", "B")[:nch] if nch == 3 else tuple(f"Y{c}" if c else "Y" for c in range(nch)))
+    resp = Response(bits=bits, g=g, knots=knots, channels=names, smoothness=float(smoothness),
+                    weight=weight, samples=int(keep.sum()), seed=int(seed))
+    resp.warnings.extend(resp.monotonic_problems())
+    for wmsg in resp.warnings:
+        logger.warning(wmsg)
+    return resp
+
+
+def recover_response_pooled(
+    brackets: Sequence[tuple],
+    *,
+    samples: Optional[int] = None,
+    smoothness: Optional[float] = None,
+    weight: str = "hat",
+    seed: int = 0,
+    channels: Optional[Sequence[str]] = None,
+) -> Response:
+    """One response from samples pooled over several bracket sets of one camera.
+
+    Parameters
+    ----------
+    brackets : sequence of (frames, times, valid)
+        Each set's frames (same bit depth and channel count across sets), exposure
+        times in seconds, and ``(H, W)`` validity mask or None. Sets may differ in size
+        and frame count.
+    samples : int, optional
+        Total pixels, shared out evenly between the sets.
+
+    Returns
+    -------
+    Response
+    """
+    from hdrcl.core.sampling import default_sample_count, select_samples
+
+    brackets = [b for b in brackets if len(b[0]) >= 2]
+    if not brackets:
+        raise UsageError("calibration needs at least one set of two or more exposures")
+    first = brackets[0][0][0]
+    bits = 8 if first.dtype == np.uint8 else 16
+    nch = first.shape[2]
+    pmax = max(len(b[0]) for b in brackets)
+    knots = knot_positions(bits)
+    total = int(samples) if samples else default_sample_count(knots.size, min(len(b[0]) for b in brackets))
+    per = max(1, total // len(brackets))
+    zs_all, lt_all, ok_all = [], [], []
+    for k, (frames, times, valid) in enumerate(brackets):
+        if frames[0].dtype != first.dtype or frames[0].shape[2] != nch:
+            raise UsageError("pooled calibration needs sets of one bit depth and channel count")
+        idx = select_samples(frames, valid, per, seed=seed + k)
+        p = len(frames)
+        z = np.zeros((idx.size, pmax, nch), first.dtype)
+        z[:, :p] = np.stack([f.reshape(-1, nch)[idx] for f in frames], axis=1)
+        lt = np.zeros((idx.size, pmax))
+        lt[:, :p] = np.log(np.asarray(times, np.float64))
+        ok = np.zeros((idx.size, pmax), bool)
+        ok[:, :p] = True
+        zs_all.append(z)
+        lt_all.append(lt)
+        ok_all.append(ok)
+    zs = np.concatenate(zs_all)
+    if zs.shape[0] * (pmax - 1) <= knots.size // 4:
+        raise InputError(f"only {zs.shape[0]} usable calibration pixels were found across {len(brackets)} sets")
+    return _finish(zs, np.concatenate(lt_all), np.concatenate(ok_all), bits, smoothness, weight, seed, channels)

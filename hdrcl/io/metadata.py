@@ -1,0 +1,400 @@
+"""Exposure information of photographs: EXIF fields, exposure lists, relative exposure.
+
+:class:`FrameInfo` is what :func:`hdrcl.io.frames.read_info` reads from a file's header.
+:class:`Exposure` is one frame's exposure settings, from ``--times``, a times file or
+EXIF; :func:`resolve_exposures` chooses among those sources and
+:func:`relative_exposures` turns the settings into the effective exposure times
+``Δt_j`` that the Debevec-Malik model uses.
+
+This module does not import OpenImageIO.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import logging
+import math
+import os
+from dataclasses import dataclass, field
+from typing import Mapping, Optional, Sequence, Union
+
+import numpy as np
+
+from hdrcl.errors import InputError, UsageError
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "FrameInfo",
+    "Exposure",
+    "parse_times",
+    "read_times_file",
+    "relative_exposures",
+    "resolve_exposures",
+    "format_time",
+]
+
+# Two exposures whose effective times differ by less than this fraction (0.0014 stops)
+# are the same exposure: they add no range and break the response solve.
+SAME_EXPOSURE_RTOL = 1e-3
+
+
+@dataclass
+class FrameInfo:
+    """What one photograph's header says, read without decoding its pixels.
+
+    Attributes are ``None`` where the file does not carry the field.
+    ``capture_time`` joins DateTimeOriginal and SubSecTimeOriginal (naive local time).
+    """
+
+    path: str
+    width: int
+    height: int
+    nchannels: int
+    channel_names: tuple = ()
+    bits: int = 8  # 8 or 16: bits per sample of the stored integer data
+    exposure_time: Optional[float] = None  # seconds
+    fnumber: Optional[float] = None
+    iso: Optional[float] = None
+    exposure_bias: Optional[float] = None  # EV
+    exposure_mode: Optional[int] = None  # EXIF ExposureMode: 0 auto, 1 manual, 2 auto bracket
+    capture_time: Optional[_dt.datetime] = None
+    make: Optional[str] = None
+    model: Optional[str] = None
+    serial: Optional[str] = None
+    lens: Optional[str] = None
+    focal_length: Optional[float] = None  # mm
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass
+class Exposure:
+    """One frame's exposure settings.
+
+    Attributes
+    ----------
+    time : float
+        Shutter time in seconds (> 0).
+    fnumber : float, optional
+        Aperture f-number; ``None`` when unknown.
+    iso : float, optional
+        Sensitivity; ``None`` when unknown.
+    gain_db : float
+        Extra amplification in decibels (amplitude: ``10 ** (gain_db / 20)``), as in
+        HDRShop image lists.
+    nd : float
+        Neutral-density filtering as optical density: the filter transmits
+        ``10 ** -nd`` of the light (ND 0.3 is one stop). HDRShop's ``ND_filters`` column
+        is read with this meaning.
+    """
+
+    time: float
+    fnumber: Optional[float] = None
+    iso: Optional[float] = None
+    gain_db: float = 0.0
+    nd: float = 0.0
+
+    @property
+    def factor(self) -> float:
+        """Exposure relative to a 1 s frame with no gain and no filter, ignoring
+        aperture and ISO: ``time * 10**(gain_db/20) * 10**(-nd)``."""
+        return self.time * 10.0 ** (self.gain_db / 20.0) * 10.0 ** (-self.nd)
+
+    def relative_to(self, reference: "Exposure") -> float:
+        """Effective exposure time in seconds as if shot at ``reference``'s f-number
+        and ISO with 0 dB gain and no ND filter.
+
+        ``time * (N_ref / N)**2 * (ISO / ISO_ref) * 10**(gain_db/20) * 10**(-nd)``; the
+        aperture (or ISO) term is left out when either frame lacks that value.
+        """
+        f = self.factor
+        if self.fnumber and reference.fnumber:
+            f *= (reference.fnumber / self.fnumber) ** 2
+        if self.iso and reference.iso:
+            f *= self.iso / reference.iso
+        return f
+
+
+def _parse_seconds(text: str) -> Optional[float]:
+    """``"1/30"``, ``"0.5"`` or ``"2"`` as seconds; None when not a positive finite time."""
+    text = text.strip()
+    try:
+        if "/" in text:
+            num, den = text.split("/", 1)
+            value = float(num) / float(den)
+        else:
+            value = float(text)
+    except (ValueError, ZeroDivisionError):
+        return None
+    if not math.isfinite(value) or value <= 0:
+        return None
+    return value
+
+
+def parse_times(text: str) -> list:
+    """Parse a comma-separated list of exposure times in seconds.
+
+    Parameters
+    ----------
+    text : str
+        For example ``"1/30,0.5,2"``: fractions, decimals or integers; spaces allowed.
+
+    Returns
+    -------
+    list of float
+
+    Raises
+    ------
+    UsageError
+        An entry is empty, not a number, zero, negative, infinite or NaN.
+    """
+    items = [t.strip() for t in str(text).split(",")]
+    if not any(items):
+        raise UsageError("--times: no exposure times given")
+    out = []
+    for item in items:
+        value = _parse_seconds(item)
+        if value is None:
+            raise UsageError(f"--times: '{item}' is not a positive exposure time")
+        out.append(value)
+    return out
+
+
+def _float_field(text: str) -> Optional[float]:
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    return value if math.isfinite(value) else None
+
+
+def read_times_file(path) -> dict:
+    """Read a list of exposures, one file per line.
+
+    Two layouts are recognised line by line:
+
+    * ``file seconds`` where seconds may be a fraction (``IMG_1.JPG 1/30``);
+    * HDRShop image lists, ``file exposure 1/shutter_speed f/stop gain(db) ND_filters``
+      (trailing columns may be left out). The ``exposure`` column is the shutter time in
+      seconds (the Memorial Church list runs from 32 down to 1/1024 with ``1/shutter``
+      its reciprocal); it is used as the time, the f-stop, gain and ND as given.
+
+    ``#`` starts a comment; blank lines are skipped.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    dict of str to Exposure
+        Keyed by the file's base name.
+
+    Raises
+    ------
+    InputError
+        The file cannot be read, a line is malformed, or a file is listed twice.
+    """
+    name = os.fspath(path)
+    try:
+        with open(name, encoding="utf-8-sig") as fh:
+            lines = fh.read().splitlines()
+    except FileNotFoundError:
+        raise InputError(f"{name}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{name}: cannot read times file ({exc})") from None
+    result = {}
+    where = {}
+    inconsistent = []
+    for lineno, raw in enumerate(lines, 1):
+        fields = raw.split("#", 1)[0].split()
+        if not fields:
+            continue
+        bad = InputError(f"{name} line {lineno}: expected 'file seconds' or HDRShop columns")
+        if len(fields) < 2 or len(fields) > 6:
+            raise bad
+        seconds = _parse_seconds(fields[1])
+        if seconds is None:
+            raise bad
+        exposure = Exposure(time=seconds)
+        if len(fields) >= 3:
+            extra = [_float_field(f) for f in fields[2:]]
+            if any(v is None for v in extra):
+                raise bad
+            inverse = extra[0]
+            if inverse <= 0:
+                raise bad
+            if abs(seconds * inverse - 1.0) > 0.01:
+                inconsistent.append(lineno)
+            if len(extra) >= 2:
+                if extra[1] <= 0:
+                    raise bad
+                exposure.fnumber = extra[1]
+            if len(extra) >= 3:
+                exposure.gain_db = extra[2]
+            if len(extra) >= 4:
+                if extra[3] < 0:
+                    raise bad
+                exposure.nd = extra[3]
+        key = os.path.basename(fields[0])
+        if key in result:
+            raise InputError(
+                f"{name} line {lineno}: {key} is already listed on line {where[key]}"
+            )
+        result[key] = exposure
+        where[key] = lineno
+    if inconsistent:
+        # Some HDRShop lists carry relative exposures in column 2; column 2 still wins.
+        logger.warning(
+            "%s: the exposure and 1/shutter_speed columns disagree on line(s) %s; "
+            "using the exposure column as seconds",
+            name, ", ".join(map(str, inconsistent)),
+        )
+    if not result:
+        raise InputError(f"{name}: no exposures listed")
+    return result
+
+
+def _shared_or_none(values, label):
+    """The reference value for a factor, or None when it must be ignored."""
+    if any(v is None or v <= 0 for v in values):
+        known = {v for v in values if v is not None and v > 0}
+        if len(known) > 1:
+            logger.warning(
+                "some frames have no %s while the others differ (%s); ignoring %s",
+                label, ", ".join(f"{v:g}" for v in sorted(known)), label,
+            )
+        return None
+    return values[0]
+
+
+def relative_exposures(exposures: Sequence[Exposure]) -> np.ndarray:
+    """Effective exposure time of each frame, in seconds at the first frame's settings.
+
+    ``t * (N0 / N)**2 * (ISO / ISO0) * 10**(gain_db / 20) * 10**(-nd)``, i.e. what
+    each frame's shutter time would have been at frame 0's f-number and ISO, 0 dB gain and
+    no ND filter. When any frame lacks its f-number (or ISO), that factor is left out
+    for all frames.
+
+    Parameters
+    ----------
+    exposures : sequence of Exposure
+
+    Returns
+    -------
+    numpy.ndarray
+        float64, one value per frame.
+    """
+    exposures = list(exposures)
+    if not exposures:
+        return np.zeros(0, dtype=np.float64)
+    use_n = _shared_or_none([e.fnumber for e in exposures], "f-number") is not None
+    use_iso = _shared_or_none([e.iso for e in exposures], "ISO") is not None
+    ref = exposures[0]
+    out = np.empty(len(exposures), dtype=np.float64)
+    for i, e in enumerate(exposures):
+        f = e.factor
+        if use_n:
+            f *= (ref.fnumber / e.fnumber) ** 2
+        if use_iso:
+            f *= e.iso / ref.iso
+        out[i] = f
+    return out
+
+
+def format_time(seconds: float) -> str:
+    """Exposure time for messages: ``"1/30 s"``, ``"2 s"``, ``"0.4 s"``."""
+    s = float(seconds)
+    if not math.isfinite(s) or s <= 0:
+        return f"{s:g} s"
+    if s < 1.0:
+        n = round(1.0 / s)
+        if n >= 1 and abs(1.0 / s - n) <= 1e-3 * n:
+            return f"1/{n} s"
+    if abs(s - round(s)) <= 1e-6 * s:
+        return f"{round(s)} s"
+    return f"{s:.4g} s"
+
+
+def resolve_exposures(
+    paths: Sequence,
+    infos: Optional[Sequence[FrameInfo]] = None,
+    times: Optional[Sequence[float]] = None,
+    times_file: Union[str, os.PathLike, Mapping[str, Exposure], None] = None,
+) -> list:
+    """Choose each frame's exposure from the given sources and check the set is usable.
+
+    Precedence: ``times`` (the whole exposure: EXIF aperture and ISO are not used), then
+    ``times_file``, then each frame's EXIF (ExposureTime, FNumber, ISO).
+
+    Parameters
+    ----------
+    paths : sequence of str or os.PathLike
+        The frames of one bracket set.
+    infos : sequence of FrameInfo, optional
+        Headers of ``paths`` in the same order; needed only for the EXIF source.
+    times : sequence of float, optional
+        Exposure times in seconds, one per file (from ``--times``).
+    times_file : path or mapping, optional
+        A times file (see :func:`read_times_file`) or its parsed mapping.
+
+    Returns
+    -------
+    list of Exposure
+
+    Raises
+    ------
+    InputError
+        Fewer than two frames; a frame missing from the times file or without EXIF
+        exposure time; two frames with the same effective exposure.
+    UsageError
+        ``times`` does not have one entry per file.
+    """
+    names = [os.fspath(p) for p in paths]
+    if len(names) < 2:
+        first = names[0] if names else "no input files"
+        raise InputError(f"{first}: a bracket set needs at least two exposures")
+    if times is not None:
+        times = list(times)
+        if len(times) != len(names):
+            raise UsageError(
+                f"--times: {len(times)} exposure time(s) given for {len(names)} files"
+            )
+        exposures = []
+        for t in times:
+            t = float(t)
+            if not math.isfinite(t) or t <= 0:
+                raise UsageError(f"--times: '{t:g}' is not a positive exposure time")
+            exposures.append(Exposure(time=t))
+    elif times_file is not None:
+        if isinstance(times_file, Mapping):
+            table, source = times_file, "the times file"
+        else:
+            table, source = read_times_file(times_file), os.fspath(times_file)
+        exposures = []
+        for n in names:
+            key = os.path.basename(n)
+            if key not in table:
+                raise InputError(f"{n}: not listed in {source}")
+            e = table[key]
+            exposures.append(Exposure(e.time, e.fnumber, e.iso, e.gain_db, e.nd))
+    else:
+        if infos is None or len(infos) != len(names):
+            raise ValueError("resolve_exposures needs one FrameInfo per path for EXIF")
+        exposures = []
+        for n, info in zip(names, infos):
+            t = info.exposure_time
+            if t is None or not math.isfinite(t) or t <= 0:
+                raise InputError(
+                    f"{n}: no exposure time in EXIF; give --times or --times-file"
+                )
+            exposures.append(Exposure(time=t, fnumber=info.fnumber, iso=info.iso))
+    rel = relative_exposures(exposures)
+    seen = []
+    for i, r in enumerate(rel):
+        for j in seen:
+            if abs(r - rel[j]) <= SAME_EXPOSURE_RTOL * max(r, rel[j]):
+                raise InputError(
+                    f"{names[i]} has the same exposure as {names[j]} ({format_time(r)})"
+                )
+        seen.append(i)
+    return exposures

@@ -1,0 +1,118 @@
+"""Reading radiance maps and their hdrcl metadata back (EXR, HDR, float TIFF, PFM)."""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+
+from hdrcl.errors import InputError
+from hdrcl.io.frames import _open_input, _read_error
+from hdrcl.io.writers import METADATA_PREFIX
+
+
+def _pick_channels(spec, path: str) -> list:
+    names = [str(n) for n in spec.channelnames]
+    upper = [n.split(".")[-1].upper() for n in names]
+    if all(c in upper for c in ("R", "G", "B")):
+        return [upper.index(c) for c in ("R", "G", "B")]
+    if "Y" in upper:
+        return [upper.index("Y")]
+    n = spec.nchannels
+    if n in (1, 3):
+        return list(range(n))
+    if n in (2, 4) and spec.alpha_channel == n - 1:
+        return list(range(n - 1))
+    raise InputError(
+        f"{path}: cannot find grey or RGB channels among {', '.join(names) or n}"
+    )
+
+
+def read_radiance(path) -> tuple:
+    """Read a radiance map written by :func:`write_radiance` (or any float image).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        EXR, HDR, TIFF, PFM or another format OpenImageIO reads.
+
+    Returns
+    -------
+    pixels : numpy.ndarray
+        ``(H, W, C)`` float32, C = 1 or 3 (alpha and other channels dropped).
+    metadata : dict
+        The ``hdrcl:*`` attributes without the prefix (or the JSON kept in a TIFF's
+        ImageDescription); empty when there are none.
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable, truncated or corrupt file, or no grey/RGB channels.
+    """
+    name = os.fspath(path)
+    inp = _open_input(name)
+    try:
+        spec = inp.spec()
+        channels = _pick_channels(spec, name)
+        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+        problem = _read_error(inp, name)
+        if problem is None and data is None:
+            problem = f"{name}: cannot decode pixel data"
+        if problem is not None:
+            raise InputError(problem)
+        metadata = _spec_metadata(spec)
+    finally:
+        inp.close()
+    data = np.asarray(data, dtype=np.float32)
+    if data.ndim == 2:
+        data = data[:, :, None]
+    pixels = np.ascontiguousarray(data[:, :, channels])
+    return pixels, metadata
+
+
+def _spec_metadata(spec) -> dict:
+    """``hdrcl:*`` attributes of a header, and the JSON some formats keep in ImageDescription."""
+    metadata = {}
+    desc = spec.getattribute("ImageDescription")
+    if isinstance(desc, str) and desc.startswith('{"hdrcl"'):
+        try:
+            parsed = json.loads(desc).get("hdrcl", {})
+        except (ValueError, AttributeError):
+            parsed = {}
+        if isinstance(parsed, dict):
+            metadata.update(parsed)
+    for p in spec.extra_attribs:
+        if p.name.startswith(METADATA_PREFIX):
+            metadata[p.name[len(METADATA_PREFIX):]] = p.value
+    return metadata
+
+
+def read_metadata(path) -> dict:
+    """The ``hdrcl:*`` metadata of a file, from its header only (no pixels decoded).
+
+    Reads what :func:`write_radiance` and :func:`write_ldr` store: EXR ``hdrcl:*``
+    attributes, or the JSON kept in ImageDescription (TIFF, JPEG). ``hdrcl batch``
+    uses it to decide, cheaply, whether an existing output is already up to date.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    dict
+        Keys without the ``hdrcl:`` prefix; empty when the file carries none.
+
+    Raises
+    ------
+    InputError
+        The file is missing or its header cannot be read.
+    """
+    name = os.fspath(path)
+    inp = _open_input(name)
+    try:
+        spec = inp.spec()
+        metadata = _spec_metadata(spec)
+    finally:
+        inp.close()
+    return metadata

@@ -1,0 +1,237 @@
+"""Reading a bracket set's frames together: whole, as the decimated sampling grid, or
+strip by strip with the next strip decoded ahead (:class:`BracketReader`).
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import os
+from typing import Optional, Sequence
+
+import numpy as np
+
+from hdrcl.errors import InputError
+from hdrcl.io.frames import (
+    _channel_layout,
+    _channel_layout_counts,
+    _name,
+    _open_input,
+    _read_error,
+    check_compatible,
+    read_info,
+)
+from hdrcl.io.metadata import FrameInfo
+from hdrcl.io.raw import is_raw
+
+
+class BracketReader:
+    """Decodes the frames of a bracket set strip by strip, all frames in parallel.
+
+    Memory stays bounded by the strip height whatever the image size: each frame's
+    file is opened once and read top to bottom with ``read_scanlines``, one thread per
+    frame (OpenImageIO releases the GIL while decoding), and :meth:`strips` decodes the
+    next strip while the caller works on the current one.
+
+    Parameters
+    ----------
+    paths : sequence of path
+    infos : sequence of FrameInfo, optional
+        Headers already read (skips a second header read).
+
+    Raises
+    ------
+    InputError
+        A file cannot be opened, or the frames are incompatible.
+    """
+
+    def __init__(self, paths: Sequence, infos: Optional[Sequence[FrameInfo]] = None):
+        self.paths = [_name(p) for p in paths]
+        raws = [is_raw(p) for p in self.paths]
+        if any(raws) and not all(raws):
+            odd = self.paths[raws.index(False) if raws[0] else raws.index(True)]
+            raise InputError(f"{odd}: a bracket set mixes RAW and non-RAW files")
+        self.infos = list(infos) if infos is not None else [read_info(p) for p in self.paths]
+        check_compatible(self.infos)
+        first = self.infos[0]
+        self.width, self.height = first.width, first.height
+        self.dtype = np.dtype(np.uint8 if first.bits == 8 else np.uint16)
+        self._inputs: list = [None] * len(self.paths)
+        self._layout: list = [None] * len(self.paths)
+        self._raw_wb = None
+        if any(raws):
+            from hdrcl.io.raw import camera_white_balance
+
+            # one white balance for every frame: auto WB must not rescale channels per frame
+            self._raw_wb = camera_white_balance(self.paths[0])
+        self._pool = concurrent.futures.ThreadPoolExecutor(
+            max_workers=max(1, min(len(self.paths), (os.cpu_count() or 1) + 1)),
+            thread_name_prefix="hdrcl-decode")
+
+    @property
+    def nch(self) -> int:
+        return len(_channel_layout_counts(self.infos[0]))
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True)
+        for k, inp in enumerate(self._inputs):
+            if inp is not None and hasattr(inp, "close"):
+                inp.close()
+            self._inputs[k] = None
+
+    def _read(self, k: int, y0: int, y1: int):
+        name = self.paths[k]
+        if self._raw_wb is not None:
+            # LibRaw decodes whole frames: keep the frame while its strips are served
+            px = self._inputs[k]
+            if px is None:
+                from hdrcl.io.raw import read_raw
+
+                px = self._inputs[k] = read_raw(name, white_balance=self._raw_wb).pixels
+                if px.shape[:2] != (self.height, self.width):
+                    raise InputError(f"{name}: decoded {px.shape[1]}x{px.shape[0]}, header says "
+                                     f"{self.width}x{self.height}")
+            out = np.ascontiguousarray(px[y0:y1])
+            if y1 >= self.height:
+                self._inputs[k] = None
+            return out, None
+        inp = self._inputs[k]
+        if inp is None:
+            inp = self._inputs[k] = _open_input(name)
+            self._layout[k] = _channel_layout(inp.spec(), name)
+        colour, alpha = self._layout[k]
+        spec = inp.spec()
+        fmt = "uint8" if self.dtype == np.uint8 else "uint16"
+        data = inp.read_scanlines(0, 0, y0, y1, 0, 0, spec.nchannels, fmt)
+        problem = _read_error(inp, name)
+        if problem is None and data is None:
+            problem = f"{name}: cannot decode pixel data"
+        if problem is not None:
+            raise InputError(problem)
+        data = np.asarray(data)
+        if data.ndim == 2:
+            data = data[:, :, None]
+        if data.shape != (y1 - y0, self.width, spec.nchannels):
+            raise InputError(f"{name}: decoded {data.shape} samples for rows {y0}-{y1}")
+        if alpha is None:
+            return np.ascontiguousarray(data), None
+        return np.ascontiguousarray(data[:, :, colour]), data[:, :, alpha] != 0
+
+    def read_rows(self, y0: int, y1: int):
+        """Rows ``y0..y1`` of every frame: ``(frames, valid)`` lists in path order."""
+        futs = [self._pool.submit(self._read, k, y0, y1) for k in range(len(self.paths))]
+        got = [f.result() for f in futs]  # first failure in path order is raised
+        return [g[0] for g in got], [g[1] for g in got]
+
+    def strips(self, rows: int):
+        """Yield ``(y0, y1, frames, valid)`` top to bottom, decoding one strip ahead."""
+        rows = max(1, int(rows))
+        starts = list(range(0, self.height, rows))
+        ahead = None
+        try:
+            for n, y0 in enumerate(starts):
+                y1 = min(self.height, y0 + rows)
+                current = ahead.result() if ahead is not None else self.read_rows(y0, y1)
+                ahead = None
+                if n + 1 < len(starts):
+                    ny0 = starts[n + 1]
+                    ahead = _Prefetch(self, ny0, min(self.height, ny0 + rows))
+                yield (y0, y1) + tuple(current)
+        finally:
+            if ahead is not None:  # never close the files under a running decode
+                ahead.wait()
+
+    def read_all(self):
+        """Every frame whole: ``(frames, valid)``; memory grows with the image.
+
+        Each frame is decoded in one call on its own thread, straight into the array
+        returned (no strip copies).
+        """
+        futs = [self._pool.submit(self._read, k, 0, self.height) for k in range(len(self.paths))]
+        got = [f.result() for f in futs]
+        return [g[0] for g in got], [g[1] for g in got]
+
+    def read_grid(self, stride: int):
+        """Every ``stride``-th row and column of every frame, read in one pass."""
+        stride = max(1, int(stride))
+        hh = len(range(0, self.height, stride))
+        ww = len(range(0, self.width, stride))
+        frames = [np.empty((hh, ww, self.nch), self.dtype) for _ in self.paths]
+        valid = [None] * len(self.paths)
+        rows = stride * max(1, (1 << 22) // max(self.width * stride, 1))
+        for y0, y1, fs, vs in self.strips(rows):
+            g0 = y0 // stride
+            g1 = g0 + len(range(y0, y1, stride))
+            for k, (f, v) in enumerate(zip(fs, vs)):
+                frames[k][g0:g1] = f[::stride, ::stride]
+                if v is not None:
+                    if valid[k] is None:
+                        valid[k] = np.ones((hh, ww), bool)
+                    valid[k][g0:g1] = v[::stride, ::stride]
+        return frames, valid
+
+
+class _Prefetch:
+    """A strip being decoded on a helper thread while the caller uses the previous one."""
+
+    def __init__(self, reader: "BracketReader", y0: int, y1: int):
+        import threading
+
+        self._result = None
+        self._error = None
+        self._thread = threading.Thread(target=self._run, args=(reader, y0, y1), daemon=True,
+                                        name="hdrcl-prefetch")
+        self._thread.start()
+
+    def _run(self, reader, y0, y1):
+        try:
+            self._result = reader.read_rows(y0, y1)
+        except BaseException as exc:  # handed to the consumer
+            self._error = exc
+
+    def wait(self):
+        self._thread.join()
+
+    def result(self):
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        return self._result
+
+
+def ignore_color_mask(pixels: np.ndarray, rgb) -> np.ndarray:
+    """Mark pixels that equal a colour exactly (for example the blue fill of Memorial).
+
+    Parameters
+    ----------
+    pixels : numpy.ndarray
+        ``(H, W, C)`` ``uint8`` or ``uint16`` samples, C = 1 or 3 (or ``(H, W)`` grey).
+    rgb : sequence of int
+        The colour in 8-bit units, e.g. ``(0, 0, 255)``; multiplied by 257 for 16-bit
+        pixels so that 255 maps to 65535. Grey images compare with ``rgb[0]``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(H, W)`` bool, True where the pixel equals the colour.
+    """
+    px = np.asarray(pixels)
+    if px.ndim == 2:
+        px = px[:, :, None]
+    if px.ndim != 3 or px.shape[2] not in (1, 3):
+        raise ValueError(f"pixels must be (H, W, 1) or (H, W, 3), got shape {px.shape}")
+    values = [int(v) for v in (rgb if np.ndim(rgb) else (rgb,))]
+    if any(v < 0 or v > 255 for v in values):
+        raise ValueError(f"colour {tuple(values)} is not in 8-bit units 0..255")
+    scale = 257 if px.dtype == np.uint16 else 1
+    if px.shape[2] == 1:
+        target = np.array([values[0] * scale])
+    else:
+        if len(values) != 3:
+            raise ValueError(f"colour {tuple(values)} needs three values for RGB pixels")
+        target = np.array(values) * scale
+    return np.all(px == target.astype(px.dtype), axis=2)

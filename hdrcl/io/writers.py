@@ -1,0 +1,504 @@
+"""Writing radiance maps and 8/16-bit images, atomically.
+
+Every writer renders into a hidden temporary file beside the target and renames it onto
+the target only when the whole file has been written, so an interrupted run never
+leaves a half-written file under the real name and never destroys the previous one.
+
+Formats, chosen by extension:
+
+========  ==============================================================
+``.exr``  OpenEXR, half (default) or float, any OpenEXR compression;
+          metadata as ``hdrcl:*`` header attributes, Rec.709 chromaticities
+``.hdr``  Radiance RGBE (shared 8-bit exponent: about 1% precision;
+          grey is written as RGB); no metadata
+``.tif``  32-bit float TIFF; metadata as JSON in ImageDescription
+``.pfm``  Portable float map (1 or 3 channels); no metadata
+========  ==============================================================
+
+Only this module and :mod:`hdrcl.io.frames` import OpenImageIO, lazily.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+from typing import Mapping, Optional
+
+import numpy as np
+
+from hdrcl.errors import ProcessingError, UsageError
+from hdrcl.io.atomic import atomic_output
+from hdrcl.io.frames import _clean_error
+
+logger = logging.getLogger(__name__)
+
+
+RADIANCE_EXTENSIONS = (".exr", ".hdr", ".tif", ".tiff", ".pfm")
+
+
+LDR_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+
+
+# OIIO silently falls back to zip for names it does not know, so names are checked here.
+EXR_COMPRESSIONS = ("none", "rle", "zips", "zip", "piz", "pxr24", "b44", "b44a", "dwaa", "dwab")
+
+
+TIFF_COMPRESSIONS = ("none", "zip", "lzw")
+
+
+HALF_MAX = 65504.0
+
+
+# OIIO 3.x name (the colour-interop ID) for scene-linear Rec.709 / sRGB primaries.
+LINEAR_COLORSPACE = "lin_rec709_scene"
+
+
+# CIE xy of the red, green, blue primaries and the D65 white point (Rec.709 / sRGB).
+REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+
+
+METADATA_PREFIX = "hdrcl:"
+
+
+# OpenEXR before 2.0 (and some tools still) limit attribute names to 31 characters.
+MAX_ATTRIBUTE_NAME = 31
+
+
+JPEG_QUALITY = 95
+
+
+def _oiio():
+    import OpenImageIO as oiio  # lazy: keeps ``import hdrcl`` free of the OIIO load
+
+    return oiio
+
+
+def _ext(path: str) -> str:
+    return os.path.splitext(path)[1].lower()
+
+
+def _metadata_attributes(metadata: Optional[Mapping]) -> list:
+    """``(name, value)`` pairs with the ``hdrcl:`` prefix and OIIO-friendly types."""
+    out = []
+    for key, value in (metadata or {}).items():
+        name = METADATA_PREFIX + str(key)
+        if len(name) > MAX_ATTRIBUTE_NAME:
+            raise ValueError(
+                f"metadata key '{key}' is too long: '{name}' has {len(name)} characters, "
+                f"at most {MAX_ATTRIBUTE_NAME}"
+            )
+        if isinstance(value, np.generic):
+            value = value.item()
+        if isinstance(value, bool):
+            value = int(value)
+        if isinstance(value, int) and not -(2**31) <= value < 2**31:
+            value = str(value)  # OIIO ints are 32-bit
+        elif isinstance(value, (int, float, str)):
+            pass
+        else:
+            value = json.dumps(value, default=str)
+        out.append((name, value))
+    return out
+
+
+def _description(metadata: Optional[Mapping]) -> Optional[str]:
+    """Metadata as JSON for formats that keep ImageDescription but not custom attributes."""
+    if not metadata:
+        return None
+    plain = {str(k): (v.item() if isinstance(v, np.generic) else v) for k, v in metadata.items()}
+    return json.dumps({"hdrcl": plain}, default=str, sort_keys=True)
+
+
+def _write(path: str, pixels: np.ndarray, fmt: str, attributes: list, channelnames=None):
+    """Write ``pixels`` (H, W, C) to ``path`` atomically with OIIO in the given format."""
+    oiio = _oiio()
+    h, w, c = pixels.shape
+    spec = oiio.ImageSpec(w, h, c, fmt)
+    if channelnames is not None:
+        spec.channelnames = tuple(channelnames)
+    if c in (2, 4):
+        spec.alpha_channel = c - 1
+    for attr in attributes:
+        spec.attribute(*attr)
+    with atomic_output(path) as tmp:
+        out = oiio.ImageOutput.create(tmp)
+        if out is None:
+            raise UsageError(f"{path}: no writer for this format ({oiio.geterror()})")
+        try:
+            ok = out.open(tmp, spec) and out.write_image(pixels)
+        finally:
+            closed = out.close()
+        if not (ok and closed) or out.has_error:
+            detail = _clean_error(out.geterror() or oiio.geterror(), tmp)
+            raise ProcessingError(f"{path}: cannot write ({detail or 'unknown error'})")
+
+
+def _exr_compression(compression: str) -> str:
+    text = str(compression).strip().lower()
+    base, _, level = text.partition(":")
+    if base not in EXR_COMPRESSIONS or (level and not level.replace(".", "", 1).isdigit()):
+        raise UsageError(
+            f"--compression: '{compression}' is not one of {', '.join(EXR_COMPRESSIONS)}"
+        )
+    return text
+
+
+def _radiance_header(path, nch: int, dtype: str, compression: str, metadata, timestamp):
+    """Checked target, extension, and the OIIO header of a radiance file.
+
+    Returns ``(target, ext, fmt, attrs, channelnames, warnings)``; shared by
+    :func:`write_radiance` and :class:`RadianceWriter`.
+    """
+    target = os.fspath(path)
+    ext = _ext(target)
+    if ext not in RADIANCE_EXTENSIONS:
+        raise UsageError(
+            f"{target}: unsupported radiance format '{ext or '(none)'}'; "
+            f"use {', '.join(RADIANCE_EXTENSIONS)}"
+        )
+    if dtype not in ("half", "float"):
+        raise UsageError(f"--dtype: '{dtype}' is not one of half, float")
+    warnings = []
+    attrs = _metadata_attributes(metadata)  # validates keys for every format
+    attrs.append(("oiio:ColorSpace", LINEAR_COLORSPACE))
+    fmt = "float"
+    channelnames = None
+    if ext == ".exr":
+        oiio = _oiio()
+        fmt = dtype
+        attrs.append(("compression", _exr_compression(compression)))
+        attrs.append(("chromaticities", oiio.TypeDesc("float[8]"), REC709_CHROMATICITIES))
+        if timestamp is not None:
+            # OIIO stamps the time of writing unless DateTime is set ("" leaves it out).
+            attrs.append(("DateTime", str(timestamp)))
+        if nch == 1:
+            channelnames = ("Y",)
+    elif ext in (".tif", ".tiff"):
+        comp = str(compression).strip().lower()
+        if comp not in TIFF_COMPRESSIONS:
+            warnings.append(f"{target}: TIFF has no '{compression}' compression; used zip")
+            comp = "zip"
+        attrs = [a for a in attrs if not a[0].startswith(METADATA_PREFIX)]
+        desc = _description(metadata)
+        if desc:
+            attrs.append(("ImageDescription", desc))
+        attrs.append(("compression", comp))
+        # OIIO 3.2 reports "failed TIFFWriteCustomDirectory() of the Exif data" on
+        # every TIFF it writes unless the (here useless) EXIF directory is skipped.
+        attrs.append(("tiff:write_exif", 0))
+    else:
+        if metadata:
+            logger.debug("%s: %s cannot store metadata; %d entries not written",
+                         target, ext, len(metadata))
+        attrs = [a for a in attrs if not a[0].startswith(METADATA_PREFIX)]
+    return target, ext, fmt, attrs, channelnames, warnings
+
+
+def write_radiance(path, image, *, dtype="half", compression="zip", metadata=None,
+                   timestamp=None) -> list:
+    """Write a floating-point radiance map; the format follows the extension.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.exr``, ``.hdr``, ``.tif``/``.tiff`` or ``.pfm``.
+    image : numpy.ndarray
+        ``(H, W, C)`` (or ``(H, W)``) radiance, C = 1 or 3; converted to float32.
+    dtype : {"half", "float"}
+        Sample type of EXR files. The other formats have one encoding each (RGBE, 32-bit
+        float) and ignore it.
+    compression : str
+        EXR: one of :data:`EXR_COMPRESSIONS`, optionally with a level (``"dwaa:45"``).
+        TIFF: ``none``, ``zip`` or ``lzw`` (others fall back to zip with a warning).
+        Ignored for HDR and PFM.
+    metadata : mapping, optional
+        Short keys (``hdrcl:`` + key at most 31 characters) to str, int or float values
+        (anything else is stored as JSON text). EXR keeps them as ``hdrcl:*`` attributes
+        (floats at float32 precision), TIFF as JSON in ImageDescription; HDR and PFM
+        cannot store them.
+    timestamp : str, optional
+        EXR only: the ``DateTime`` attribute (``"YYYY:MM:DD HH:MM:SS"``) instead of the
+        time of writing, which OpenImageIO records by default; ``""`` records none. Given,
+        the same pixels and metadata always give the same bytes (``hdrcl batch`` uses
+        the capture time of the first frame).
+
+    Returns
+    -------
+    list of str
+        Warnings for the user (also logged), such as values beyond the half range.
+
+    Raises
+    ------
+    UsageError
+        Unknown extension, dtype or compression; missing output folder.
+    ProcessingError
+        OpenImageIO failed to write the file.
+    ValueError
+        ``image`` has the wrong shape or a metadata key is too long (caller bugs).
+    """
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim == 2:
+        img = img[:, :, None]
+    if img.ndim != 3 or img.shape[2] not in (1, 3) or img.shape[0] < 1 or img.shape[1] < 1:
+        raise ValueError(f"radiance image must be (H, W, 1) or (H, W, 3), got {img.shape}")
+    img = np.ascontiguousarray(img)
+    target, ext, fmt, attrs, channelnames, warnings = _radiance_header(
+        path, img.shape[2], dtype, compression, metadata, timestamp)
+    finite = np.isfinite(img)
+    if not finite.all():
+        bad = img.size - int(np.count_nonzero(finite))
+        warnings.append(f"{target}: {bad} value(s) are NaN or infinite")
+    if ext == ".exr" and dtype == "half":
+        over = int(np.count_nonzero(np.abs(img[finite]) > HALF_MAX))
+        if over:
+            warnings.append(
+                f"{target}: {100.0 * over / img.size:.2g}% of values exceed the half-float range "
+                f"({HALF_MAX:g}); use --dtype float or scale"
+            )
+    if ext == ".hdr":
+        if np.any(img[finite] < 0):
+            warnings.append(f"{target}: negative values are written as 0 in RGBE")
+        if img.shape[2] == 1:
+            img = np.ascontiguousarray(np.repeat(img, 3, axis=2))
+    _write(target, img, fmt, attrs, channelnames)
+    for w in warnings:
+        logger.warning("%s", w)
+    return warnings
+
+
+def _ldr_target(path, pixels, channels):
+    """Checked target path, extension and ``(H, W, C)`` integer pixels of an LDR write."""
+    target = os.fspath(path)
+    ext = _ext(target)
+    if ext not in LDR_EXTENSIONS:
+        raise UsageError(
+            f"{target}: unsupported image format '{ext or '(none)'}'; "
+            f"use {', '.join(LDR_EXTENSIONS)}"
+        )
+    px = np.asarray(pixels)
+    if px.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"pixels must be uint8 or uint16, got {px.dtype}")
+    if px.ndim == 2:
+        px = px[:, :, None]
+    if px.ndim != 3 or px.shape[2] not in channels:
+        raise ValueError(f"pixels must be (H, W, C) with C in {channels}, got {px.shape}")
+    return target, ext, px
+
+
+def write_ldr(path, pixels, *, metadata=None) -> None:
+    """Write an 8- or 16-bit image (a virtual photograph, a preview) atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.jpg``/``.jpeg`` (8-bit only, quality 95), ``.png`` or ``.tif``/``.tiff``.
+    pixels : numpy.ndarray
+        ``(H, W, C)`` or ``(H, W)`` ``uint8`` or ``uint16``; C = 1 or 3, or 2/4 with
+        unassociated alpha last (PNG and TIFF only).
+    metadata : mapping, optional
+        As for :func:`write_radiance`: ``hdrcl:*`` attributes (kept by PNG) and JSON in
+        ImageDescription (kept by JPEG and TIFF).
+
+    Raises
+    ------
+    UsageError
+        Unknown extension, 16-bit or alpha data for JPEG, missing output folder.
+    ProcessingError
+        OpenImageIO failed to write the file.
+    ValueError
+        Wrong dtype or shape (caller bugs).
+    """
+    target, ext, px = _ldr_target(path, pixels, (1, 2, 3, 4))
+    px = np.ascontiguousarray(px)
+    attrs = _metadata_attributes(metadata)
+    if ext in (".jpg", ".jpeg"):
+        if px.dtype != np.uint8:
+            raise UsageError(f"{target}: JPEG holds 8-bit data only; write .png or .tif")
+        if px.shape[2] not in (1, 3):
+            raise UsageError(f"{target}: JPEG cannot hold alpha; write .png or .tif")
+        attrs.append(("Compression", f"jpeg:{JPEG_QUALITY}"))
+    if ext in (".tif", ".tiff"):
+        attrs.append(("compression", "zip"))
+        attrs.append(("tiff:write_exif", 0))
+    if ext != ".png":
+        desc = _description(metadata)
+        if desc:
+            attrs.append(("ImageDescription", desc))
+    # Alpha as given: without this OIIO would divide colour by alpha when writing.
+    attrs.append(("oiio:UnassociatedAlpha", 1))
+    _write(target, px, "uint8" if px.dtype == np.uint8 else "uint16", attrs)
+
+
+def write_photo(path, pixels, exif: Optional[Mapping] = None) -> None:
+    """Write an 8- or 16-bit photograph with camera metadata, atomically.
+
+    For sample and test data (``hdrcl sample-shoot``): unlike :func:`write_ldr`, the
+    attribute names are OpenImageIO's own, unprefixed, so EXIF fields written here are
+    read back by :func:`hdrcl.io.frames.read_info` as a camera's would be.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.jpg``/``.jpeg`` (8-bit, quality 95), ``.png`` or ``.tif``/``.tiff``.
+    pixels : numpy.ndarray
+        ``(H, W, C)`` or ``(H, W)`` ``uint8`` or ``uint16``, C = 1 or 3.
+    exif : mapping, optional
+        OIIO attribute name to value, e.g. ``{"ExposureTime": 1/60, "FNumber": 8.0,
+        "Exif:PhotographicSensitivity": 100, "Exif:DateTimeOriginal":
+        "2024:06:01 10:00:00", "Make": "Canon"}``. Python floats are stored as
+        float, ints as int, anything else as text.
+
+    Raises
+    ------
+    UsageError
+        Unknown extension or 16-bit data for JPEG; missing output folder.
+    ProcessingError
+        OpenImageIO failed to write the file.
+    """
+    target, ext, px = _ldr_target(path, pixels, (1, 3))
+    if ext in (".jpg", ".jpeg") and px.dtype != np.uint8:
+        raise UsageError(f"{target}: JPEG holds 8-bit data only; write .png or .tif")
+    attrs = []
+    for key, value in (exif or {}).items():
+        if isinstance(value, np.generic):
+            value = value.item()
+        if isinstance(value, bool):
+            value = int(value)
+        if not isinstance(value, (int, float, str)):
+            value = str(value)
+        attrs.append((str(key), value))
+    if ext in (".jpg", ".jpeg"):
+        attrs.append(("Compression", f"jpeg:{JPEG_QUALITY}"))
+    if ext in (".tif", ".tiff"):
+        attrs.append(("compression", "zip"))
+    _write(target, np.ascontiguousarray(px), "uint8" if px.dtype == np.uint8 else "uint16", attrs)
+
+
+class RadianceWriter:
+    """Writes a radiance map strip by strip (top to bottom), atomically.
+
+    The file is written to a hidden temporary name beside ``path`` and renamed onto it
+    by :meth:`close` only when every row has been written; :meth:`abort` (or leaving a
+    ``with`` block by an exception) deletes it. Memory use is one strip, whatever the
+    image size, except for PFM, whose rows are stored bottom to top and so are collected
+    whole before writing.
+
+    Parameters are those of :func:`write_radiance` plus the image size; ``write_rows``
+    takes float32 ``(rows, width, nch)`` strips.
+    """
+
+    def __init__(self, path, width: int, height: int, nch: int, *, dtype: str = "half",
+                 compression: str = "zip", metadata=None, timestamp=None):
+        if nch not in (1, 3):
+            raise ValueError(f"radiance must have 1 or 3 channels, not {nch}")
+        target, ext, fmt, attrs, channelnames, warnings = _radiance_header(
+            path, nch, dtype, compression, metadata, timestamp)
+        self.path, self.ext = target, ext
+        self.width, self.height, self.nch = int(width), int(height), int(nch)
+        self.dtype = dtype
+        self.warnings: list = warnings
+        self._nonfinite = 0
+        self._over_half = 0
+        self._negative = 0
+        self._next_row = 0
+        self._expand = ext == ".hdr" and nch == 1  # RGBE has no grey
+        self._attrs, self._fmt, self._channelnames = attrs, fmt, channelnames
+        self._whole = np.empty((height, width, nch), np.float32) if ext == ".pfm" else None
+        self._ctx = atomic_output(target)
+        self._tmp = self._ctx.__enter__()
+        self._out = None
+        if self._whole is None:
+            self._open()
+
+    def _open(self):
+        oiio = _oiio()
+        c = 3 if self._expand else self.nch
+        spec = oiio.ImageSpec(self.width, self.height, c, self._fmt)
+        if self._channelnames is not None:
+            spec.channelnames = tuple(self._channelnames)
+        for attr in self._attrs:
+            spec.attribute(*attr)
+        out = oiio.ImageOutput.create(self._tmp)
+        if out is None or not out.open(self._tmp, spec):
+            detail = _clean_error((out.geterror() if out is not None else "") or oiio.geterror(), self._tmp)
+            self.abort()
+            raise ProcessingError(f"{self.path}: cannot write ({detail or 'no writer for this format'})")
+        self._out = out
+
+    def _check(self, data: np.ndarray) -> None:
+        finite = np.isfinite(data)
+        self._nonfinite += data.size - int(np.count_nonzero(finite))
+        if self.ext == ".exr" and self.dtype == "half":
+            self._over_half += int(np.count_nonzero(np.abs(data[finite]) > HALF_MAX))
+        if self.ext == ".hdr":
+            self._negative += int(np.count_nonzero(data[finite] < 0))
+
+    def write_rows(self, y0: int, y1: int, data: np.ndarray) -> None:
+        """Write rows ``y0 .. y1`` (in order) from a float32 ``(rows, W, C)`` array."""
+        if y0 != self._next_row:
+            raise ValueError(f"rows must be written in order: expected {self._next_row}, got {y0}")
+        data = np.ascontiguousarray(data, dtype=np.float32)
+        self._check(data)
+        if self._whole is not None:
+            self._whole[y0:y1] = data
+        else:
+            if self._expand:
+                data = np.ascontiguousarray(np.repeat(data, 3, axis=2))
+            if not self._out.write_scanlines(y0, y1, 0, data):
+                detail = _clean_error(self._out.geterror() or _oiio().geterror(), self._tmp)
+                self.abort()
+                raise ProcessingError(f"{self.path}: cannot write rows {y0}-{y1} ({detail or 'unknown error'})")
+        self._next_row = y1
+
+    def close(self) -> list:
+        """Finish the file and move it into place; returns the warnings."""
+        if self._next_row != self.height:
+            self.abort()
+            raise ValueError(f"{self.path}: only {self._next_row} of {self.height} rows were written")
+        if self._whole is not None:
+            _write(self._tmp, self._whole, self._fmt, self._attrs, self._channelnames)
+        else:
+            ok = self._out.close()
+            if not ok:
+                detail = _clean_error(self._out.geterror() or _oiio().geterror(), self._tmp)
+                self.abort()
+                raise ProcessingError(f"{self.path}: cannot write ({detail or 'unknown error'})")
+            self._out = None
+        total = self.width * self.height * self.nch
+        if self._nonfinite:
+            self.warnings.append(f"{self.path}: {self._nonfinite} value(s) are NaN or infinite")
+        if self._over_half:
+            self.warnings.append(
+                f"{self.path}: {100.0 * self._over_half / total:.2g}% of values exceed the half-float "
+                f"range ({HALF_MAX:g}); use --dtype float or scale")
+        if self._negative:
+            self.warnings.append(f"{self.path}: negative values are written as 0 in RGBE")
+        self._ctx.__exit__(None, None, None)  # rename onto the target
+        self._ctx = None
+        for w in self.warnings:
+            logger.warning("%s", w)
+        return self.warnings
+
+    def abort(self) -> None:
+        """Drop the temporary file; the target is left as it was."""
+        if self._out is not None:
+            try:
+                self._out.close()
+            except Exception:  # the file is deleted anyway
+                pass
+            self._out = None
+        if self._ctx is not None:
+            ctx, self._ctx = self._ctx, None
+            try:
+                ctx.__exit__(ProcessingError, ProcessingError("aborted"), None)
+            except ProcessingError:
+                pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()

@@ -1,0 +1,68 @@
+"""The quality report of one file merge (``hdrcl merge --report DIR``): the frames are
+read again, measured against the merge and written as a set report and contact sheet.
+"""
+from __future__ import annotations
+
+import os
+from typing import Optional, Union
+
+import numpy as np
+
+from hdrcl.core.bracket import (
+    Bracket,
+    _parse_ignore_color,
+    _with_ignore,
+    memory_budget,
+    read_infos,
+)
+from hdrcl.core.merge import MergeResult
+
+
+def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *, ignore_color=None,
+                         weight: str = "hat", device: Optional[str] = None, name: Optional[str] = None,
+                         loo: bool = True):
+    """Quality figures of a file merge and their report in ``folder``.
+
+    Writes the response plot, coverage map, preview and JSON of the set, and an
+    ``index.html`` contact sheet (:mod:`hdrcl.report`). The frames are read again: whole
+    when they fit :func:`memory_budget`, else as the sampling grid (the clipping and
+    coverage figures are then on that grid).
+
+    Returns
+    -------
+    (QualityFigures, ReportEntry)
+    """
+    from hdrcl.core.sampling import grid_stride
+    from hdrcl.io.reader import BracketReader
+    from hdrcl.report.pages import write_contact_sheet, write_set_report
+    from hdrcl.report.quality import measure
+
+    folder = os.fspath(folder)
+    os.makedirs(folder, exist_ok=True)
+    paths = result.paths
+    infos = read_infos(paths)
+    rgb = _parse_ignore_color(ignore_color)
+    h, w, c = result.shape
+    with BracketReader(paths, infos) as reader:
+        if result.shifts is not None or len(paths) * h * w * c * reader.dtype.itemsize <= memory_budget():
+            frames, valid = reader.read_all()
+        else:
+            frames, valid = reader.read_grid(grid_stride(h, w))
+    valid = _with_ignore(frames, valid, rgb)
+    if result.shifts is not None:  # measure what was merged: the aligned (and cropped) frames
+        from hdrcl.core.align import apply_shifts
+
+        frames, valid, _box = apply_shifts(frames, result.shifts, valid)
+        frames, valid = list(frames), list(valid)
+        if result.crop is not None:
+            y0, y1, x0, x1 = result.crop
+            frames = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in frames]
+            valid = [None if v is None else v[y0:y1, x0:x1] for v in valid]
+    nominal = result.nominal if result.nominal is not None else result.times
+    br = Bracket(frames=frames, times=np.asarray(nominal), valid=valid, paths=paths, infos=infos)
+    preview = result.thumbnail if result.thumbnail is not None else result.radiance
+    fig = measure(br, result.response, preview, weight=weight, times=result.times, device=device, loo=loo)
+    stem = name or os.path.splitext(os.path.basename(result.output or paths[0]))[0]
+    entry = write_set_report(folder, stem, fig, result.response, preview, fig.coverage, warnings=result.warnings)
+    write_contact_sheet(folder, [entry])
+    return fig, entry

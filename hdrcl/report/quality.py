@@ -1,0 +1,443 @@
+"""Measures of how well a merge explains its own photographs, and what it missed.
+
+Leave-one-out reciprocity: merge every frame but one, render the missing frame at its
+own exposure through the recovered curve, and compare with the real frame. The error is
+in the photograph's code values, over the pixels the real frame holds in its working
+range. It tests the response, the exposure times and the fusion together.
+
+:func:`measure` gathers the figures of the quality report (:mod:`hdrcl.report`) for one
+merge: leave-one-out error, dynamic range, the pixels no frame measured (clipped high
+or low), how much more exposure range would have caught them, and a coverage map.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from typing import List, Optional, Tuple
+
+import numpy as np
+
+from hdrcl.core.bracket import Bracket
+from hdrcl.core.calibrate import calibrate, exposures_used
+from hdrcl.core.exposure import render
+from hdrcl.core.merge import merge_bracket
+from hdrcl.core.response import Response
+from hdrcl.errors import UsageError
+from hdrcl.report.preview import (
+    _LUMA,  # Rec.709 luminance weights, as the preview's tone map
+)
+
+
+@dataclass
+class LeaveOneOut:
+    """Error of one frame rendered from the others (see :func:`leave_one_out`)."""
+
+    index: int
+    time: float
+    rmse: float
+    pixels: int
+
+
+def leave_one_out(
+    bracket: Bracket,
+    index: int,
+    *,
+    low: int = 10,
+    high: int = 245,
+    smoothness: Optional[float] = None,
+    samples: Optional[int] = None,
+    weight: str = "hat",
+    device: Optional[str] = None,
+    fit_exposures: str = "auto",
+) -> LeaveOneOut:
+    """RMSE (8-bit levels) of frame ``index`` rendered from a merge of the others.
+
+    The merge calibrates its own response from the remaining frames (with
+    ``fit_exposures`` as :func:`hdrcl.core.calibrate.calibrate`) and renders the missing frame at
+    ``bracket.times[index]``: pass refined times to measure a refined set. Pixel-channels
+    count where the real frame reads within ``[low, high]`` (8-bit units; scaled for
+    16-bit data) and the pixel is valid in that frame.
+    """
+    keep = [k for k in range(len(bracket.frames)) if k != index]
+    sub = Bracket(frames=[bracket.frames[k] for k in keep], times=bracket.times[keep],
+                  valid=[bracket.valid[k] for k in keep])
+    resp = calibrate(sub, smoothness=smoothness, samples=samples, weight=weight, fit_exposures=fit_exposures)
+    res = merge_bracket(sub, resp, weight=weight, device=device)
+    real = bracket.frames[index]
+    scale = 1.0 if real.dtype == np.uint8 else 257.0
+    rendered = render(res.radiance, resp, float(bracket.times[index]), device=device)
+    r = real.astype(np.float64) / scale
+    v = rendered.astype(np.float64) / scale
+    mask = (r >= low) & (r <= high)
+    if bracket.valid[index] is not None:
+        mask &= bracket.valid[index][..., None]
+    d = (v - r)[mask]
+    rmse = float(np.sqrt(np.mean(d * d))) if d.size else float("nan")
+    return LeaveOneOut(index=index, time=float(bracket.times[index]), rmse=rmse, pixels=int(d.size))
+
+
+def leave_one_out_all(bracket: Bracket, interior_only: bool = True, **kw) -> List[LeaveOneOut]:
+    """:func:`leave_one_out` for every frame (by default not the shortest and longest)."""
+    order = np.argsort(bracket.times)
+    idx = order[1:-1] if interior_only else order
+    return [leave_one_out(bracket, int(k), **kw) for k in idx]
+
+
+# --------------------------------------------------------------------------- report figures
+
+#: Working range of a frame in 8-bit codes (x257 for 16-bit), as for :func:`leave_one_out`:
+#: codes read reliably, away from the noise floor and the shoulder.
+WORKING_LOW, WORKING_HIGH = 10, 245
+#: Percentiles of positive luminance whose ratio is the dynamic range.
+DR_PERCENTILES = (0.1, 99.9)
+#: Leave-one-out runs on every k-th row and column, k chosen so a frame has at most this
+#: many pixels: the error is a statistic over pixels, and decimation keeps it cheap on
+#: 24-megapixel frames (five calibrations and merges for a 7-frame set).
+LOO_MAX_PIXELS = 500_000
+#: Value of :attr:`QualityFigures.coverage` for a pixel that is valid in no frame.
+NO_DATA = 255
+
+
+def decimate(bracket: Bracket, max_pixels: int = LOO_MAX_PIXELS) -> Tuple[Bracket, int]:
+    """Every k-th row and column of ``bracket``, k = ceil(sqrt(pixels / max_pixels)):
+    about ``max_pixels`` pixels at most.
+
+    Returns the decimated bracket (the original when k = 1) and k.
+    """
+    h, w = bracket.frames[0].shape[:2]
+    k = max(1, int(math.ceil(math.sqrt(h * w / max(int(max_pixels), 1)))))
+    if k == 1:
+        return bracket, 1
+    frames = [np.ascontiguousarray(f[::k, ::k]) for f in bracket.frames]
+    valid = [None if v is None else np.ascontiguousarray(v[::k, ::k]) for v in bracket.valid]
+    return Bracket(frames=frames, times=np.asarray(bracket.times, np.float64), valid=valid,
+                   paths=list(bracket.paths), infos=list(bracket.infos), grid=True), k
+
+
+@dataclass
+class QualityFigures:
+    """The quality report's figures for one merge (:func:`measure` defines each one).
+
+    Attributes
+    ----------
+    shape : tuple
+        ``(H, W, C)`` of the frames measured.
+    frames, bits, weight
+        Frame count, bits per sample, weighting function.
+    exposures : list of dict
+        Per frame, in the bracket's order: ``nominal`` (metadata, relative seconds),
+        ``used`` (what the merge used) and ``fitted`` (from the pixels, None unless the
+        response was calibrated from this very set with exposure fitting).
+    loo_rmse : float or None
+        Median over the interior frames of the leave-one-out RMSE, in 8-bit code levels;
+        None when not computed (``loo=False``) or fewer than three frames.
+    loo : list of LeaveOneOut
+        The per-frame errors behind ``loo_rmse``.
+    loo_stride : int
+        Leave-one-out ran on every ``loo_stride``-th row and column (1: every pixel).
+    dynamic_range_stops : float or None
+        ``log2(P99.9 / P0.1)`` of the positive luminance of the radiance map.
+    dynamic_range_is_lower_bound : bool
+        More than 0.1 % of pixels are clipped (high or low), so a percentile sits on a
+        clipped pixel's bound and the scene's range is at least this.
+    clipped_high_fraction, clipped_low_fraction : float
+        Fractions of the pixels valid in some frame that no frame measured, in at least
+        one channel, because it reads the top (bottom) code.
+    clipped_high_pixels, clipped_low_pixels, valid_pixels : int
+        The counts behind the fractions.
+    extra_ev_high : float
+        ``<= 0``. Exposure change relative to the shortest frame that a further frame
+        needs *at least* to read every clipped-high pixel within the working range: the
+        true change is this or more negative. 0 when nothing is clipped high.
+    extra_ev_low : float
+        ``>= 0``. Likewise relative to the longest frame for clipped-low pixels: at
+        least this many stops more exposure.
+    coverage_histogram : list of int
+        Pixels with coverage 0, 1, ..., ``frames`` (pixels valid in no frame left out).
+    coverage : ndarray (H, W) uint8, optional
+        Per pixel, the number of frames that measure it (see :func:`measure`); not
+        serialised by :meth:`to_dict`.
+    """
+
+    shape: tuple
+    frames: int
+    bits: int
+    weight: str
+    exposures: list
+    loo_rmse: Optional[float]
+    loo: List[LeaveOneOut]
+    loo_stride: int
+    dynamic_range_stops: Optional[float]
+    dynamic_range_is_lower_bound: bool
+    clipped_high_fraction: float
+    clipped_low_fraction: float
+    clipped_high_pixels: int
+    clipped_low_pixels: int
+    valid_pixels: int
+    extra_ev_high: float
+    extra_ev_low: float
+    coverage_histogram: list
+    dynamic_range_percentiles: tuple = DR_PERCENTILES
+    working_range: tuple = (WORKING_LOW, WORKING_HIGH)
+    coverage: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
+
+    def to_dict(self) -> dict:
+        """JSON-ready figures (NaN as None, no coverage array)."""
+
+        def num(v):
+            return None if v is None or not np.isfinite(v) else float(v)
+
+        return {
+            "shape": [int(v) for v in self.shape],
+            "frames": int(self.frames),
+            "bits": int(self.bits),
+            "weight": self.weight,
+            "exposures": self.exposures,
+            "looRmse": num(self.loo_rmse),
+            "looFrames": [{"index": r.index, "time": r.time, "rmse": num(r.rmse), "pixels": r.pixels}
+                          for r in self.loo],
+            "looStride": int(self.loo_stride),
+            "dynamicRangeStops": num(self.dynamic_range_stops),
+            "dynamicRangePercentiles": list(self.dynamic_range_percentiles),
+            "dynamicRangeIsLowerBound": bool(self.dynamic_range_is_lower_bound),
+            "clippedHighFraction": float(self.clipped_high_fraction),
+            "clippedLowFraction": float(self.clipped_low_fraction),
+            "clippedHighPixels": int(self.clipped_high_pixels),
+            "clippedLowPixels": int(self.clipped_low_pixels),
+            "validPixels": int(self.valid_pixels),
+            "extraEvHigh": float(self.extra_ev_high),
+            "extraEvLow": float(self.extra_ev_low),
+            "workingRange": list(self.working_range),
+            "coverageHistogram": [int(v) for v in self.coverage_histogram],
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "QualityFigures":
+        """Inverse of :meth:`to_dict` (without the coverage array)."""
+
+        def num(v):
+            return float("nan") if v is None else float(v)
+
+        return cls(
+            shape=tuple(d["shape"]), frames=int(d["frames"]), bits=int(d["bits"]), weight=d["weight"],
+            exposures=list(d.get("exposures", [])),
+            loo_rmse=None if d.get("looRmse") is None else float(d["looRmse"]),
+            loo=[LeaveOneOut(int(r["index"]), float(r["time"]), num(r["rmse"]), int(r["pixels"]))
+                 for r in d.get("looFrames", [])],
+            loo_stride=int(d.get("looStride", 1)),
+            dynamic_range_stops=None if d.get("dynamicRangeStops") is None else float(d["dynamicRangeStops"]),
+            dynamic_range_is_lower_bound=bool(d.get("dynamicRangeIsLowerBound", False)),
+            clipped_high_fraction=float(d["clippedHighFraction"]), clipped_low_fraction=float(d["clippedLowFraction"]),
+            clipped_high_pixels=int(d["clippedHighPixels"]), clipped_low_pixels=int(d["clippedLowPixels"]),
+            valid_pixels=int(d["validPixels"]), extra_ev_high=float(d["extraEvHigh"]),
+            extra_ev_low=float(d["extraEvLow"]), coverage_histogram=list(d.get("coverageHistogram", [])),
+            dynamic_range_percentiles=tuple(d.get("dynamicRangePercentiles", DR_PERCENTILES)),
+            working_range=tuple(d.get("workingRange", (WORKING_LOW, WORKING_HIGH))),
+        )
+
+
+def dynamic_range_stops(radiance: np.ndarray, percentiles=DR_PERCENTILES) -> Optional[float]:
+    """``log2(P_hi / P_lo)`` of the positive, finite luminance of ``radiance``.
+
+    Luminance is Rec.709 (``0.2126 R + 0.7152 G + 0.0722 B``) for colour maps, the
+    channel itself for grey ones. Percentiles rather than the extremes make the figure
+    robust to a few hot or dead pixels. None when fewer than two pixels are positive.
+    """
+    rad = np.asarray(radiance)
+    if rad.ndim == 2:
+        rad = rad[..., None]
+    # float32 is ample for a ratio of percentiles and halves the memory of a big map.
+    lum = rad[..., 0].astype(np.float32) if rad.shape[2] < 3 else rad[..., :3] @ _LUMA.astype(np.float32)
+    pos = lum[lum > 0]  # NaN compares false
+    pos = pos[pos < np.inf]
+    if pos.size < 2:
+        return None
+    lo, hi = np.percentile(pos, percentiles).astype(np.float64)
+    return float(np.log2(hi / lo)) if lo > 0 else None
+
+
+def measure(
+    bracket: Bracket,
+    response: Response,
+    radiance: Optional[np.ndarray],
+    *,
+    weight: Optional[str] = None,
+    times=None,
+    loo: bool = True,
+    loo_max_pixels: int = LOO_MAX_PIXELS,
+    device: Optional[str] = None,
+) -> QualityFigures:
+    """The quality report's figures for a merge of ``bracket`` through ``response``.
+
+    Parameters
+    ----------
+    bracket : Bracket
+        The frames that were merged (or a decimated copy: then every figure but the
+        dynamic range is on that grid).
+    response : Response
+        The curve the merge used.
+    radiance : ndarray or None
+        The merged map, or a decimated copy (``MergeResult.thumbnail``): only its
+        luminance percentiles are used. None: no dynamic range.
+    weight : str, optional
+        The merge's weighting; default ``response.weight``.
+    times : sequence of float, optional
+        The exposures the merge used; default :func:`hdrcl.core.calibrate.exposures_used`.
+    loo : bool
+        Compute the leave-one-out error (the costly part: a calibration and a merge per
+        interior frame).
+    loo_max_pixels : int
+        Leave-one-out runs on every k-th row and column, at most this many pixels.
+
+    Notes
+    -----
+    Definitions, with ``L`` levels, ``Zmax = L - 1`` and frames ordered by exposure:
+
+    * A frame *measures* a pixel-channel when the pixel is valid in that frame and the
+      weight of its code is non-zero (for both weightings: the code is neither 0 nor
+      ``Zmax``). **coverage** of a pixel is the number of frames that measure its
+      least-measured channel; :data:`NO_DATA` (255) where the pixel is valid in no frame.
+    * A pixel-channel that no frame measures is **clipped high** when its shortest valid
+      frame reads in the upper half (``2 Z >= L``), else **clipped low** -- the rule
+      fusion uses to fill it. A pixel is clipped high (low) when any of its channels is;
+      the fractions are over the pixels valid in at least one frame. So coverage 0
+      means clipped high or low.
+    * **extra_ev_high**: a clipped-high pixel-channel reads ``Zmax`` in its shortest
+      valid frame ``s``, so its exposure there is at least the camera's clip point,
+      ``ln E + ln t_s >= g(Zmax)``: fusion's ``g(Zmax) - ln t_s`` is a lower bound on
+      ``ln E``, and nothing in the frames bounds it from above. A frame of time ``t``
+      reads it within the working range only if ``ln E + ln t <= g(Z_top)``, with
+      ``Z_top = 245`` (8-bit). Hence ``log2(t / t_shortest) <= log2(t_s / t_shortest)
+      - (g(Zmax) - g(Z_top)) / ln 2``; the minimum of that bound over the clipped
+      pixel-channels is reported. It is honest but optimistic: the true change needed
+      is at least this large, and may be far larger (the sun). ``g`` is taken
+      non-decreasing, as for rendering.
+    * **extra_ev_low**, the mirror image: a clipped-low pixel-channel reads 0 in its
+      longest valid frame ``l``, so ``ln E <= g(0) - ln t_l``, and a frame reads it at
+      ``Z_bot = 10`` or above only if ``log2(t / t_longest) >= log2(t_l / t_longest) +
+      (g(Z_bot) - g(0)) / ln 2``; the maximum over the clipped pixel-channels.
+    * **dynamic_range_stops**: :func:`dynamic_range_stops` of ``radiance``, 0.1th to
+      99.9th percentile. Clipped pixels enter at their fusion bounds, so when more than
+      0.1 % are clipped it is flagged as a lower bound.
+    * **loo_rmse**: :func:`leave_one_out_all` (interior frames, each rendered from a
+      response calibrated on the others) on :func:`decimate`'s grid, with the merge's
+      exposures, weighting and smoothness and no refitting of exposures; the median
+      over the interior frames.
+    """
+    weight = weight or response.weight
+    frames = bracket.frames
+    nominal = np.asarray(bracket.times, np.float64)
+    used = exposures_used(response, nominal) if times is None else np.asarray(times, np.float64)
+    if used.size != len(frames):
+        raise UsageError(f"{used.size} exposure times for {len(frames)} frames")
+    if len(frames) >= NO_DATA:
+        raise UsageError(f"{len(frames)} frames: the quality figures count at most {NO_DATA - 1}")
+    levels = response.levels
+    if int(np.iinfo(frames[0].dtype).max) + 1 != levels:
+        raise UsageError(f"the response describes {response.bits}-bit images but the frames are "
+                         f"{8 * frames[0].dtype.itemsize}-bit")
+    from hdrcl.core.reference import monotone_tables
+    from hdrcl.core.weights import weight_table
+
+    h, w, c = frames[0].shape
+    measured = (weight_table(levels, weight) > 0).astype(np.uint8)  # by code value
+    order = np.argsort(used, kind="stable")
+    count = np.zeros((h, w, c), np.uint8)
+    if all(bracket.valid[j] is None for j in order):
+        # Every pixel valid everywhere (the common case): no masks to track.
+        for j in order:
+            count += np.take(measured, frames[j])
+        first_j = np.zeros((h, w), np.int16)  # rank (exposure order) of the shortest valid frame
+        last_j = np.full((h, w), len(order) - 1, np.int16)  # ... and of the longest
+        first_z = frames[order[0]]
+        valid_px = np.ones((h, w), bool)
+    else:
+        first_j = np.full((h, w), -1, np.int16)
+        last_j = np.full((h, w), -1, np.int16)
+        first_z = np.zeros((h, w, c), frames[0].dtype)
+        for rank, j in enumerate(order):
+            z, ok = frames[j], bracket.valid[j]
+            m = np.take(measured, z)
+            if ok is None:
+                ok = np.ones((h, w), bool)
+            else:
+                m &= ok[..., None]
+            count += m
+            newly = ok & (first_j < 0)
+            first_j[newly] = rank
+            np.copyto(first_z, z, where=newly[..., None])
+            last_j[ok] = rank
+        valid_px = first_j >= 0
+    # Coverage: frames measuring the least-measured channel. 0 exactly where some
+    # channel is measured by no frame, so the clipped pixels are found among those.
+    coverage = count[..., 0].copy()
+    for ch in range(1, c):
+        np.minimum(coverage, count[..., ch], out=coverage)
+    all_valid = bool(valid_px.all())
+    idx = np.flatnonzero(coverage == 0) if all_valid else np.flatnonzero((coverage == 0) & valid_px)
+    unmeasured = count.reshape(-1, c)[idx] == 0
+    # Fusion's rule: the shortest valid frame reads in the upper half (2 Z >= L).
+    upper = np.ascontiguousarray(first_z).reshape(-1, c)[idx] >= levels // 2
+    high, low = unmeasured & upper, unmeasured & ~upper  # (pixels, channels)
+    n_high, n_low = int(high.any(axis=1).sum()), int(low.any(axis=1).sum())
+    n_valid = int(valid_px.sum())
+
+    # Bounds on the exposure change (see Notes), over the clipped pixel-channels.
+    g = monotone_tables(response.table_for(c))
+    scale = (levels - 1) / 255.0
+    z_top, z_bot = int(round(WORKING_HIGH * scale)), int(round(WORKING_LOW * scale))
+    log2_t = np.log2(used[order])
+    ln2 = np.log(2.0)
+    extra_high = extra_low = 0.0
+    if n_high:
+        rows, cc = np.nonzero(high)
+        gap = (g[cc, levels - 1] - g[cc, z_top]) / ln2
+        extra_high = float(np.min(log2_t[first_j.ravel()[idx[rows]]] - log2_t[0] - gap))
+    if n_low:
+        rows, cc = np.nonzero(low)
+        gap = (g[cc, z_bot] - g[cc, 0]) / ln2
+        extra_low = float(np.max(log2_t[last_j.ravel()[idx[rows]]] - log2_t[-1] + gap))
+
+    if not all_valid:
+        coverage[~valid_px] = NO_DATA
+    hist = np.bincount(coverage.ravel(), minlength=256)[: len(frames) + 1]
+
+    dr = dynamic_range_stops(radiance) if radiance is not None else None
+    tail = (100.0 - DR_PERCENTILES[1]) / 100.0
+    frac_high = n_high / n_valid if n_valid else 0.0
+    frac_low = n_low / n_valid if n_valid else 0.0
+
+    loo_rows: List[LeaveOneOut] = []
+    stride = 1
+    loo_rmse = None
+    if loo and len(frames) >= 3:
+        sub, stride = decimate(Bracket(frames=list(frames), times=used, valid=list(bracket.valid)), loo_max_pixels)
+        loo_rows = leave_one_out_all(sub, weight=weight, smoothness=response.smoothness, device=device,
+                                     fit_exposures="off")
+        finite = [r.rmse for r in loo_rows if np.isfinite(r.rmse)]
+        loo_rmse = float(np.median(finite)) if finite else None
+
+    fitted = _fitted_for(response, nominal)
+    exposures = [{"nominal": float(n), "used": float(u), "fitted": None if fitted is None else float(f)}
+                 for n, u, f in zip(nominal, used, fitted if fitted is not None else nominal)]
+    for e, p in zip(exposures, bracket.paths or []):
+        e["file"] = os.path.basename(p)
+    return QualityFigures(
+        shape=(h, w, c), frames=len(frames), bits=response.bits, weight=weight, exposures=exposures,
+        loo_rmse=loo_rmse, loo=loo_rows, loo_stride=stride, dynamic_range_stops=dr,
+        dynamic_range_is_lower_bound=bool(frac_high > tail or frac_low > tail),
+        clipped_high_fraction=float(frac_high), clipped_low_fraction=float(frac_low),
+        clipped_high_pixels=n_high, clipped_low_pixels=n_low, valid_pixels=n_valid,
+        extra_ev_high=min(extra_high, 0.0), extra_ev_low=max(extra_low, 0.0),
+        coverage_histogram=[int(v) for v in hist], coverage=coverage)
+
+
+def _fitted_for(response: Response, nominal: np.ndarray) -> Optional[np.ndarray]:
+    """The response's fitted exposures when it was calibrated from this very set."""
+    ex = response.exposures or []
+    if len(ex) != nominal.size or not all(e.get("fitted") is not None for e in ex):
+        return None
+    if not np.allclose([e.get("nominal", np.nan) for e in ex], nominal, rtol=1e-9):
+        return None
+    return np.asarray([e["fitted"] for e in ex], np.float64)

@@ -1,0 +1,121 @@
+"""Where the sets of a batch run: worker processes on this machine, or a Dask cluster.
+
+Both run the ``task`` they are given (the batch passes
+:func:`hdrcl.shoot.setrun.process_set`) once per set and hand each result to ``emit`` as
+it completes; ``failed(job, exc)`` makes the result of a set whose task could not run.
+This module knows nothing of batches: it receives the functions to run. The in-process
+pipeline (``jobs=1``) lives in :mod:`hdrcl.shoot.run`.
+
+**Worker processes** start with ``spawn``: a forked child would inherit the parent's
+OpenCL driver state, which no OpenCL implementation supports. Each worker creates its
+own context and builds the kernels once, on its first set, and reuses them for every
+later set (:func:`hdrcl.cl.backend.get_processor` caches them per process).
+
+**Dask**: the sets are submitted as tasks to an existing scheduler; each worker
+process makes its own OpenCL context the same way. A task that raises an unexpected
+error (lost mount, device fault, a worker that died) is retried ``retries`` times by
+the scheduler; a set's own problem (a corrupt frame) is not an error here but a
+result with status ``failed``, and is not retried. Workers must see the photographs and
+the output folder at the same paths as the submitting machine (a shared file system).
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import logging
+import multiprocessing
+import os
+import secrets
+from typing import Callable, List
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["run_processes", "run_dask", "dask_client"]
+
+
+def _worker_init(level: int) -> None:
+    """Worker processes log like the parent: one line, same level."""
+    log = logging.getLogger("hdrcl")
+    if not log.handlers:
+        h = logging.StreamHandler()
+        h.setFormatter(logging.Formatter("hdrcl: %(levelname)s: %(message)s"))
+        log.addHandler(h)
+        log.propagate = False
+    log.setLevel(level)
+
+
+def run_processes(set_jobs: List, ctx, emit: Callable, *, task: Callable, failed: Callable, jobs: int = 2) -> None:
+    """Run ``set_jobs`` in ``jobs`` spawned worker processes.
+
+    A worker that dies (killed, out of memory) fails the sets it had not finished,
+    with that reason; the other sets complete.
+    """
+    mp = multiprocessing.get_context("spawn")
+    level = logging.getLogger("hdrcl").getEffectiveLevel()
+    with concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=mp, initializer=_worker_init,
+                                                initargs=(level,)) as pool:
+        futures = {pool.submit(task, job, ctx): job for job in set_jobs}
+        for fut in concurrent.futures.as_completed(futures):
+            job = futures[fut]
+            try:
+                res = fut.result()
+            except concurrent.futures.process.BrokenProcessPool as exc:
+                res = failed(job, RuntimeError(f"worker process died ({exc})"))
+            except Exception as exc:  # pickling problems and the like
+                res = failed(job, exc)
+            emit(res)
+
+
+def dask_client(scheduler):
+    """A ``distributed.Client`` for ``scheduler`` (an address or a Client), and
+    whether the caller owns it (and closes it).
+
+    Raises
+    ------
+    UsageError
+        Dask is not installed, or the scheduler cannot be reached.
+    """
+    from hdrcl.errors import UsageError
+
+    try:
+        import distributed
+    except ImportError:
+        raise UsageError("--scheduler needs Dask: pip install 'hdrcl[dask]'") from None
+    if isinstance(scheduler, distributed.Client):
+        return scheduler, False
+    timeout = os.environ.get("HDRCL_DASK_TIMEOUT", "30s")
+    try:
+        return distributed.Client(str(scheduler), timeout=timeout, set_as_default=False), True
+    except (OSError, TimeoutError) as exc:
+        raise UsageError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+
+
+def run_dask(set_jobs: List, ctx, scheduler, emit: Callable, *, task: Callable, failed: Callable,
+             retries: int = 2) -> None:
+    """Run ``set_jobs`` as tasks on a Dask cluster, retrying failed tasks.
+
+    Task keys name the set and its output (``hdrcl-set-3-IMG_0009-...``) so the
+    dashboard shows what runs; ``pure=False`` because each run must really happen.
+    ``task(job, ctx, strict)`` runs one set on a worker (it must be importable there).
+    """
+    from distributed import as_completed
+
+    run_id = secrets.token_hex(4)  # keys must not meet those of another run on the cluster
+    client, owned = dask_client(scheduler)
+    try:
+        futures = {}
+        for job in set_jobs:
+            stem = os.path.splitext(os.path.basename(job.output))[0]
+            fut = client.submit(task, job, ctx, True, key=f"hdrcl-set-{job.index}-{stem}-{run_id}",
+                                retries=retries, pure=False)
+            futures[fut] = job
+        for fut in as_completed(list(futures), loop=client.loop):
+            job = futures[fut]
+            try:
+                res = fut.result()
+            except Exception as exc:  # retries exhausted, or the task could not run
+                res = failed(job, RuntimeError(f"failed on the Dask cluster after {retries} retries: "
+                                                f"{type(exc).__name__}: {exc}"))
+            emit(res)
+    finally:
+        if owned:
+            client.close()

@@ -1,0 +1,243 @@
+"""Batch records: the options every set is merged with, one set's job and result, the
+batch report, and the process-wide fusion lock.
+"""
+from __future__ import annotations
+
+import threading
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Tuple
+
+from hdrcl import __version__
+from hdrcl.core.response import default_smoothness
+
+#: Name of the report written into the output folder.
+REPORT_NAME = "report.json"
+
+
+#: Ending of the response files written beside the outputs.
+RESPONSE_SUFFIX = ".response.json"
+
+
+#: At most this many sets of one camera/ISO group are pooled for its response.
+MAX_POOL_SETS = 8
+
+
+STATUS_DONE, STATUS_SKIPPED, STATUS_FAILED = "done", "skipped", "failed"
+
+
+# --------------------------------------------------------------------------- records
+@dataclass(frozen=True)
+class BatchOptions:
+    """How every set is merged and written (the options ``hdrcl merge`` also has).
+
+    Attributes
+    ----------
+    weight : str
+        Weighting of code values (``hat`` or ``gaussian``).
+    samples, smoothness, seed
+        Of the pooled response solve (``smoothness`` None: the weighting's default).
+    ignore_color : tuple of int, optional
+        Pixels of exactly this 8-bit colour are invalid.
+    deghost : bool
+        Take pixels where the frames disagree (moving objects) from the middle
+        exposure alone (:mod:`hdrcl.core.deghost`).
+    dtype, compression
+        EXR sample type and compression.
+    preview : bool
+        Also write a tone-mapped JPEG per set.
+    preview_size : int
+        Long side of the preview in pixels.
+    device : str, optional
+        OpenCL device (see ``hdrcl devices``).
+    report_dir : str, optional
+        Quality report folder (``--report``): each merged set's figures
+        (:func:`hdrcl.report.quality.measure`), response plot, coverage map and preview, written
+        by whoever merges the set, and an ``index.html`` contact sheet over the manifest,
+        written by :func:`run_batch` at the end (:mod:`hdrcl.report`). Not part of any
+        output's identity: the EXRs and previews are the same with or without it.
+    """
+
+    weight: str = "hat"
+    samples: Optional[int] = None
+    smoothness: Optional[float] = None  # None: the default for the weighting
+    seed: int = 0
+    ignore_color: Optional[Tuple[int, int, int]] = None
+    deghost: bool = False
+    dtype: str = "half"
+    compression: str = "zip"
+    preview: bool = True
+    preview_size: int = 512
+    device: Optional[str] = None
+    report_dir: Optional[str] = None
+
+    def output_params(self) -> dict:
+        """Parameters that shape an EXR beyond its response (part of its digest)."""
+        out = {"weight": self.weight, "ignore_color": list(self.ignore_color) if self.ignore_color else None,
+               "dtype": self.dtype, "compression": str(self.compression).strip().lower()}
+        if self.deghost:  # only when on, so that digests of plain merges stay as they were
+            out["deghost"] = True
+        return out
+
+    def solve_params(self) -> dict:
+        """Parameters of the response solve (part of the calibration key)."""
+        return {"weight": self.weight, "samples": self.samples,
+                "smoothness": float(default_smoothness(self.weight) if self.smoothness is None else self.smoothness),
+                "seed": int(self.seed), "ignore_color": list(self.ignore_color) if self.ignore_color else None}
+
+
+@dataclass
+class SetJob:
+    """Everything a worker needs to merge one set (plain data, picklable).
+
+    ``reference`` is the shoot's ``(f-number, ISO)`` (either may be None); ``group``
+    names the set's response; ``output`` and ``preview`` are absolute paths.
+    """
+
+    index: int
+    files: List[str]
+    exposures: List[float]
+    output: str
+    preview: Optional[str]
+    group: str
+    reference: Tuple[Optional[float], Optional[float]]
+
+
+@dataclass
+class SetResult:
+    """What happened to one set.
+
+    ``status`` is ``"done"`` (merged now), ``"skipped"`` (an up-to-date output exists)
+    or ``"failed"`` (``error`` says why). ``seconds`` holds the time of each stage,
+    ``counts`` the pixel-channels clipped high/low in every frame and without data,
+    ``quality`` the set's quality figures (:meth:`hdrcl.report.quality.QualityFigures.to_dict`)
+    when a quality report is written.
+    """
+
+    index: int
+    files: List[str]
+    status: str
+    output: Optional[str] = None
+    preview: Optional[str] = None
+    error: Optional[str] = None
+    warnings: List[str] = field(default_factory=list)
+    seconds: Dict[str, float] = field(default_factory=dict)
+    counts: Dict[str, int] = field(default_factory=dict)
+    ev_offset: Optional[float] = None
+    digest: Optional[str] = None
+    response: Optional[str] = None
+    quality: Optional[dict] = None
+
+    def to_dict(self) -> dict:
+        return {
+            "index": self.index,
+            "files": list(self.files),
+            "status": self.status,
+            "output": self.output,
+            "preview": self.preview,
+            "error": self.error,
+            "warnings": list(self.warnings),
+            "seconds": {k: round(float(v), 4) for k, v in self.seconds.items()},
+            "counts": dict(self.counts),
+            "ev_offset": self.ev_offset,
+            "hash": self.digest,
+            "response": self.response,
+            "quality": self.quality,
+        }
+
+
+@dataclass
+class ResponseEntry:
+    """The response of one camera/ISO group and where it came from."""
+
+    group: str
+    payload: Optional[dict] = None  # Response.to_dict() as written (None: unavailable)
+    digest: Optional[str] = None
+    file: Optional[str] = None
+    source: str = ""  # "given", "loaded", "calibrated"
+    sets: List[int] = field(default_factory=list)
+    error: Optional[str] = None
+    warnings: List[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {"group": self.group, "file": self.file, "source": self.source, "pooled_sets": self.sets,
+                "hash": self.digest, "error": self.error, "warnings": self.warnings}
+
+
+@dataclass
+class _Context:
+    """Shared, picklable state of one run: options, responses, flags."""
+
+    options: BatchOptions
+    responses: Dict[str, ResponseEntry]
+    force: bool = False
+
+
+@dataclass
+class BatchReport:
+    """The outcome of :func:`run_batch`.
+
+    Attributes
+    ----------
+    results : list of SetResult
+        The sets this run handled, by index.
+    entries : list of dict
+        Every set in the written report (this run's, plus those earlier runs into the
+        same folder recorded for sets of the same manifest).
+    unmerged : list of dict
+        Groups the manifest leaves out, with their reasons.
+    responses : list of ResponseEntry
+    path : str, optional
+        Where the report was written.
+    quality_report : str, optional
+        The contact sheet (``index.html``) of the quality report, when one was asked for.
+    unreadable : list of str
+        Files the scan could not read; counted as failures when the whole manifest was
+        selected.
+    """
+
+    results: List[SetResult] = field(default_factory=list)
+    entries: List[dict] = field(default_factory=list)
+    unmerged: List[dict] = field(default_factory=list)
+    responses: List[ResponseEntry] = field(default_factory=list)
+    path: Optional[str] = None
+    quality_report: Optional[str] = None
+    unreadable: List[str] = field(default_factory=list)
+    reference: Tuple[Optional[float], Optional[float]] = (None, None)
+    seconds: float = 0.0
+
+    def count(self, status: str) -> int:
+        return sum(1 for r in self.results if r.status == status)
+
+    @property
+    def failed(self) -> int:
+        return self.count(STATUS_FAILED)
+
+    @property
+    def exit_code(self) -> int:
+        """0 when every set is done or skipped, 1 when a set (or an input file) failed."""
+        return 1 if self.failed or self.unreadable else 0
+
+    def to_dict(self) -> dict:
+        counts = Counter(e["status"] for e in self.entries)
+        return {
+            "hdrcl": __version__,
+            "reference": _reference_text(self.reference),
+            "sets": self.entries,
+            "unmerged": self.unmerged,
+            "responses": [r.to_dict() for r in self.responses],
+            "summary": {"sets": len(self.entries), "done": counts.get(STATUS_DONE, 0),
+                        "skipped": counts.get(STATUS_SKIPPED, 0), "failed": counts.get(STATUS_FAILED, 0),
+                        "unreadable_files": len(self.unreadable)},
+        }
+
+
+def _reference_text(ref) -> str:
+    n, iso = ref if ref else (None, None)
+    return f"f/{n:g} ISO {iso:g}" if n and iso else (
+        f"f/{n:g}" if n else (f"ISO {iso:g}" if iso else "exposure time only"))
+
+
+# One fusion at a time per process: the OpenCL processor's device buffers are shared
+# (Dask workers may run several tasks in threads of one process).
+_FUSE_LOCK = threading.Lock()

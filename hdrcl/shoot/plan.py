@@ -1,0 +1,267 @@
+"""Planning a batch: the manifest's source, set selection (``--sets``), output names,
+camera/ISO groups and the shoot-wide exposure reference.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import re
+from collections import Counter
+from dataclasses import dataclass, replace
+from typing import Dict, List, Optional, Sequence, Tuple, Union
+
+from hdrcl.errors import InputError, UsageError
+from hdrcl.shoot.jobs import BatchOptions, SetJob
+
+logger = logging.getLogger(__name__)
+
+
+# ------------------------------------------------------------------ selecting sets
+def parse_sets(text: str) -> List[Tuple[int, Optional[int]]]:
+    """Parse a set selection such as ``"3-7"``, ``"5"``, ``"10-"`` or ``"0-3,8,12-"``.
+
+    Ranges are inclusive manifest indices; an open end runs to the last set. A farm
+    frame range ``#START#-#END#`` is used as is.
+
+    Raises
+    ------
+    UsageError
+        Not numbers, a negative index, or a range whose start exceeds its end.
+    """
+    out = []
+    items = [t.strip() for t in str(text).split(",")]
+    if not any(items):
+        raise UsageError("--sets: empty selection")
+    for item in items:
+        m = re.fullmatch(r"(\d+)?\s*(-)?\s*(\d+)?", item)
+        if not item or m is None or (m.group(1) is None and m.group(3) is None):
+            raise UsageError(f"--sets: '{item}' is not an index or a range like 3-7")
+        a = int(m.group(1)) if m.group(1) is not None else 0
+        if m.group(2) is None:
+            b: Optional[int] = a
+        else:
+            b = int(m.group(3)) if m.group(3) is not None else None
+        if b is not None and a > b:
+            raise UsageError(f"--sets: range '{item}' starts after it ends")
+        out.append((a, b))
+    return out
+
+
+def select_sets(sets: Sequence, ranges: Optional[Sequence[Tuple[int, Optional[int]]]]) -> list:
+    """The sets whose ``index`` falls in any of ``ranges`` (all when None), by index.
+
+    Ranges beyond the last set are clamped: they select what exists, possibly nothing.
+    """
+    chosen = sorted(sets, key=lambda s: s.index)
+    if ranges is None:
+        return chosen
+    return [s for s in chosen if any(a <= s.index and (b is None or s.index <= b) for a, b in ranges)]
+
+
+# ------------------------------------------------------------------------- naming
+def output_stems(manifest) -> Dict[int, str]:
+    """Output name (without extension) of every set of ``manifest``, by index.
+
+    A set is named after its first frame (``IMG_0001``). Names that would collide
+    (compared case-insensitively, for macOS and Windows) are made unique from the
+    whole manifest, so the name never depends on which sets a run selects: first with
+    the folders that tell the frames apart (``day1_IMG_0001``), then with the file's
+    extension (``IMG_0001_tif``), and as a last resort with the set index.
+    """
+    sets = sorted(manifest.sets, key=lambda s: s.index)
+    first = {s.index: os.path.abspath(s.files[0]) for s in sets}
+    stems = {i: os.path.splitext(os.path.basename(p))[0].lstrip(".") or f"set{i}" for i, p in first.items()}
+
+    def clashes(names):
+        seen = Counter(n.casefold() for n in names.values())
+        return {i for i, n in names.items() if seen[n.casefold()] > 1}
+
+    bad = clashes(stems)
+    if bad:
+        common = os.path.commonpath([os.path.dirname(first[i]) for i in bad])
+        for i in bad:
+            rel = os.path.relpath(os.path.dirname(first[i]), common)
+            parts = [p for p in rel.split(os.sep) if p not in (".", "")]
+            stems[i] = "_".join(parts + [stems[i]])
+    bad = clashes(stems)
+    for i in bad:
+        ext = os.path.splitext(first[i])[1].lstrip(".").lower()
+        if ext:
+            stems[i] = f"{stems[i]}_{ext}"
+    for i in clashes(stems):
+        stems[i] = f"{stems[i]}-set{i}"
+    return stems
+
+
+# ------------------------------------------------------------------------ sources
+def load_source(source, *, recursive: bool = False, frames_per_set: Optional[int] = None,
+                gap: Optional[float] = None, exclude: Union[str, Sequence[str], None] = None):
+    """The manifest of ``source``: a folder (scanned) or a manifest JSON file.
+
+    Files named in a manifest are not checked here: a missing file fails its own set.
+    ``exclude`` (the output folder, the quality report's; one or a list) drops
+    unmerged entries under it, such as the previews of an earlier run inside the
+    scanned folder.
+
+    Raises
+    ------
+    InputError
+        ``source`` does not exist or the manifest cannot be read.
+    UsageError
+        Grouping overrides given with a manifest.
+    """
+    from hdrcl.shoot.manifest import Manifest, load_manifest
+    from hdrcl.shoot.scan import scan_directory
+
+    if isinstance(source, Manifest):
+        return source
+    path = os.fspath(source)
+    if os.path.isdir(path):
+        manifest = scan_directory(path, recursive=recursive, frames_per_set=frames_per_set, gap=gap)
+        if exclude:
+            folders = [exclude] if isinstance(exclude, (str, os.PathLike)) else exclude
+            exs = tuple(os.path.abspath(e) + os.sep for e in folders)
+            manifest.unmerged = [u for u in manifest.unmerged
+                                 if not all(os.path.abspath(f).startswith(exs) for f in u.files)]
+        return manifest
+    if not os.path.exists(path):
+        raise InputError(f"{path}: no such folder or manifest file")
+    if recursive or frames_per_set is not None or gap is not None:
+        raise UsageError("--recursive, --frames-per-set and --gap apply when scanning a folder, "
+                         "not to a manifest (edit the manifest instead)")
+    return load_manifest(path, check_files=False)
+
+
+def check_manifest(manifest) -> Dict[int, str]:
+    """What would stop each set of a (hand-edited) manifest from merging, by index.
+
+    Reads the frames' headers only: a missing or unreadable file, or a group that
+    :func:`hdrcl.shoot.grouping.unmergeable_reason` rejects (single frame, one exposure,
+    mixed cameras...). Exposures written in the manifest replace the EXIF times.
+
+    Returns
+    -------
+    dict of int to str
+        Only the sets with a problem.
+    """
+    from hdrcl.io.frames import read_info
+    from hdrcl.shoot.grouping import unmergeable_reason
+
+    problems = {}
+    for s in manifest.sets:
+        infos = []
+        for f in s.files:
+            try:
+                infos.append(read_info(f))
+            except (InputError, OSError) as exc:
+                problems[s.index] = str(exc).splitlines()[0]
+                break
+        else:
+            if s.exposures and len(s.exposures) == len(infos):
+                infos = [replace(i, exposure_time=float(t)) for i, t in zip(infos, s.exposures)]
+            why = unmergeable_reason(infos)
+            if why:
+                problems[s.index] = why
+    return problems
+
+
+# --------------------------------------------------------------------- planning
+def _camera_label(info) -> str:
+    make = " ".join((info.make or "").split())
+    model = " ".join((info.model or "").split())
+    if make and model.lower().startswith(make.split()[0].lower()):
+        label = model
+    else:
+        label = f"{make} {model}".strip()
+    return label or "unknown camera"
+
+
+def _group_of(info) -> str:
+    """Response group of a set from its first frame: camera body and ISO."""
+    if info is None:
+        return "unreadable"
+    label = _camera_label(info)
+    if info.serial:
+        label += f" #{info.serial}"
+    iso = f"ISO {info.iso:g}" if info.iso else "ISO ?"
+    return f"{label} {iso}"
+
+
+def _slug(text: str) -> str:
+    s = re.sub(r"[^A-Za-z0-9]+", "-", text.replace("#", "")).strip("-")
+    return s or "camera"
+
+
+def _reference(infos: Sequence) -> Tuple[Optional[float], Optional[float]]:
+    """Most common first-frame (f-number, ISO) of the shoot; ties to the earliest set."""
+    fn = [round(i.fnumber, 2) for i in infos if i is not None and i.fnumber and i.fnumber > 0]
+    iso = [round(i.iso, 1) for i in infos if i is not None and i.iso and i.iso > 0]
+
+    def mode(vals):
+        if not vals:
+            return None
+        counts = Counter(vals)
+        best = max(counts.values())
+        return next(v for v in vals if counts[v] == best)
+
+    return mode(fn), mode(iso)
+
+
+
+
+@dataclass
+class _Plan:
+    jobs: Dict[int, SetJob]
+    selected: List[SetJob]
+    reference: Tuple[Optional[float], Optional[float]]
+    groups: Dict[str, List[int]]
+
+
+def _plan(manifest, out_dir: str, options: BatchOptions, ranges) -> _Plan:
+    from hdrcl.io.frames import read_info
+
+    sets = sorted(manifest.sets, key=lambda s: s.index)
+    stems = output_stems(manifest)
+    firsts = {}
+    for s in sets:
+        try:
+            firsts[s.index] = read_info(s.files[0])
+        except (InputError, OSError) as exc:  # the set fails later with its own reason
+            logger.debug("set %d: first frame unreadable: %s", s.index, exc)
+            firsts[s.index] = None
+    reference = _reference([firsts[s.index] for s in sets])
+    jobs, groups = {}, {}
+    for s in sets:
+        group = _group_of(firsts[s.index])
+        stem = os.path.join(out_dir, stems[s.index])
+        jobs[s.index] = SetJob(index=s.index, files=[os.path.abspath(f) for f in s.files],
+                               exposures=[float(t) for t in s.exposures], output=stem + ".exr",
+                               preview=stem + ".jpg" if options.preview else None, group=group,
+                               reference=reference)
+        groups.setdefault(group, []).append(s.index)
+    selected = [jobs[s.index] for s in select_sets(sets, ranges)]
+    return _Plan(jobs=jobs, selected=selected, reference=reference, groups=groups)
+
+
+# --------------------------------------------------------------------- loading sets
+def _shoot_scale(exposures, reference) -> Tuple[float, List[str]]:
+    """Factor from a set's own exposure scale to the shoot's, and notes on it.
+
+    :func:`hdrcl.io.metadata.relative_exposures` expresses a set's exposures at its first
+    frame's f-number and ISO (leaving out a factor some frame lacks); this converts
+    them to the shoot's reference f-number and ISO.
+    """
+    ref_n, ref_iso = reference
+    e0 = exposures[0]
+    k, notes = 1.0, []
+    if all(e.fnumber and e.fnumber > 0 for e in exposures):
+        if ref_n:
+            k *= (ref_n / e0.fnumber) ** 2
+    elif ref_n:
+        notes.append(f"no f-number in EXIF: exposure scale assumes the shoot's f/{ref_n:g}")
+    if all(e.iso and e.iso > 0 for e in exposures):
+        if ref_iso:
+            k *= e0.iso / ref_iso
+    elif ref_iso:
+        notes.append(f"no ISO in EXIF: exposure scale assumes the shoot's ISO {ref_iso:g}")
+    return k, notes

@@ -1,0 +1,191 @@
+"""One response per camera body and ISO for a batch: the pool of sets it is solved from,
+the solve, and the saved curve reused while its calibration key matches.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from dataclasses import dataclass, replace
+from typing import Dict, List, Sequence
+
+import numpy as np
+
+from hdrcl import __version__
+from hdrcl.core.response import Response
+from hdrcl.errors import HdrclError, InputError
+from hdrcl.shoot.jobs import (
+    MAX_POOL_SETS,
+    RESPONSE_SUFFIX,
+    BatchOptions,
+    ResponseEntry,
+    SetJob,
+)
+from hdrcl.shoot.plan import _Plan, _shoot_scale, _slug
+from hdrcl.shoot.state import (
+    DIGEST_RECIPE,
+    _atomic_json,
+    _file_digest,
+    _json_digest,
+    response_digest,
+)
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class _Opened:
+    """A set's headers and its exposures on the shoot's scale (no pixels decoded)."""
+
+    infos: list
+    times: np.ndarray
+    ev_offset: float
+    notes: List[str]
+    stamp: str  # first frame's capture time as EXIF DateTime text, or ""
+
+
+def _open_set(job: SetJob) -> _Opened:
+    """Read a set's headers, check the frames agree, and scale its exposures.
+
+    Raises
+    ------
+    InputError
+        A frame is missing or unreadable, the frames differ in size, channels or
+        depth, an exposure time is missing, or two frames share one exposure.
+    """
+    from hdrcl.core.bracket import read_infos
+    from hdrcl.io.frames import check_compatible
+    from hdrcl.io.metadata import relative_exposures, resolve_exposures
+
+    if len(job.files) < 2:
+        raise InputError(f"{job.files[0]}: a bracket set needs at least two exposures")
+    if job.exposures and len(job.exposures) != len(job.files):
+        raise InputError(f"set {job.index}: {len(job.exposures)} exposures for {len(job.files)} files")
+    infos = read_infos(job.files)
+    check_compatible(infos)
+    timed = []
+    for k, info in enumerate(infos):
+        t = job.exposures[k] if job.exposures else info.exposure_time
+        if t is None or not t > 0:
+            raise InputError(f"{info.path}: no exposure time in EXIF; add \"exposures\" to the set in the manifest")
+        timed.append(replace(info, exposure_time=float(t)))
+    exposures = resolve_exposures(job.files, timed)
+    k, notes = _shoot_scale(exposures, job.reference)
+    times = np.asarray(relative_exposures(exposures), np.float64) * k
+    t0 = infos[0].capture_time
+    stamp = "" if t0 is None else t0.strftime("%Y:%m:%d %H:%M:%S")
+    return _Opened(infos=timed, times=times, ev_offset=math.log2(k), notes=notes, stamp=stamp)
+
+
+def _calibration_grid(job: SetJob, opened: _Opened, ignore_color):
+    """The decimated grid of a set that sample selection works on (one streaming read)."""
+    from hdrcl.core.bracket import _grid_bracket
+
+    return _grid_bracket(list(job.files), opened.infos, opened.times, ignore_color)
+
+
+# -------------------------------------------------------------------- responses
+def _normalised(resp: Response) -> dict:
+    """The response as its JSON file holds it (so solved and loaded curves agree)."""
+    return json.loads(json.dumps(resp.to_dict()))
+
+
+def _response_of(entry: ResponseEntry) -> Response:
+    resp = _response_cache.get(entry.digest)
+    if resp is None:
+        resp = Response.from_dict(entry.payload, source=entry.file or entry.group)
+        _response_cache[entry.digest] = resp
+    return resp
+
+
+def _pool_of(indices: Sequence[int]) -> List[int]:
+    """At most MAX_POOL_SETS indices, evenly spaced, deterministic."""
+    idx = sorted(indices)
+    if len(idx) <= MAX_POOL_SETS:
+        return idx
+    m = MAX_POOL_SETS
+    return sorted({idx[round(i * (len(idx) - 1) / (m - 1))] for i in range(m)})
+
+
+def _calibrate_group(group: str, jobs: List[SetJob], out_dir: str, options: BatchOptions) -> ResponseEntry:
+    """Load the group's saved response if its key matches, else solve and save it."""
+    from hdrcl.core.solve import recover_response_pooled
+
+    path = os.path.join(out_dir, _slug(group) + RESPONSE_SUFFIX)
+    entry = ResponseEntry(group=group, file=path, sets=[j.index for j in jobs])
+    usable, keyed = [], []
+    for j in jobs:
+        try:
+            keyed.append([j.index, [[os.path.basename(f), _file_digest(f)] for f in j.files], j.exposures])
+            usable.append(j)
+        except InputError as exc:
+            entry.warnings.append(f"set {j.index} not pooled: {exc}")
+    key = _json_digest({"recipe": DIGEST_RECIPE, "hdrcl": __version__, "solve": options.solve_params(),
+                        "reference": list(jobs[0].reference) if jobs else None, "sets": keyed})
+    try:
+        with open(path, encoding="utf-8") as fh:
+            saved = json.load(fh)
+        if isinstance(saved, dict) and saved.get("calibration", {}).get("key") == key:
+            Response.from_dict(saved, source=path)  # validates
+            entry.payload = {k: v for k, v in saved.items() if k != "calibration"}
+            entry.digest = response_digest(entry.payload)
+            entry.source = "loaded"
+            entry.warnings += list(saved.get("calibration", {}).get("warnings", []))
+            logger.info("%s: response loaded from %s", group, path)
+            return entry
+    except (OSError, ValueError, HdrclError):
+        pass  # absent, stale or damaged: solve again
+    brackets, pooled, first_info = [], [], None
+    for j in usable:
+        try:
+            opened = _open_set(j)
+            br = _calibration_grid(j, opened, options.ignore_color)
+        except HdrclError as exc:
+            entry.warnings.append(f"set {j.index} not pooled: {str(exc).splitlines()[0]}")
+            continue
+        if first_info is None:
+            first_info = opened.infos[0]
+        brackets.append((br.frames, br.times, br.valid_all))
+        pooled.append(j.index)
+    if not brackets:
+        entry.error = "no set of this camera and ISO could be read to calibrate its response"
+        return entry
+    try:
+        resp = recover_response_pooled(brackets, samples=options.samples, smoothness=options.smoothness,
+                                       weight=options.weight, seed=options.seed)
+    except HdrclError as exc:
+        entry.error = f"calibration failed: {str(exc).splitlines()[0]}"
+        return entry
+    resp.camera = {k: v for k, v in (("make", first_info.make), ("model", first_info.model),
+                                     ("iso", first_info.iso)) if v is not None}
+    entry.payload = _normalised(resp)
+    entry.digest = response_digest(entry.payload)
+    entry.source = "calibrated"
+    entry.sets = pooled
+    entry.warnings += list(resp.warnings)
+    saved = dict(entry.payload)
+    saved["calibration"] = {"key": key, "group": group, "pooled_sets": pooled, "warnings": entry.warnings}
+    _atomic_json(path, saved)
+    logger.info("%s: response calibrated from sets %s -> %s", group, pooled, path)
+    return entry
+
+
+def _prepare_responses(plan: _Plan, out_dir: str, options: BatchOptions, response=None) -> Dict[str, ResponseEntry]:
+    needed = sorted({j.group for j in plan.selected})
+    if response is not None:
+        if isinstance(response, Response):
+            payload, name = _normalised(response), "given"
+        else:
+            name = os.fspath(response)
+            payload = _normalised(Response.load(name))
+        digest = response_digest(payload)
+        return {g: ResponseEntry(group=g, payload=payload, digest=digest, file=name, source="given")
+                for g in needed}
+    out = {}
+    for g in needed:
+        out[g] = _calibrate_group(g, [plan.jobs[i] for i in _pool_of(plan.groups[g])], out_dir, options)
+    return out
+
+
+_response_cache: Dict[str, Response] = {}

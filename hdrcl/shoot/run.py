@@ -1,0 +1,278 @@
+"""Merging a whole shoot: every bracket set of a manifest, once, safely, in parallel.
+
+``hdrcl batch`` is a thin layer over :func:`run_batch`. What it guarantees, and how:
+
+**One response per camera body and ISO.** Sets are grouped by the first frame's
+camera (make, model, serial) and ISO. Each group's curve is solved once from samples
+pooled across the group's sets (:func:`hdrcl.core.solve.recover_response_pooled`) and
+saved beside the outputs as ``<camera>-ISO<n>.response.json``; ``--response`` gives one
+curve for everything instead. The pool is chosen from the *whole manifest*, never from
+the sets selected for this run (at most :data:`MAX_POOL_SETS` sets, evenly spaced in
+index order), and the solve is deterministic, so every farm chunk, Dask worker or
+rerun arrives at the same curve. A saved curve whose recorded calibration key (the
+pooled files' contents and the solve's parameters) still matches is loaded instead
+of solved again; chunks running at the same moment each solve and write the same
+file atomically. The curve used is always the one as written to JSON (rounded the same
+way), so a loaded curve and a freshly solved one give identical outputs.
+
+**One exposure scale for the shoot.** Every frame's effective exposure is taken
+relative to one reference f-number and ISO for the whole manifest (the most common
+first-frame setting; ties go to the lower set index), so the radiance of all sets is
+in the same units and the sets of a panorama match. Each output records
+``hdrcl:evOffset``: ``log2`` of the factor between its units and those of ``hdrcl
+merge`` on the same frames (``merge`` = ``batch * 2**evOffset``), and
+``hdrcl:exposureRef``, the reference (``"f/8 ISO 100"``).
+
+**Idempotent and crash-safe.** Each set has an identity: SHA-256 over the contents of
+its frames, the manifest's exposures, the shoot's reference, the response curve, the
+merge and output parameters and the hdrcl version (:func:`set_digest`). It is stored
+in the EXR as ``hdrcl:inputHash``. An output whose header carries the same digest is
+skipped (header only, no pixels decoded); ``force`` rebuilds. Both files are written
+atomically (temporary file, then rename) and the EXR is moved into place last, so it is
+the commit marker: a run killed at any moment leaves every output either complete or
+absent, and the next run finishes the job. The EXR's ``DateTime`` is the capture time
+of the first frame, so the same inputs always give the same bytes.
+
+**Failures stay local.** A set that cannot be read, decoded or merged fails alone with
+its reason; the others complete.
+
+**Pipelined, in bounded memory.** Each set is merged strip by strip
+(:func:`hdrcl.core.pipeline.stream_merge`): decoding the next strip, fusing the current one
+on the OpenCL device and encoding the previous one overlap, and memory does not grow
+with the image. Meanwhile a read-ahead thread hashes the next set, checks its outputs
+and reads its headers. One OpenCL context and built program serve the process.
+``jobs > 1`` runs sets in worker processes (``spawn``: each worker makes its own OpenCL
+context once); ``scheduler`` runs them on a Dask cluster (:mod:`hdrcl.shoot.executors`).
+
+Outputs, named after each set's first frame (:func:`output_stems`), go directly into
+the output folder: ``<stem>.exr``, ``<stem>.jpg`` (preview) and ``report.json``.
+
+**Quality report** (``BatchOptions.report_dir``, ``--report DIR``). Whoever merges a set
+(this process, a worker process, a Dask worker) measures it (:func:`hdrcl.report.quality.measure`
+on the frames kept as they stream past: whole when they fit
+:func:`hdrcl.core.bracket.memory_budget`, else the sampling grid; the radiance reduced for the
+preview) and writes its files into the folder (:func:`hdrcl.report.pages.write_set_report`),
+after its EXR is committed; the figures also go into ``report.json`` under
+``quality``. A skipped set keeps its report when it was written for the same digest,
+else it is measured again from its frames and EXR. At the end, :func:`run_batch` writes
+``index.html`` over every set of the manifest. The EXRs and previews are the same bytes
+with or without a report.
+
+This module does not import click, OpenImageIO or pyopencl directly.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import time as _time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
+from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
+
+from hdrcl.errors import UsageError
+from hdrcl.shoot.jobs import (
+    REPORT_NAME,
+    STATUS_FAILED,
+    BatchOptions,
+    BatchReport,
+    SetJob,
+    SetResult,
+    _Context,
+    _reference_text,
+)
+from hdrcl.shoot.plan import _plan, load_source, parse_sets
+from hdrcl.shoot.pooling import _prepare_responses
+from hdrcl.shoot.setquality import _contact_sheet
+from hdrcl.shoot.setrun import _failed, _merge_stage, _Opening, _read_stage, process_set
+from hdrcl.shoot.state import (
+    _atomic_json,
+    _merge_entries,
+    _remove_stale_temps,
+    _report_lock,
+)
+
+logger = logging.getLogger(__name__)
+
+
+
+
+def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult], None]) -> None:
+    """Run sets in this process, hashing and opening the next set during the merge.
+
+    The merge itself overlaps decoding, fusion (on this thread, which owns the
+    OpenCL queue) and encoding strip by strip; the read-ahead thread meanwhile hashes
+    the next set's files, checks whether its outputs are current and reads its
+    headers, so consecutive sets follow each other without a gap.
+    """
+    if not jobs:
+        return
+    started: Dict[int, float] = {}
+
+    def read(job):
+        started[job.index] = _time.perf_counter()
+        return _read_stage(job, ctx)
+
+    with ThreadPoolExecutor(1, thread_name_prefix="hdrcl-readahead") as reader:
+        ahead = reader.submit(read, jobs[0])
+        for i in range(len(jobs)):
+            step = ahead.result()
+            if i + 1 < len(jobs):
+                ahead = reader.submit(read, jobs[i + 1])
+            if isinstance(step, _Opening):
+                step = _merge_stage(step, ctx)
+            step.seconds["total"] = _time.perf_counter() - started[step.index]
+            emit(step)
+
+
+# --------------------------------------------------------------------------- run
+def run_batch(
+    source,
+    out_dir,
+    *,
+    options: Optional[BatchOptions] = None,
+    sets: Union[str, Sequence[Tuple[int, Optional[int]]], None] = None,
+    response=None,
+    jobs: int = 1,
+    scheduler=None,
+    retries: int = 2,
+    force: bool = False,
+    report: Union[str, os.PathLike, None] = None,
+    calibrate_only: bool = False,
+    recursive: bool = False,
+    frames_per_set: Optional[int] = None,
+    gap: Optional[float] = None,
+    progress: Optional[Callable[[Optional[SetResult], int, int], None]] = None,
+) -> BatchReport:
+    """Merge every bracket set of a shoot into ``out_dir``.
+
+    Parameters
+    ----------
+    source : str, os.PathLike or Manifest
+        A folder of photographs (scanned with ``recursive``, ``frames_per_set``,
+        ``gap``), a manifest file from ``hdrcl scan -o``, or a Manifest.
+    out_dir : str or os.PathLike
+        Output folder, created if needed: ``<stem>.exr`` and ``<stem>.jpg`` per set,
+        the pooled responses and ``report.json``.
+    options : BatchOptions, optional
+    sets : str or list of (start, end), optional
+        Manifest indices to run (:func:`parse_sets`); the rest of the manifest still
+        decides the response pool, the exposure reference and the output names.
+    response : Response or path, optional
+        One response for every set instead of the pooled calibration.
+    jobs : int
+        Worker processes; 1 runs the pipeline in this process. The workers are
+        started with ``spawn``, so a script calling this with ``jobs > 1`` needs the
+        ``if __name__ == "__main__":`` guard.
+    scheduler : str or distributed.Client, optional
+        Run the sets on this Dask cluster (``tcp://host:8786``).
+    retries : int
+        Dask: times a task that raised an unexpected error is retried.
+    force : bool
+        Rebuild outputs even when they are up to date.
+    report : path, optional
+        Where to write the JSON report [default: ``out_dir/report.json``] (the CLI's
+        ``--report-json``; the quality report folder is ``options.report_dir``).
+    calibrate_only : bool
+        Prepare (solve or load) the responses of the selected sets and stop.
+    progress : callable, optional
+        ``progress(result, completed, total)``; called once with ``result=None``
+        before the first set, then after each set.
+
+    Returns
+    -------
+    BatchReport
+
+    Raises
+    ------
+    InputError
+        The folder or manifest cannot be read, or the response file is unreadable.
+    UsageError
+        Conflicting options or an unusable output folder.
+    """
+    t_start = _time.perf_counter()
+    options = options or BatchOptions()
+    if jobs < 1:
+        raise UsageError(f"--jobs must be at least 1, not {jobs}")
+    if scheduler is not None and jobs > 1:
+        raise UsageError("--jobs and --scheduler exclude each other: the Dask cluster decides the parallelism")
+    if options.dtype not in ("half", "float"):
+        raise UsageError(f"--dtype: '{options.dtype}' is not one of half, float")
+    if options.preview_size < 16:
+        raise UsageError("--preview-size must be at least 16 pixels")
+    from hdrcl.io.writers import _exr_compression  # validates the name before any work
+
+    _exr_compression(options.compression)
+    ranges = parse_sets(sets) if isinstance(sets, str) else (list(sets) if sets is not None else None)
+    out_dir = os.path.abspath(os.fspath(out_dir))
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise UsageError(f"{out_dir}: output is not a folder")
+    report_dir = None
+    if options.report_dir is not None:
+        report_dir = os.path.abspath(os.fspath(options.report_dir))
+        if os.path.exists(report_dir) and not os.path.isdir(report_dir):
+            raise UsageError(f"{report_dir}: --report is not a folder")
+        options = replace(options, report_dir=report_dir)
+    manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap,
+                           exclude=[out_dir] + ([report_dir] if report_dir else []))
+    for folder, what in ((out_dir, "output"), (report_dir, "report")):
+        if folder is None:
+            continue
+        try:
+            os.makedirs(folder, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"{folder}: cannot create the {what} folder ({exc.strerror or exc})") from None
+
+    plan = _plan(manifest, out_dir, options, ranges)
+    logger.info("%d set(s) in the manifest, %d selected; reference %s", len(plan.jobs), len(plan.selected),
+                _reference_text(plan.reference))
+    responses = _prepare_responses(plan, out_dir, options, response)
+    unreadable = [f for u in manifest.unmerged if u.reason.startswith("corrupt") for f in u.files] \
+        if ranges is None else []
+    rep = BatchReport(unmerged=[{"files": [os.path.abspath(f) for f in u.files], "reason": u.reason}
+                                for u in manifest.unmerged],
+                      responses=[responses[g] for g in sorted(responses)], unreadable=unreadable,
+                      reference=plan.reference)
+    if calibrate_only:
+        rep.seconds = _time.perf_counter() - t_start
+        return rep
+
+    _remove_stale_temps(out_dir, [os.path.splitext(os.path.basename(j.output))[0] for j in plan.selected])
+    ctx = _Context(options=options, responses=responses, force=force)
+    total = len(plan.selected)
+    results: List[SetResult] = []
+
+    def emit(res: SetResult):
+        results.append(res)
+        # A progress callback reports failures itself; without one, the log does.
+        lvl = logging.WARNING if res.status == STATUS_FAILED and progress is None else logging.INFO
+        logger.log(lvl, "set %d: %s%s", res.index, res.status, f": {res.error}" if res.error else "")
+        if progress is not None:
+            progress(res, len(results), total)
+
+    if progress is not None:
+        progress(None, 0, total)
+    if scheduler is not None:
+        from hdrcl.shoot.executors import run_dask
+
+        run_dask(plan.selected, ctx, scheduler, emit, task=process_set, failed=_failed, retries=retries)
+    elif jobs > 1 and total > 1:
+        from hdrcl.shoot.executors import run_processes
+
+        run_processes(plan.selected, ctx, emit, task=process_set, failed=_failed, jobs=min(jobs, total))
+    else:
+        _run_pipelined(plan.selected, ctx, emit)
+
+    rep.results = sorted(results, key=lambda r: r.index)
+    report_path = os.path.abspath(os.fspath(report)) if report is not None else os.path.join(out_dir, REPORT_NAME)
+    if not os.path.isdir(os.path.dirname(report_path)):
+        raise UsageError(f"{report_path}: report folder does not exist")
+    with _report_lock(os.path.dirname(report_path)):
+        rep.entries = _merge_entries(report_path, rep.results, plan)
+        _atomic_json(report_path, rep.to_dict())
+        if report_dir is not None:
+            # Under the report's lock: of chunks finishing together, the last one to
+            # write the contact sheet sees every other's sets.
+            rep.quality_report = _contact_sheet(plan, rep.entries, report_dir)
+    rep.path = report_path
+    rep.seconds = _time.perf_counter() - t_start
+    return rep

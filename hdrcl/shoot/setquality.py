@@ -1,0 +1,192 @@
+"""A batch set's quality report: frames kept while they stream past, figures measured
+after the EXR is committed, reports of skipped sets kept or rebuilt, the contact sheet.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+from typing import List, Optional
+
+import numpy as np
+
+from hdrcl.core.response import Response
+from hdrcl.errors import HdrclError
+from hdrcl.shoot.jobs import (
+    _FUSE_LOCK,
+    STATUS_FAILED,
+    BatchOptions,
+    SetJob,
+    SetResult,
+    _Context,
+)
+from hdrcl.shoot.plan import _Plan
+from hdrcl.shoot.pooling import _open_set, _response_of
+from hdrcl.shoot.state import DIGEST_KEY, _atomic_json
+
+logger = logging.getLogger(__name__)
+
+
+# ----------------------------------------------------------------- quality report
+
+#: Long side of the reduced radiance map the report is made from when no preview is written.
+REPORT_IMAGE_SIZE = 512
+
+
+def _quality_stride(n: int, h: int, w: int, nch: int, dtype) -> int:
+    """1 (whole frames) when the set's frames fit :func:`hdrcl.core.bracket.memory_budget`, else
+    the stride of the sampling grid, as for ``hdrcl merge --report``."""
+    from hdrcl.core.bracket import memory_budget
+    from hdrcl.core.sampling import grid_stride
+
+    return 1 if n * h * w * nch * np.dtype(dtype).itemsize <= memory_budget() else grid_stride(h, w)
+
+
+class _KeptFrames:
+    """A :class:`hdrcl.io.reader.BracketReader` whose strips pass through unchanged while every
+    ``stride``-th row and column of each frame (all of it for stride 1) is kept, so the
+    quality figures need no second decode. Same grid as ``BracketReader.read_grid``."""
+
+    def __init__(self, reader, stride: int):
+        self._reader = reader
+        self.stride = s = max(1, int(stride))
+        hh, ww = len(range(0, reader.height, s)), len(range(0, reader.width, s))
+        self._shape = (hh, ww)
+        self.kept = [np.empty((hh, ww, reader.nch), reader.dtype) for _ in reader.paths]
+        self.kept_valid: list = [None] * len(reader.paths)
+
+    def __getattr__(self, name):
+        return getattr(self._reader, name)
+
+    def strips(self, rows: int):
+        s = self.stride
+        for y0, y1, frames, valid in self._reader.strips(rows):
+            first = (-y0) % s
+            g0 = (y0 + first) // s
+            for k, (f, v) in enumerate(zip(frames, valid)):
+                part = f[first::s, ::s]
+                self.kept[k][g0:g0 + part.shape[0]] = part
+                if v is not None:
+                    if self.kept_valid[k] is None:
+                        self.kept_valid[k] = np.ones(self._shape, bool)
+                    self.kept_valid[k][g0:g0 + part.shape[0]] = v[first::s, ::s]
+            yield y0, y1, frames, valid
+
+    def bracket(self, files, infos, times, ignore_color):
+        from hdrcl.core.bracket import Bracket, _with_ignore
+
+        return Bracket(frames=self.kept, times=np.asarray(times, np.float64),
+                       valid=_with_ignore(self.kept, self.kept_valid, ignore_color), paths=list(files),
+                       infos=list(infos), grid=self.stride > 1)
+
+
+def _report_stem(job: SetJob) -> str:
+    return os.path.splitext(os.path.basename(job.output))[0]
+
+
+def _quality_for(res: SetResult, job: SetJob, bracket, resp: Response, times, radiance, opts: BatchOptions) -> None:
+    """Measure the set, write its report files and put the figures into ``res``.
+
+    The figures' JSON is stamped with the set's digest, so that a later run that skips
+    the set knows whether they describe its current output. A failure here is a
+    warning: the merge itself succeeded.
+    """
+    from hdrcl.report.pages import file_stem, write_set_report
+    from hdrcl.report.quality import measure
+
+    try:
+        with _FUSE_LOCK:  # leave-one-out fuses on the process's OpenCL device
+            fig = measure(bracket, resp, radiance, weight=opts.weight, times=times, device=opts.device)
+        stem = _report_stem(job)
+        entry = write_set_report(opts.report_dir, stem, fig, resp, radiance, fig.coverage, warnings=res.warnings)
+        payload = entry.to_dict()
+        payload[DIGEST_KEY] = res.digest
+        _atomic_json(os.path.join(opts.report_dir, file_stem(stem) + ".json"), payload)
+        res.quality = fig.to_dict()
+    except Exception as exc:
+        if not isinstance(exc, (HdrclError, OSError, ValueError)):
+            logger.debug("set %d: quality report failed", job.index, exc_info=exc)
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        res.warnings.append(f"quality report not written: {first}")
+
+
+def _current_quality(folder: str, job: SetJob, digest: Optional[str]) -> Optional[dict]:
+    """The figures of a report written for this very output (same digest, every file
+    present), or None."""
+    from hdrcl.report.pages import REPORT_FORMAT, file_stem
+
+    try:
+        with open(os.path.join(folder, file_stem(_report_stem(job)) + ".json"), encoding="utf-8") as fh:
+            d = json.load(fh)
+    except (OSError, ValueError):
+        return None
+    if not isinstance(d, dict) or d.get("format") != REPORT_FORMAT or digest is None or d.get(DIGEST_KEY) != digest:
+        return None
+    files = d.get("files") or {}
+    if not isinstance(d.get("figures"), dict) or not all(
+            isinstance(f, str) and os.path.isfile(os.path.join(folder, f)) for f in files.values()):
+        return None
+    return d["figures"]
+
+
+def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context) -> None:
+    """The report of a skipped set that has none (or a stale one): the frames are read
+    again (whole or the sampling grid) and the radiance from its EXR."""
+    from hdrcl.core.bracket import Bracket, _with_ignore
+    from hdrcl.io.radiance import read_radiance
+    from hdrcl.io.reader import BracketReader
+    from hdrcl.report.preview import downscale
+
+    opts = ctx.options
+    try:
+        opened = _open_set(job)
+        resp = _response_of(ctx.responses[job.group])
+        first = opened.infos[0]
+        h, w = first.height, first.width
+        with BracketReader(job.files, opened.infos) as reader:
+            stride = _quality_stride(len(job.files), h, w, reader.nch, reader.dtype)
+            frames, valid = reader.read_all() if stride == 1 else reader.read_grid(stride)
+        bracket = Bracket(frames=frames, times=opened.times, valid=_with_ignore(frames, valid, opts.ignore_color),
+                          paths=list(job.files), infos=opened.infos, grid=stride > 1)
+        rad, _ = read_radiance(job.output)
+        small = downscale(rad, opts.preview_size if job.preview is not None else REPORT_IMAGE_SIZE)
+        del rad
+    except Exception as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        res.warnings.append(f"quality report not written: {first}")
+        return
+    _quality_for(res, job, bracket, resp, opened.times, small, opts)
+
+
+def _contact_sheet(plan: "_Plan", entries: List[dict], folder: str) -> str:
+    """``index.html`` over every set of the manifest, in index order.
+
+    ``entries`` are the report's (this run's and earlier runs' into the same folder).
+    A set's figures and pictures come from the report folder when they describe its
+    current output; failed sets show their reason; sets no run has handled yet are
+    "pending".
+    """
+    from hdrcl.report.pages import ReportEntry, load_set_report, write_contact_sheet
+
+    known = {e.get("index"): e for e in entries}
+    cards = []
+    for i in sorted(plan.jobs):
+        job = plan.jobs[i]
+        stem = _report_stem(job)
+        e = known.get(i) or {}
+        status = e.get("status")
+        if status == STATUS_FAILED:
+            cards.append(ReportEntry(stem, STATUS_FAILED, error=e.get("error") or "failed",
+                                     warnings=list(e.get("warnings") or [])))
+            continue
+        card = None
+        if status is None or _current_quality(folder, job, e.get("hash")) is not None:
+            card = load_set_report(folder, stem)
+        if card is None:
+            card = ReportEntry(stem, status or "pending", warnings=list(e.get("warnings") or []))
+            if status is not None:
+                card.warnings.append("no quality figures for this output: run the batch again with --report")
+        elif status is not None:
+            card.status = status
+        cards.append(card)
+    return write_contact_sheet(folder, cards)

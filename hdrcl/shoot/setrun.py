@@ -1,0 +1,234 @@
+"""Merging one set of a batch: reading its headers and digest (read stage), then fusing
+and writing it (merge stage); :func:`process_set` runs both.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import time as _time
+from dataclasses import dataclass
+from typing import Dict, Optional
+
+from hdrcl.errors import HdrclError
+from hdrcl.shoot.jobs import (
+    _FUSE_LOCK,
+    STATUS_DONE,
+    STATUS_FAILED,
+    STATUS_SKIPPED,
+    BatchOptions,
+    SetJob,
+    SetResult,
+    _Context,
+    _reference_text,
+)
+from hdrcl.shoot.pooling import _open_set, _Opened, _response_of
+from hdrcl.shoot.setquality import (
+    REPORT_IMAGE_SIZE,
+    _current_quality,
+    _KeptFrames,
+    _quality_for,
+    _quality_stride,
+    _rebuild_quality,
+)
+from hdrcl.shoot.state import (
+    DIGEST_KEY,
+    _counts_of,
+    _preview_metadata,
+    _up_to_date,
+    set_digest,
+)
+
+logger = logging.getLogger(__name__)
+
+
+
+
+# ------------------------------------------------------------------------ stages
+@dataclass
+class _Opening:
+    """A set that needs merging: its digest and headers, read ahead of the merge."""
+
+    job: SetJob
+    digest: str
+    opened: _Opened
+    seconds: Dict[str, float]
+
+
+def _failed(job: SetJob, exc: BaseException, seconds=None, digest=None) -> SetResult:
+    if isinstance(exc, HdrclError):
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    else:
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        msg = f"internal error: {type(exc).__name__}: {first}"
+        logger.debug("set %d failed", job.index, exc_info=exc)
+    return SetResult(index=job.index, files=list(job.files), status=STATUS_FAILED, output=job.output,
+                     preview=job.preview, error=msg, seconds=dict(seconds or {}), digest=digest,
+                     response=job.group)
+
+
+def _rebuild_preview(job: SetJob, digest: str, options: BatchOptions) -> None:
+    """A lost or stale preview, made again from its (current) EXR."""
+    from hdrcl.io.radiance import read_metadata, read_radiance
+    from hdrcl.io.writers import write_ldr
+    from hdrcl.report.preview import downscale, encode
+
+    rad, _ = read_radiance(job.output)
+    try:  # a stale preview of this very EXR (another size) still knows its counts
+        old = read_metadata(job.preview)
+        counts = _counts_of(old) if old.get(DIGEST_KEY) == digest else {}
+    except HdrclError:
+        counts = {}
+    write_ldr(job.preview, encode(downscale(rad, options.preview_size)),
+              metadata=_preview_metadata(digest, options, counts))
+
+
+def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
+    """Hash the set, skip it if its outputs are current, else read its headers."""
+    seconds: Dict[str, float] = {}
+    digest = None
+    try:
+        entry = ctx.responses.get(job.group)
+        if entry is None or entry.payload is None:
+            # A set's own problem (its first frame is missing...) explains this best.
+            _open_set(job)
+            why = entry.error if entry is not None else "no response"
+            raise HdrclError(f"no response for {job.group}: {why}")
+        t0 = _time.perf_counter()
+        digest = set_digest(job, ctx.options, entry.digest)
+        seconds["hash"] = _time.perf_counter() - t0
+        if not ctx.force:
+            exr_ok, preview_ok, meta, pmeta = _up_to_date(job, digest, ctx.options)
+            if exr_ok:
+                res = SetResult(index=job.index, files=list(job.files), status=STATUS_SKIPPED, output=job.output,
+                                preview=job.preview, seconds=seconds, digest=digest, response=job.group,
+                                counts=_counts_of(pmeta), ev_offset=_float_or_none(meta.get("evOffset")))
+                if not preview_ok:
+                    t1 = _time.perf_counter()
+                    _rebuild_preview(job, digest, ctx.options)
+                    seconds["preview"] = _time.perf_counter() - t1
+                    res.warnings.append("preview was missing or stale: rebuilt from the EXR")
+                if ctx.options.report_dir:
+                    res.quality = _current_quality(ctx.options.report_dir, job, digest)
+                    if res.quality is None:
+                        t1 = _time.perf_counter()
+                        _rebuild_quality(res, job, ctx)
+                        seconds["quality"] = _time.perf_counter() - t1
+                return res
+        t1 = _time.perf_counter()
+        opened = _open_set(job)
+        seconds["open"] = _time.perf_counter() - t1
+        return _Opening(job, digest, opened, seconds)
+    except Exception as exc:
+        if strict and not isinstance(exc, HdrclError):
+            raise
+        return _failed(job, exc, seconds, digest)
+
+
+class _Tee:
+    """Hands every strip to several sinks (the EXR writer, the preview)."""
+
+    def __init__(self, *sinks):
+        self.sinks = [s for s in sinks if s is not None]
+
+    def write_rows(self, y0, y1, data):
+        for s in self.sinks:
+            s.write_rows(y0, y1, data)
+
+
+def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResult:
+    """Decode, fuse and write the set strip by strip; preview; commit the EXR.
+
+    Memory stays bounded by the strip height whatever the image size: decoding the
+    next strip, fusing the current one on the device and encoding the previous one
+    overlap (:func:`hdrcl.core.pipeline.stream_merge`).
+    """
+    from hdrcl.cl.backend import get_processor
+    from hdrcl.core.merge import MergeResult, _provenance
+    from hdrcl.core.pipeline import stream_merge
+    from hdrcl.io.reader import BracketReader
+    from hdrcl.io.writers import RadianceWriter, write_ldr
+    from hdrcl.report.preview import AreaAverage, encode
+
+    job, opened, opts = step.job, step.opened, ctx.options
+    seconds = step.seconds
+    try:
+        entry = ctx.responses[job.group]
+        resp = _response_of(entry)
+        first = opened.infos[0]
+        h, w = first.height, first.width
+        t0 = _time.perf_counter()
+        with _FUSE_LOCK, BracketReader(job.files, opened.infos) as reader:
+            nch = reader.nch
+            backend = "numpy" if get_processor("fusion", opts.device) is None else "opencl"
+            about = MergeResult(radiance=None, response=resp, counts={}, times=opened.times, paths=list(job.files),
+                                backend=backend, shape=(h, w, nch))
+            meta = _provenance(about, os.path.basename(entry.file) if entry.file else entry.group)
+            meta.update({DIGEST_KEY: step.digest, "evOffset": round(opened.ev_offset, 6),
+                         "exposureRef": _reference_text(job.reference)})
+            small = AreaAverage(h, w, nch, opts.preview_size) if job.preview is not None else None
+            # The quality report keeps the frames (or their sampling grid) as they stream
+            # past, and a reduced radiance map: the preview's, or its own without one.
+            kept = _KeptFrames(reader, _quality_stride(len(job.files), h, w, nch, reader.dtype)) \
+                if opts.report_dir else None
+            thumb = small if small is not None or not opts.report_dir else AreaAverage(h, w, nch, REPORT_IMAGE_SIZE)
+            writer = RadianceWriter(job.output, w, h, nch, dtype=opts.dtype, compression=opts.compression,
+                                    metadata=meta, timestamp=opened.stamp)
+            try:
+                has_valid = opts.ignore_color is not None or any(i.nchannels in (2, 4) for i in opened.infos)
+                counts, _ = stream_merge(reader if kept is None else kept, opened.times, resp, _Tee(writer, thumb),
+                                         weight=opts.weight, ignore_color=opts.ignore_color, has_valid=has_valid,
+                                         device=opts.device, deghost=opts.deghost)
+                t1 = _time.perf_counter()
+                # Preview first: the EXR, moved into place last, marks the set complete.
+                if small is not None:
+                    write_ldr(job.preview, encode(small.result()),
+                              metadata=_preview_metadata(step.digest, opts, counts))
+                t2 = _time.perf_counter()
+                warnings = writer.close()
+            except BaseException:
+                writer.abort()
+                raise
+        seconds.update({"merge": t1 - t0, "preview": t2 - t1, "write": _time.perf_counter() - t2})
+        notes = list(opened.notes) + list(resp.warnings) + list(warnings)
+        if counts.get("no_data"):
+            notes.append(f"{counts['no_data']} pixel-channels are invalid in every frame and were set to 0")
+        keys = ("clipped_high", "clipped_low", "no_data") + (("ghost", "ghost_unresolved") if opts.deghost else ())
+        res = SetResult(index=job.index, files=list(job.files), status=STATUS_DONE, output=job.output,
+                        preview=job.preview, warnings=notes, seconds=seconds,
+                        counts={k: int(counts.get(k, 0)) for k in keys},
+                        ev_offset=round(opened.ev_offset, 6), digest=step.digest, response=job.group)
+        if kept is not None:
+            # After the EXR is committed: the report never holds back or spoils an output.
+            t3 = _time.perf_counter()
+            bracket = kept.bracket(job.files, opened.infos, opened.times, opts.ignore_color)
+            del kept
+            _quality_for(res, job, bracket, resp, opened.times, thumb.result(), opts)
+            seconds["quality"] = _time.perf_counter() - t3
+        return res
+    except Exception as exc:
+        if strict and not isinstance(exc, HdrclError):
+            raise
+        return _failed(job, exc, seconds, step.digest)
+
+
+def _float_or_none(v) -> Optional[float]:
+    try:
+        return None if v is None else float(v)
+    except (TypeError, ValueError):
+        return None
+
+
+def process_set(job: SetJob, ctx: _Context, strict: bool = False) -> SetResult:
+    """Hash, open, merge and write one set in the calling process.
+
+    The task that worker processes and Dask workers run. With ``strict``, errors
+    that are not :class:`~hdrcl.errors.HdrclError` (a bug, a lost mount, a device
+    fault) are raised so that the scheduler retries the task; a set's own problems
+    (corrupt frame, missing exposure) always come back as a failed result.
+    """
+    t0 = _time.perf_counter()
+    step = _read_stage(job, ctx, strict)
+    if isinstance(step, _Opening):
+        step = _merge_stage(step, ctx, strict)
+    step.seconds["total"] = _time.perf_counter() - t0
+    return step

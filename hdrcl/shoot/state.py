@@ -1,0 +1,199 @@
+"""Batch state on disk: set digests (idempotence), up-to-date checks, atomic JSON, the
+report lock, report.json entries and stale temporary files.
+"""
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import logging
+import os
+import re
+import secrets
+import time as _time
+from typing import Dict, List, Sequence, Tuple
+
+from hdrcl import __version__
+from hdrcl.errors import HdrclError, InputError
+from hdrcl.shoot.jobs import BatchOptions, SetJob, SetResult
+from hdrcl.shoot.plan import _Plan
+
+logger = logging.getLogger(__name__)
+
+
+#: Version of the recipe of :func:`set_digest`; bump when outputs change meaning.
+DIGEST_RECIPE = 1
+
+
+#: EXR attribute (after the ``hdrcl:`` prefix) holding a set's digest.
+DIGEST_KEY = "inputHash"
+
+
+#: Temporary files of killed runs older than this (seconds) are removed.
+STALE_TEMP_SECONDS = 3600.0
+
+
+# --------------------------------------------------------------------- hashing
+def _file_digest(path: str) -> str:
+    h = hashlib.sha256()
+    try:
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a folder, not an image") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    return h.hexdigest()
+
+
+def _json_digest(obj) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def response_digest(payload: dict) -> str:
+    """Digest of what fusion uses from a response: bit depth, channels, the curve."""
+    return _json_digest({k: payload[k] for k in ("bits", "channels", "knots", "g")})
+
+
+def set_digest(job: SetJob, options: BatchOptions, response_hash: str) -> str:
+    """The identity of a set's output.
+
+    SHA-256 over the frames' contents (with their base names and order), the
+    manifest's exposure times, the shoot's reference f-number and ISO, the response
+    curve's digest, :meth:`BatchOptions.output_params`, the digest recipe and the hdrcl
+    version. Moving the shoot to another folder keeps it; touching a file without
+    changing it keeps it; anything that changes the EXR's pixels or format changes it.
+    """
+    payload = {
+        "recipe": DIGEST_RECIPE,
+        "hdrcl": __version__,
+        "files": [[os.path.basename(f), _file_digest(f)] for f in job.files],
+        "exposures": list(job.exposures),
+        "reference": list(job.reference),
+        "response": response_hash,
+        "output": options.output_params(),
+    }
+    return _json_digest(payload)
+
+
+def _atomic_json(path: str, obj) -> None:
+    """Write JSON through a temporary file and a rename (readers never see half)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    tmp = os.path.join(folder, f".{os.path.basename(path)}.{secrets.token_hex(4)}.tmp")
+    # os.open with 0o666 honours the umask (mkstemp would make the file private).
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(obj, fh, indent=1)
+            fh.write("\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _up_to_date(job: SetJob, digest: str, options: BatchOptions) -> Tuple[bool, bool, dict, dict]:
+    """Whether the EXR and the preview carry ``digest`` (header reads only).
+
+    Returns ``(exr_ok, preview_ok, exr_metadata, preview_metadata)``.
+    """
+    from hdrcl.io.radiance import read_metadata
+
+    try:
+        meta = read_metadata(job.output)
+    except HdrclError:
+        return False, False, {}, {}
+    if meta.get(DIGEST_KEY) != digest:
+        return False, False, {}, {}
+    if job.preview is None:
+        return True, True, meta, {}
+    try:
+        pmeta = read_metadata(job.preview)
+    except HdrclError:
+        return True, False, meta, {}
+    ok = pmeta.get(DIGEST_KEY) == digest and int(pmeta.get("previewSize", -1)) == int(options.preview_size)
+    return True, ok, meta, pmeta if ok else {}
+
+
+def _preview_metadata(digest: str, options: BatchOptions, counts: dict) -> dict:
+    # The counts are known only after the EXR's header is written: the preview keeps
+    # them for the report of later runs that skip the set.
+    return {DIGEST_KEY: digest, "previewSize": int(options.preview_size), "tonemap": "reinhard",
+            "clippedHigh": int(counts.get("clipped_high", 0)), "clippedLow": int(counts.get("clipped_low", 0)),
+            "noData": int(counts.get("no_data", 0))}
+
+
+def _counts_of(meta: dict) -> Dict[str, int]:
+    if "clippedHigh" not in meta:
+        return {}
+    return {"clipped_high": int(meta.get("clippedHigh", 0)), "clipped_low": int(meta.get("clippedLow", 0)),
+            "no_data": int(meta.get("noData", 0))}
+
+
+# ------------------------------------------------------------------------ report
+@contextlib.contextmanager
+def _report_lock(out_dir: str):
+    """Serialise read-modify-write of the report between chunks sharing a folder."""
+    try:
+        import fcntl
+    except ImportError:  # Windows: chunks there should use --report-json per chunk
+        yield
+        return
+    path = os.path.join(out_dir, ".report.lock")
+    with open(path, "a+") as fh:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+
+
+def _merge_entries(path: str, results: List[SetResult], plan: _Plan) -> List[dict]:
+    """This run's entries plus earlier entries of other sets of the same manifest."""
+    mine = {r.index: r.to_dict() for r in results}
+    try:
+        with open(path, encoding="utf-8") as fh:
+            old = json.load(fh)
+        old_sets = old.get("sets", []) if isinstance(old, dict) else []
+    except (OSError, ValueError):
+        old_sets = []
+    for e in old_sets:
+        try:
+            i = int(e["index"])
+        except (KeyError, TypeError, ValueError):
+            continue
+        job = plan.jobs.get(i)
+        if i not in mine and job is not None and [os.path.abspath(f) for f in e.get("files", [])] == job.files:
+            mine[i] = e
+    return [mine[i] for i in sorted(mine)]
+
+
+def _remove_stale_temps(out_dir: str, stems: Sequence[str]) -> None:
+    """Delete temporary files that killed runs left behind.
+
+    Those of the sets this run writes go at once (no other process writes them);
+    others only when older than :data:`STALE_TEMP_SECONDS`, as another chunk may be
+    writing them right now.
+    """
+    mine = set(stems)
+    now = _time.time()
+    pat = re.compile(r"^\.(?P<stem>.+)\.tmp-[0-9a-f]{8}\.(exr|jpg)$|^\..+\.json\.[^.]+\.tmp$")
+    try:
+        names = os.listdir(out_dir)
+    except OSError:
+        return
+    for name in names:
+        m = pat.match(name)
+        if not m:
+            continue
+        p = os.path.join(out_dir, name)
+        with contextlib.suppress(OSError):
+            if m.group("stem") in mine or now - os.path.getmtime(p) > STALE_TEMP_SECONDS:
+                os.remove(p)
+                logger.debug("removed stale temporary file %s", p)
