@@ -323,7 +323,7 @@ def _card(entry: ReportEntry, index: int) -> str:
 
 def contact_sheet_html(entries: Sequence[ReportEntry], title: str = "hdrcl quality report") -> str:
     """The contact sheet page for ``entries`` (see :func:`write_contact_sheet`)."""
-    from hdrcl import __version__
+    from hdrcl.version import __version__
 
     entries = list(entries)
     failed = sum(1 for e in entries if e.status == STATUS_FAILED)
