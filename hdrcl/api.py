@@ -27,6 +27,7 @@ from hdrcl.core.calibrate import calibrate, exposures_used
 from hdrcl.core.exposure import expose, expose_file
 from hdrcl.core.merge import MergeResult, merge_bracket, merge_files
 from hdrcl.core.response import Response, _as_response
+from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.report.merge_report import write_quality_report
 
 __all__ = [
@@ -42,7 +43,7 @@ def merge(
     response: Union[Response, str, os.PathLike, None] = None,
     *,
     times_file=None,
-    weight: str = "hat",
+    weight: str = DEFAULT_WEIGHT,
     ignore_color=None,
     samples: Optional[int] = None,
     smoothness: Optional[float] = None,

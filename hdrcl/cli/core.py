@@ -8,9 +8,11 @@ import click
 
 from hdrcl.cli.group import main
 from hdrcl.cli.options import (
+    deghost_option,
     device_option,
     exposure_options,
     fit_options,
+    ghost_options,
     output_options,
     seconds_callback,
     solve_options,
@@ -89,9 +91,9 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
 @solve_options
 @weight_option
 @fit_options
-@click.option("--deghost", is_flag=True,
-              help="Take pixels where the frames disagree (moving objects) from the middle exposure alone.")
+@deghost_option
 @click.option("--ghost-mask", type=click.Path(dir_okay=False), help="With --deghost: write the ghost mask (PNG).")
+@ghost_options
 @click.option("--neutral", metavar="X,Y,W,H", help="White balance: make this patch (pixels) neutral grey.")
 @click.option("--reference-patch", metavar="X,Y,W,H=VALUE",
               help="Absolute scale: this patch's mean luminance is VALUE cd/m^2.")
@@ -105,8 +107,8 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
 @output_options
 @device_option
 def merge(images, output, response, save_response, times, times_file, ignore_color, samples, smoothness,
-          seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, neutral, reference_patch, absolute,
-          align, crop, report, dtype, compression, device):
+          seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, ghost_threshold, ghost_reference,
+          neutral, reference_patch, absolute, align, crop, report, dtype, compression, device):
     """Merge one bracket set into a radiance map."""
     from hdrcl.core.merge import merge_files
     from hdrcl.errors import UsageError
@@ -119,7 +121,7 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
                       weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness, seed=seed,
                       dtype=dtype, compression=compression, device=device, fit_exposures=fit_exposures,
                       exposure_tolerance=exposure_tolerance, deghost=deghost, ghost_mask=ghost_mask,
-                      neutral=neutral, reference_patch=reference_patch, absolute=absolute,
+                      ghost_threshold=ghost_threshold, ghost_reference=ghost_reference, neutral=neutral, reference_patch=reference_patch, absolute=absolute,
                       thumbnail=512 if report else 0, align=align, crop=crop)
     if save_response:
         res.response.save(save_response)
@@ -129,12 +131,16 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
                f"({format_time(min(res.times))} .. {format_time(max(res.times))}), "
                f"{'OpenCL' if res.backend == 'opencl' else 'NumPy'}, {total:.2f} s")
     cnt = res.counts
+    if response is None:
+        click.echo(f"  response: spans {res.response.span_decades():.2f} decades between codes 10 and 245")
+    if res.storage_note:
+        click.echo(f"  storage: {res.storage_note}")
     if res.shifts is not None:
         click.echo("  aligned: " + ", ".join(f"{os.path.basename(p)} ({dy:+d}, {dx:+d})"
                                              for p, (dy, dx) in zip(res.paths, res.shifts)) + " (dy, dx px)")
     if deghost:
         click.echo(f"  ghosts: {100.0 * cnt.get('ghost', 0) / max(h * w_, 1):.2f} % of pixels taken from the "
-                   f"middle exposure" + (f" ({cnt['ghost_unresolved']} pixel-channels unresolved)"
+                   f"{ghost_reference or 'middle'} exposure" + (f" ({cnt['ghost_unresolved']} pixel-channels unresolved)"
                                          if cnt.get("ghost_unresolved") else ""))
     if cnt.get("clipped_high") or cnt.get("clipped_low"):
         click.echo(f"  clipped in every frame: {cnt['clipped_high']} high, {cnt['clipped_low']} low (pixel-channels)")

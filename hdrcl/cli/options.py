@@ -4,7 +4,7 @@ from __future__ import annotations
 import click
 
 from hdrcl.core.response import DEFAULT_SMOOTHNESS
-from hdrcl.core.weights import WEIGHTS
+from hdrcl.core.weights import DEFAULT_WEIGHT, WEIGHTS
 
 
 def _times(ctx, param, value):
@@ -55,8 +55,9 @@ def solve_options(f):
 
 
 def weight_option(f):
-    return click.option("--weight", type=click.Choice(WEIGHTS), default="hat", show_default=True,
-                        help="Weighting of code values: the paper's hat, or a smoother gaussian.")(f)
+    return click.option("--weight", type=click.Choice(WEIGHTS), default=DEFAULT_WEIGHT, show_default=True,
+                        help="Weighting of code values: gaussian (measured best on real data), "
+                             "or the paper's hat.")(f)
 
 
 def device_option(f):
@@ -119,5 +120,18 @@ def fit_options(f):
 def deghost_option(f):
     """``--deghost`` (the flag alone; ``merge`` adds ``--ghost-mask`` for its one output)."""
     return click.option("--deghost", is_flag=True,
-                        help="Take pixels where the frames disagree (moving objects) from the middle "
-                             "exposure alone.")(f)
+                        help="Take pixels where the frames disagree (moving objects) beyond the set's own "
+                             "learnt residuals from one exposure alone.")(f)
+
+
+def ghost_options(f):
+    """``--ghost-threshold`` and ``--ghost-reference`` (with ``--deghost``)."""
+    from hdrcl.core.deghost import THRESHOLD
+
+    f = click.option("--ghost-threshold", type=click.FloatRange(min=0, min_open=True), default=None,
+                     help="With --deghost: departure, in robust spreads of the set's own frame-to-frame "
+                          f"residuals, that makes a ghost [default: {THRESHOLD:g}].")(f)
+    f = click.option("--ghost-reference", metavar="middle|shortest|longest|N", default=None,
+                     help="With --deghost: the frame ghost pixels are taken from; N counts the images "
+                          "as given, from 0 [default: middle].")(f)
+    return f

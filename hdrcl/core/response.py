@@ -4,6 +4,7 @@ format (:class:`Response`), and the linear response of RAW data.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import tempfile
 from dataclasses import dataclass, field
@@ -12,6 +13,8 @@ from typing import List, Optional
 import numpy as np
 
 from hdrcl.errors import InputError, UsageError
+
+logger = logging.getLogger(__name__)
 
 RESPONSE_FORMAT = "hdrcl-response"
 
@@ -27,6 +30,12 @@ BINS_16BIT = 1024
 #: the default sample count. Chosen on synthetic scenes (curve error) and the Memorial
 #: set (leave-one-out error); see scripts/memorial_loo.py.
 DEFAULT_SMOOTHNESS = {"hat": 40.0, "gaussian": 60.0}
+
+
+#: Codes (8-bit units) between which a curve's span is measured, and the span in
+#: decades beyond which an 8-bit curve is reported as stretched.
+SPAN_LOW, SPAN_HIGH = 10, 245
+SPAN_WARN_DECADES = 4.0
 
 
 def default_smoothness(weight: str = "hat") -> float:
@@ -126,6 +135,26 @@ class Response:
             f"the response has {t.shape[0]} channels but the images have {nchannels}"
         )
 
+    def span_decades(self, low: Optional[int] = None, high: Optional[int] = None) -> float:
+        """Decades of exposure between codes ``low`` and ``high`` (8-bit units, scaled
+        for 16-bit; default :data:`SPAN_LOW`, :data:`SPAN_HIGH`), the largest over the
+        channels. A camera JPEG spans about 2.5."""
+        low = SPAN_LOW if low is None else low
+        high = SPAN_HIGH if high is None else high
+        t = self.tables()
+        scale = (self.levels - 1) / 255.0
+        lo, hi = int(round(low * scale)), int(round(high * scale))
+        return float(np.max(t[:, hi] - t[:, lo]) / np.log(10.0))
+
+    def span_problem(self) -> Optional[str]:
+        """A warning when an 8-bit curve spans more than :data:`SPAN_WARN_DECADES`."""
+        span = self.span_decades()
+        if self.bits == 8 and span > SPAN_WARN_DECADES:
+            return (f"the response spans {span:.1f} decades between codes {SPAN_LOW} and {SPAN_HIGH} "
+                    f"(camera JPEGs span about 2.5): wrong exposure times stretch a curve so; "
+                    f"check them unless this is film")
+        return None
+
     def monotonic_problems(self) -> List[str]:
         """Describe every channel whose curve decreases somewhere."""
         out = []
@@ -180,12 +209,35 @@ class Response:
             raise InputError(f"{source}: malformed response file (bits {bits}, curve shape {g.shape})")
         if not np.all(np.isfinite(g)):
             raise InputError(f"{source}: response curve holds non-finite values")
-        return cls(
+        resp = cls(
             bits=bits, g=g, knots=knots, channels=channels,
             smoothness=float(d.get("smoothness", 0.0)), weight=str(d.get("weight", "hat")),
             samples=int(d.get("samples", 0)), seed=int(d.get("seed", 0)), camera=dict(d.get("camera", {})),
             exposures=list(d.get("exposures", [])), warnings=list(d.get("warnings", [])),
         )
+        resp.check_given(source)
+        return resp
+
+    def check_given(self, source: str = "response") -> None:
+        """Refuse a curve that does not increase; warn about local decreases.
+
+        A response given to a merge (``--response``) is inverted: a flat or decreasing
+        curve (between codes :data:`SPAN_LOW` and :data:`SPAN_HIGH`) would give
+        meaningless radiance, so it raises InputError; a curve with a few decreasing
+        steps is used with a warning naming ``source``.
+        """
+        t = self.tables()
+        scale = (self.levels - 1) / 255.0
+        lo, hi = int(round(SPAN_LOW * scale)), int(round(SPAN_HIGH * scale))
+        for c, name in enumerate(self.channels):
+            if not t[c, hi] - t[c, lo] > 0.01:
+                raise InputError(
+                    f"{source}: channel {name} of the response does not increase between codes "
+                    f"{SPAN_LOW} and {SPAN_HIGH} (g goes from {t[c, lo]:.3g} to {t[c, hi]:.3g}); "
+                    "it cannot be inverted"
+                )
+        for msg in self.monotonic_problems():
+            logger.warning("%s: %s", source, msg)
 
     def save(self, path) -> None:
         """Write the response as JSON, atomically (temporary file, then rename)."""

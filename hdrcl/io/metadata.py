@@ -31,10 +31,11 @@ __all__ = [
     "relative_exposures",
     "resolve_exposures",
     "format_time",
+    "check_exposures",
 ]
 
 # Two exposures whose effective times differ by less than this fraction (0.0014 stops)
-# are the same exposure: they add no range and break the response solve.
+# are the same exposure: they add no range, but they are fused (less noise).
 SAME_EXPOSURE_RTOL = 1e-3
 
 
@@ -345,7 +346,8 @@ def resolve_exposures(
     ------
     InputError
         Fewer than two frames; a frame missing from the times file or without EXIF
-        exposure time; two frames with the same effective exposure.
+        exposure time; fewer than two distinct effective exposures, an absurd one, or
+        one file given twice with different exposures (:func:`check_exposures`).
     UsageError
         ``times`` does not have one entry per file.
     """
@@ -389,12 +391,79 @@ def resolve_exposures(
                 )
             exposures.append(Exposure(time=t, fnumber=info.fnumber, iso=info.iso))
     rel = relative_exposures(exposures)
-    seen = []
-    for i, r in enumerate(rel):
-        for j in seen:
-            if abs(r - rel[j]) <= SAME_EXPOSURE_RTOL * max(r, rel[j]):
-                raise InputError(
-                    f"{names[i]} has the same exposure as {names[j]} ({format_time(r)})"
-                )
-        seen.append(i)
+    check_exposures(names, rel)
     return exposures
+
+
+#: Relative exposures outside this range (seconds) are taken for a typing or metadata
+#: error: radiance computed from them leaves the float range (an all-zero map).
+TIME_RANGE = (1e-9, 1e7)
+
+
+def check_exposures(names: Sequence[str], rel: Sequence[float]) -> list:
+    """Check a set's effective exposures; return the groups of frames that share one.
+
+    Frames with the same effective exposure (an auto-ISO ladder: 4 s at ISO 2500 and
+    2 s at ISO 5000; a phone repeating an exposure) are merged like any other: they add
+    no range but average noise down. The set is refused only when fewer than two
+    distinct exposures remain, or an exposure is absurd.
+
+    Parameters
+    ----------
+    names : sequence of str
+        The frames, for messages.
+    rel : sequence of float
+        Effective exposure of each frame (seconds).
+
+    Returns
+    -------
+    list of list of int
+        Groups (two or more frames) at the same exposure, in frame order.
+
+    Raises
+    ------
+    InputError
+        Fewer than two distinct exposures; an exposure outside :data:`TIME_RANGE`.
+    """
+    rel = np.asarray(rel, np.float64)
+    for n, r in zip(names, rel):
+        if not (TIME_RANGE[0] <= r <= TIME_RANGE[1]):
+            raise InputError(
+                f"{n}: effective exposure {r:g} s is outside {TIME_RANGE[0]:g}..{TIME_RANGE[1]:g} s; "
+                "check the times, ND and gain values"
+            )
+    seen = {}
+    for i, n in enumerate(names):
+        key = os.path.realpath(n) if os.path.exists(n) else None
+        if key is not None:
+            seen.setdefault(key, []).append(i)
+    for idx in seen.values():
+        if len(idx) > 1:
+            if np.ptp(rel[idx]) > SAME_EXPOSURE_RTOL * rel[idx].max():
+                raise InputError(
+                    f"{names[idx[0]]}: the same file is given {len(idx)} times with different exposures "
+                    f"({', '.join(format_time(rel[j]) for j in idx)})"
+                )
+            logger.warning("%s: the same file is given %d times; the copies add no information",
+                           names[idx[0]], len(idx))
+    groups = []
+    assigned = [False] * len(rel)
+    for i in range(len(rel)):
+        if assigned[i]:
+            continue
+        group = [j for j in range(i, len(rel)) if not assigned[j]
+                 and abs(rel[j] - rel[i]) <= SAME_EXPOSURE_RTOL * max(rel[i], rel[j])]
+        for j in group:
+            assigned[j] = True
+        if len(group) > 1:
+            groups.append(group)
+    distinct = len(rel) - sum(len(g) - 1 for g in groups)
+    if distinct < 2:
+        raise InputError(
+            f"{names[0]}: all {len(rel)} frames have the same exposure ({format_time(rel[0])}); "
+            "a bracket needs at least two different exposures"
+        )
+    for g in groups:
+        logger.info("%s share one exposure (%s); they are fused together",
+                    ", ".join(os.path.basename(names[j]) for j in g), format_time(rel[g[0]]))
+    return groups
