@@ -290,9 +290,6 @@ def merge_files(
             order = np.argsort(rel, kind="stable")
             check = ExposureCheck(np.log(rel[order]), fusion_tables(resp, source.dtype, nch, weight)[0],
                                   [paths[i] for i in order])
-        model = None
-        if deghost and not hasattr(source, "frames"):
-            model = _ghost_model(paths, infos, rel, rgb, resp, weight, ghost_threshold)
         if shifts is not None:
             meta["alignShifts"] = [list(map(int, sh)) for sh in shifts]
         with RadianceWriter(output, w, h, nch, dtype=dtype, compression=compression, metadata=meta) as writer:
@@ -304,7 +301,7 @@ def merge_files(
                 sink = ScaledSink(sink, factors)
             counts, backend = stream_merge(source, rel, resp, sink, weight=weight, ignore_color=ignore,
                                            has_valid=has_valid, device=device, thumbnail=thumb,
-                                           deghost=deghost, ghost_mask=mask, ghost_model=model,
+                                           deghost=deghost, ghost_mask=mask,
                                            ghost_reference=ghost_reference, ghost_threshold=ghost_threshold,
                                            exposure_check=check)
             if check is not None:
@@ -367,20 +364,6 @@ def _report_exposure_check(check, result, tolerance):
     for m in msgs:
         logger.warning("%s", m)
         result.warnings.append(m)
-
-
-def _ghost_model(paths, infos, times, rgb, resp, weight, threshold):
-    """The set's residual distribution for deghosting a streamed merge, learnt on the
-    decimated grid (one extra streaming pass)."""
-    from hdrcl.core import deghost as dg
-    from hdrcl.core.fusion import fusion_tables
-
-    grid = _grid_bracket(paths, infos, times, rgb)
-    order = np.argsort(np.asarray(times, np.float64), kind="stable")
-    tables, wts = fusion_tables(resp, grid.frames[0].dtype, grid.frames[0].shape[2], weight)
-    valid = [grid.valid[i] for i in order]
-    return dg.learn([grid.frames[i] for i in order], np.log(np.asarray(times, np.float64)[order]), tables, wts,
-                    valid if any(v is not None for v in valid) else None, threshold)
 
 
 class _Rescaled:

@@ -66,6 +66,27 @@ class Thumbnail:
         self.array[g0:g0 + rows.shape[0]] = rows
 
 
+def _learn_ghosts(source, order, log_t, tables, wts, ignore_color, threshold):
+    """The set's residual distribution (:func:`hdrcl.core.deghost.learn`) from the frames
+    of an in-memory source, or from a decimated grid of a streamed one (one extra
+    decoding pass)."""
+    from hdrcl.core import deghost as dg
+    from hdrcl.io.reader import ignore_color_mask
+
+    if hasattr(source, "frames"):
+        frames, valid = source.frames, source.valid
+    else:
+        from hdrcl.core.sampling import grid_stride
+
+        frames, valid = source.read_grid(grid_stride(source.height, source.width))
+    if ignore_color is not None:
+        valid = [(~ignore_color_mask(f, ignore_color)) if v is None else (v & ~ignore_color_mask(f, ignore_color))
+                 for f, v in zip(frames, valid)]
+    vs = [valid[i] for i in order]
+    return dg.learn([frames[i] for i in order], log_t, tables, wts,
+                    vs if any(v is not None for v in vs) else None, threshold)
+
+
 def stream_merge(
     source,
     times: Sequence[float],
@@ -145,11 +166,7 @@ def stream_merge(
 
         ref = dg.reference_index(times, ghost_reference)
         if ghost_model is None:
-            if not hasattr(source, "frames"):
-                raise ValueError("stream_merge: deghost on a streamed source needs ghost_model")
-            vs = [source.valid[i] for i in order]
-            ghost_model = dg.learn([source.frames[i] for i in order], log_t, tables, wts,
-                                   vs if any(v is not None for v in vs) else None, ghost_threshold)
+            ghost_model = _learn_ghosts(source, order, log_t, tables, wts, ignore_color, ghost_threshold)
     # Output strips: one being fused, one held back (deghost: its mask's growth into the
     # next strip is not known yet), two being written or queued.
     buffers = deque(np.empty((rows, source.width, nch), np.float32) for _ in range(4))
