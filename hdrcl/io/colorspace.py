@@ -74,13 +74,13 @@ def matrix(src: str, dst: str) -> np.ndarray:
 
 
 def convert(rgb: np.ndarray, src: str, dst: str) -> np.ndarray:
-    """``(..., 3)`` linear RGB from ``src`` to ``dst`` (float32 in, float32 out);
+    """``(..., 3)`` linear RGB from ``src`` to ``dst`` (float32 out);
     grey ``(..., 1)`` data is returned as is (both spaces share the neutral axis)."""
     data = np.asarray(rgb, np.float32)
     if check(src) == check(dst) or data.shape[-1] != 3:
         return data
-    m = matrix(src, dst).astype(np.float32)
-    return np.ascontiguousarray(data @ m.T)
+    # float64 arithmetic, float32 result: one rounding per value.
+    return np.ascontiguousarray((data.astype(np.float64) @ matrix(src, dst).T).astype(np.float32))
 
 
 def from_file_tag(tag) -> str:

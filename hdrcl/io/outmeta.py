@@ -145,12 +145,14 @@ def inapplicable_options(path, dtype: Optional[str] = None, compression: Optiona
     return out
 
 
-def camera_from_infos(infos: Sequence, *, owner: Optional[str] = None, units: str = "relative") -> dict:
+def camera_from_infos(infos: Sequence, *, owner: Optional[str] = None, units: str = "relative",
+                      reference: Optional[tuple] = None) -> dict:
     """The ``camera`` mapping of :func:`standard_attributes` from the frames' headers.
 
     Make, model, lens, focal length and owner come from the first frame that has them;
-    the reference exposure (1 s at the first frame's f-number and ISO) only when the map
-    is in relative units.
+    the reference exposure (1 s at the first frame's f-number and ISO, or at
+    ``reference = (f-number, ISO)`` where the caller set another, as ``hdrcl batch``
+    does for a shoot) only when the map is in relative units.
     """
     cam: dict = {}
     for key in ("make", "model", "lens", "focal_length"):
@@ -160,6 +162,7 @@ def camera_from_infos(infos: Sequence, *, owner: Optional[str] = None, units: st
                      None)
     cam["owner"] = owner
     if units == "relative" and infos:
-        cam.update({"exposure_time": 1.0, "fnumber": getattr(infos[0], "fnumber", None),
-                    "iso": getattr(infos[0], "iso", None)})
+        n, iso = reference if reference is not None else (getattr(infos[0], "fnumber", None),
+                                                          getattr(infos[0], "iso", None))
+        cam.update({"exposure_time": 1.0, "fnumber": n, "iso": iso})
     return {k: v for k, v in cam.items() if v not in (None, "")}
