@@ -101,6 +101,7 @@ th{font-weight:600;white-space:nowrap;color:#444}
 .plots{display:flex;flex-direction:column;gap:10px;margin-top:10px}
 .plots figure{margin:0}
 .plots img{width:100%;height:auto;border:1px solid #eee}
+.plots img.map{width:auto;max-width:100%;max-height:320px}
 figcaption{font-size:.85em;color:#555}
 .legend{display:flex;flex-wrap:wrap;gap:4px 10px;font-size:.85em;color:#333;margin-top:4px}
 .legend span::before{content:"";display:inline-block;width:14px;height:10px;margin-right:4px;
@@ -190,7 +191,7 @@ def _plots(entry) -> List[str]:
         no_data = f is not None and f.valid_pixels < f.shape[0] * f.shape[1]
         legend = "".join(f'<span style="--c:{c}">{_e(label)}</span>'
                          for label, c in coverage_legend(frames, no_data=no_data))
-        plots.append(f'<figure>{_img(files["coverage"], entry.name + ": coverage map")}'
+        plots.append(f'<figure>{_img(files["coverage"], entry.name + ": coverage map", "map")}'
                      f'<figcaption>Frames measuring each pixel (its least-measured channel).</figcaption>'
                      f'<div class="legend">{legend}</div></figure>')
     return ['<div class="plots">' + "".join(plots) + "</div>"] if plots else []
