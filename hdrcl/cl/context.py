@@ -261,7 +261,8 @@ def get_context(spec: Optional[str] = None) -> DeviceContext:
                     _report[did] = ("selected", "the first GPU that builds the kernels"
                                     if dev.type & cl.device_type.GPU else
                                     ("no GPU builds the kernels" if any_gpu else "no GPU")
-                                    + "; the first CPU driver that builds them, in hdrcl's order: " + ", then ".join(cpu_driver_order()))
+                                    + "; the first CPU driver that builds them, in hdrcl's order: "
+                                    + ", then ".join(cpu_driver_order()))
                     continue
                 name = f"{dev.platform.name.strip()} / {dev.name.strip()}"
                 logger.info("skipping OpenCL device %s: %s", name, problem)
