@@ -43,7 +43,7 @@ _HDR_HEADER_MAX = 1 << 16
 
 
 def software() -> str:
-    from hdrcl import __version__
+    from hdrcl.version import __version__
 
     return f"hdrcl {__version__}"
 

@@ -259,7 +259,7 @@ def contact_sheet_html(entries: Sequence, title: str = "hdrcl quality report",
     """The contact sheet page for ``entries`` and the ``unmerged`` groups of
     :func:`hdrcl.report.inputs.write_unmerged` (see
     :func:`hdrcl.report.pages.write_contact_sheet`)."""
-    from hdrcl import __version__
+    from hdrcl.version import __version__
 
     entries = list(entries)
     failed = sum(1 for e in entries if e.status == STATUS_FAILED)

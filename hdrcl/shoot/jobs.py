@@ -8,8 +8,8 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
-from hdrcl import __version__
 from hdrcl.core.response import default_smoothness
+from hdrcl.version import __version__
 
 #: Name of the report written into the output folder.
 REPORT_NAME = "report.json"

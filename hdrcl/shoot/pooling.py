@@ -12,7 +12,6 @@ from typing import Dict, List, Sequence
 
 import numpy as np
 
-from hdrcl import __version__
 from hdrcl.core.response import Response
 from hdrcl.errors import HdrclError, InputError
 from hdrcl.shoot.jobs import (
@@ -30,6 +29,7 @@ from hdrcl.shoot.state import (
     _json_digest,
     response_digest,
 )
+from hdrcl.version import __version__
 
 logger = logging.getLogger(__name__)
 

@@ -13,10 +13,10 @@ import secrets
 import time as _time
 from typing import Dict, List, Sequence, Tuple
 
-from hdrcl import __version__
 from hdrcl.errors import HdrclError, InputError
 from hdrcl.shoot.jobs import BatchOptions, SetJob, SetResult
 from hdrcl.shoot.plan import _Plan
+from hdrcl.version import __version__
 
 logger = logging.getLogger(__name__)
 
