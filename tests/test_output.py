@@ -207,3 +207,34 @@ def test_memorial_example_warns_only_when_earned(memorial, tmp_path, caplog):
     assert warnings == []
     spec = _spec(tmp_path / "m.exr")
     assert spec.getattribute("Software") == "hdrcl 0.1.0" and spec.getattribute("ExposureTime") == 1.0
+
+
+def test_batch_colorspace_and_preview_operator(tmp_path):
+    """``batch --colorspace acescg --tonemap filmic``: AP1 EXRs with the camera's metadata,
+    filmic previews; changing only the operator rebuilds the previews, not the EXRs."""
+    from click.testing import CliRunner
+
+    from hdrcl.cli import main
+    from hdrcl.io.radiance import read_metadata
+
+    runner = CliRunner()
+    shoot, out = tmp_path / "shoot", tmp_path / "out"
+    assert runner.invoke(main, ["sample-shoot", str(shoot)]).exit_code == 0
+    res = runner.invoke(main, ["batch", str(shoot), "-o", str(out), "--colorspace", "acescg", "--tonemap", "filmic"])
+    assert res.exit_code == 0, res.output
+    exrs = sorted(out.glob("*.exr"))
+    assert len(exrs) == 3
+    spec = _spec(exrs[0])
+    np.testing.assert_allclose(spec.getattribute("chromaticities"), AP1, atol=1e-6)
+    assert spec.getattribute("oiio:ColorSpace") == "lin_ap1_scene"
+    assert spec.getattribute("cameraModel") == "Synthetic Camera" and spec.getattribute("Software") == "hdrcl 0.1.0"
+    assert read_metadata(exrs[0].with_suffix(".jpg"))["tonemap"] == "filmic"
+    before = {p.name: p.stat().st_mtime_ns for p in exrs}
+    res = runner.invoke(main, ["batch", str(shoot), "-o", str(out), "--colorspace", "acescg", "--tonemap", "drago"])
+    assert res.exit_code == 0, res.output
+    assert {p.name: p.stat().st_mtime_ns for p in sorted(out.glob("*.exr"))} == before
+    assert read_metadata(exrs[0].with_suffix(".jpg"))["tonemap"] == "drago"
+    # Another colour space is another output: the EXRs are merged again.
+    res = runner.invoke(main, ["batch", str(shoot), "-o", str(out), "--tonemap", "drago"])
+    assert res.exit_code == 0, res.output
+    assert _spec(exrs[0]).getattribute("oiio:ColorSpace") == "lin_rec709_scene"

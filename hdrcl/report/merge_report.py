@@ -24,9 +24,10 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
     """Quality figures of a file merge and their report in ``folder``.
 
     Writes the set's preview, frame thumbnails, plots and JSON, and an ``index.html``
-    contact sheet over every set in ``folder`` (earlier runs' too; :mod:`hdrcl.report.pages`). The frames are read again: whole
-    when they fit :func:`memory_budget`, else as the sampling grid (the clipping and
-    coverage figures are then on that grid).
+    contact sheet over every set in ``folder`` (earlier runs' too;
+    :mod:`hdrcl.report.pages`). The frames are read again: whole when they fit
+    :func:`memory_budget`, else as the sampling grid (the clipping and coverage figures
+    are then on that grid).
 
     Returns
     -------

@@ -287,7 +287,8 @@ def tonemap_file(radiance_path, output, operator: str = "reinhard", *, exposure:
     output = os.fspath(output)
     ext = os.path.splitext(output)[1].lower()
     if ext not in LDR_EXTENSIONS:
-        raise UsageError(f"{output}: unsupported output type '{ext or '(none)'}'; use one of {', '.join(LDR_EXTENSIONS)}")
+        raise UsageError(f"{output}: unsupported output type '{ext or '(none)'}'; "
+                         f"use one of {', '.join(LDR_EXTENSIONS)}")
     bits = 8 if bits is None else int(bits)
     if ext in (".jpg", ".jpeg") and bits == 16:
         raise UsageError(f"{output}: JPEG holds 8 bits; use .png or .tif for 16-bit output")
