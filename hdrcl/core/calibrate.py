@@ -35,6 +35,7 @@ def calibrate(
     seed: int = 0,
     fit_exposures: str = "auto",
     exposure_tolerance: Optional[float] = None,
+    warn: bool = True,
 ) -> Response:
     """Recover the camera response from a bracket set.
 
@@ -46,8 +47,11 @@ def calibrate(
     changes a frame only when the pixels contradict it decisively and the change lowers
     the fit error; ``on`` uses the pixel estimate for every frame; ``off`` never fits.
     The curve's span in decades (codes 10..245) is logged, and an 8-bit curve spanning
-    more than 4 decades is warned about (``Response.warnings``). The times used are recorded per frame in ``Response.exposures``
+    more than 4 decades is warned about (``Response.warnings``). The times used are
+    recorded per frame in ``Response.exposures``
     (``nominal``, ``fitted``, ``used``) and a merge of the same set uses them.
+    ``warn=False`` keeps the curve's problems out of the log (they stay in
+    ``Response.warnings``): for re-solves the user did not ask for.
 
     Returns
     -------
@@ -83,7 +87,7 @@ def calibrate(
                                  samples=samples, seed=seed, tolerance=exposure_tolerance, decimate=not br.grid)
     fitted = None if fit is None else fit.fitted
     resp = recover_response(br.frames, used, valid=br.valid_all, samples=samples,
-                            smoothness=smoothness, weight=weight, seed=seed, decimate=not br.grid)
+                            smoothness=smoothness, weight=weight, seed=seed, decimate=not br.grid, warn=warn)
     resp.camera = br.camera
     resp.exposures = [
         {"file": os.path.basename(n), "nominal": float(t), "fitted": None if fitted is None else float(f),
