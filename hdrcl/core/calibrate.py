@@ -84,7 +84,8 @@ def calibrate(
 
     names = br.paths or [f"image {k}" for k in range(len(br.frames))]
     used, fit = verify_exposures(br.frames, br.times, names, mode=fit_exposures, valid=br.valid_all,
-                                 samples=samples, seed=seed, tolerance=exposure_tolerance, decimate=not br.grid)
+                                 samples=samples, seed=seed, tolerance=exposure_tolerance, decimate=not br.grid,
+                                 warn=warn)
     fitted = None if fit is None else fit.fitted
     resp = recover_response(br.frames, used, valid=br.valid_all, samples=samples,
                             smoothness=smoothness, weight=weight, seed=seed, decimate=not br.grid, warn=warn)
@@ -93,18 +94,20 @@ def calibrate(
         {"file": os.path.basename(n), "nominal": float(t), "fitted": None if fitted is None else float(f),
          "used": float(u)}
         for n, t, f, u in zip(names, br.times, fitted if fitted is not None else br.times, used)]
-    report_span(resp)
+    report_span(resp, warn)
     return resp
 
 
-def report_span(resp: Response) -> float:
-    """Log the curve's span in decades (codes 10..245) and warn, into ``resp.warnings``
-    too, when an 8-bit curve is stretched (:meth:`Response.span_problem`)."""
+def report_span(resp: Response, warn: bool = True) -> float:
+    """Log the curve's span in decades (codes 10..245) and warn (``warn``), into
+    ``resp.warnings`` too, when an 8-bit curve is stretched (:meth:`Response.span_problem`)."""
     span = resp.span_decades()
-    logger.info("response spans %.2f decades between codes 10 and 245", span)
+    logger.log(logging.INFO if warn else logging.DEBUG, "response spans %.2f decades between codes 10 and 245",
+               span)
     problem = resp.span_problem()
     if problem and problem not in resp.warnings:
-        logger.warning("%s", problem)
+        if warn:
+            logger.warning("%s", problem)
         resp.warnings.append(problem)
     return span
 

@@ -296,7 +296,7 @@ def fit_exposures(
 
 
 def verify_exposures(frames, times, names, *, mode: str = "auto", valid=None, samples=None, seed: int = 0,
-                     tolerance: Optional[float] = None, decimate: bool = True):
+                     tolerance: Optional[float] = None, decimate: bool = True, warn: bool = True):
     """Exposures a calibration should use, with what the pixels said about the metadata.
 
     ``mode`` ``off`` keeps the metadata; ``auto`` changes only the frames
@@ -315,7 +315,8 @@ def verify_exposures(frames, times, names, *, mode: str = "auto", valid=None, sa
         raise UsageError(f"--fit-exposures: '{mode}' is not one of auto, on, off")
     nominal = np.asarray(times, np.float64)
     tol = EXPOSURE_TOLERANCE_STOPS if tolerance is None else float(tolerance)
-    _check_identical(frames, nominal, names, tol)
+    level = logging.WARNING if warn else logging.DEBUG
+    _check_identical(frames, nominal, names, tol, level)
     if mode == "off" or len(frames) < 3:
         return nominal.copy(), None
     # The fit uses the paper's hat weights: their wide overlap between frames conditions
@@ -325,15 +326,15 @@ def verify_exposures(frames, times, names, *, mode: str = "auto", valid=None, sa
     base = [os.path.basename(n) for n in names]
     for k in np.flatnonzero(fit.contradicted):
         change = fit.flagged[k] and mode == "auto"
-        logger.warning("%s: metadata says %s but the pixels say %s (%+.2f stops); %s", base[k],
+        logger.log(level, "%s: metadata says %s but the pixels say %s (%+.2f stops); %s", base[k],
                        format_time(fit.nominal[k]), format_time(fit.fitted[k]), fit.stops[k],
                        "using the fitted exposure" if change or mode == "on" else
                        "metadata kept (" + fit.note + ")")
     for i, j in fit.same:
-        logger.warning("%s and %s are at the same exposure (the pixels say %s; the metadata says %s and %s)",
+        logger.log(level, "%s and %s are at the same exposure (the pixels say %s; the metadata says %s and %s)",
                        base[i], base[j], format_time(fit.fitted[i] if fit.flagged[i] else fit.nominal[i]),
                        format_time(fit.nominal[i]), format_time(fit.nominal[j]))
-    logger.info("exposure check: %s", fit.note)
+    logger.log(logging.INFO if warn else logging.DEBUG, "exposure check: %s", fit.note)
     if mode == "on":
         used = fit.fitted.copy() if fit.trusted is not None and fit.trusted.any() else nominal.copy()
     else:
@@ -341,14 +342,14 @@ def verify_exposures(frames, times, names, *, mode: str = "auto", valid=None, sa
     return used, fit
 
 
-def _check_identical(frames, nominal, names, tol):
+def _check_identical(frames, nominal, names, tol, level=logging.WARNING):
     """Warn about frames with identical pixels labelled with different exposures."""
     p = len(frames)
     for i in range(p):
         for j in range(i + 1, p):
             if (abs(np.log2(nominal[j] / nominal[i])) > tol and frames[i].shape == frames[j].shape
                     and np.array_equal(frames[i], frames[j])):
-                logger.warning("%s and %s have identical pixels but exposures %g s and %g s; "
+                logger.log(level, "%s and %s have identical pixels but exposures %g s and %g s; "
                                "the same photograph given twice?", os.path.basename(names[i]),
                                os.path.basename(names[j]), nominal[i], nominal[j])
 
