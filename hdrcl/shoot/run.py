@@ -70,6 +70,7 @@ from dataclasses import replace
 from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 from hdrcl.errors import UsageError
+from hdrcl.shoot.claims import Cancelled, cancel_signals, remove_orphan_temps
 from hdrcl.shoot.jobs import (
     REPORT_NAME,
     STATUS_FAILED,
@@ -112,7 +113,8 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
         started[job.index] = _time.perf_counter()
         return _read_stage(job, ctx)
 
-    with ThreadPoolExecutor(1, thread_name_prefix="hdrcl-readahead") as reader:
+    reader = ThreadPoolExecutor(1, thread_name_prefix="hdrcl-readahead")
+    try:
         ahead = reader.submit(read, jobs[0])
         for i in range(len(jobs)):
             step = ahead.result()
@@ -122,6 +124,9 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
                 step = _merge_stage(step, ctx)
             step.seconds["total"] = _time.perf_counter() - started[step.index]
             emit(step)
+    finally:
+        # Cancelled: do not wait for the read-ahead of a set that will not be merged.
+        reader.shutdown(wait=False, cancel_futures=True)
 
 
 # --------------------------------------------------------------------------- run
@@ -142,6 +147,7 @@ def run_batch(
     frames_per_set: Optional[int] = None,
     gap: Optional[float] = None,
     progress: Optional[Callable[[Optional[SetResult], int, int], None]] = None,
+    times_file: Union[str, os.PathLike, None] = None,
 ) -> BatchReport:
     """Merge every bracket set of a shoot into ``out_dir``.
 
@@ -177,6 +183,15 @@ def run_batch(
     progress : callable, optional
         ``progress(result, completed, total)``; called once with ``result=None``
         before the first set, then after each set.
+    times_file : path, optional
+        Exposure list (HDRShop ``image_list.txt`` or ``file seconds`` lines) for frames
+        without EXIF; lists named ``image_list.txt`` or ``times.txt`` beside the frames
+        are found without it.
+
+    SIGTERM and SIGINT (in the main thread) stop the run within a couple of seconds:
+    worker processes are killed, temporary files of unfinished sets removed, and the
+    report written for the sets that finished; ``BatchReport.cancelled`` holds the
+    signal (exit code 143 or 130).
 
     Returns
     -------
@@ -213,7 +228,7 @@ def run_batch(
             raise UsageError(f"{report_dir}: --report is not a folder")
         options = replace(options, report_dir=report_dir)
     manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap,
-                           exclude=[out_dir] + ([report_dir] if report_dir else []))
+                           exclude=[out_dir] + ([report_dir] if report_dir else []), times_file=times_file)
     for folder, what in ((out_dir, "output"), (report_dir, "report")):
         if folder is None:
             continue
@@ -231,7 +246,7 @@ def run_batch(
     rep = BatchReport(unmerged=[{"files": [os.path.abspath(f) for f in u.files], "reason": u.reason}
                                 for u in manifest.unmerged],
                       responses=[responses[g] for g in sorted(responses)], unreadable=unreadable,
-                      reference=plan.reference)
+                      reference=plan.reference, sets_in_manifest=len(plan.jobs))
     if calibrate_only:
         rep.seconds = _time.perf_counter() - t_start
         return rep
@@ -251,16 +266,24 @@ def run_batch(
 
     if progress is not None:
         progress(None, 0, total)
-    if scheduler is not None:
-        from hdrcl.shoot.executors import run_dask
+    stems = [os.path.splitext(os.path.basename(j.output))[0] for j in plan.selected]
+    with cancel_signals():
+        try:
+            if scheduler is not None:
+                from hdrcl.shoot.executors import run_dask
 
-        run_dask(plan.selected, ctx, scheduler, emit, task=process_set, failed=_failed, retries=retries)
-    elif jobs > 1 and total > 1:
-        from hdrcl.shoot.executors import run_processes
+                run_dask(plan.selected, ctx, scheduler, emit, task=process_set, failed=_failed, retries=retries)
+            elif jobs > 1 and total > 1:
+                from hdrcl.shoot.executors import run_processes
 
-        run_processes(plan.selected, ctx, emit, task=process_set, failed=_failed, jobs=min(jobs, total))
-    else:
-        _run_pipelined(plan.selected, ctx, emit)
+                run_processes(plan.selected, ctx, emit, task=process_set, failed=_failed, jobs=min(jobs, total))
+            else:
+                _run_pipelined(plan.selected, ctx, emit)
+        except Cancelled as exc:
+            rep.cancelled = exc.signum
+            logger.warning("%s: %d of %d set(s) finished; stopping", exc, len(results), total)
+            # The workers are dead and their claims released: their temporary files go.
+            remove_orphan_temps(out_dir, stems)
 
     rep.results = sorted(results, key=lambda r: r.index)
     report_path = os.path.abspath(os.fspath(report)) if report is not None else os.path.join(out_dir, REPORT_NAME)

@@ -1,0 +1,206 @@
+"""The scene itself: small exposure-normalised thumbnails of frames, compared.
+
+Two frames of one bracket show the same scene from a tripod (or nearly so, hand held);
+the next set usually shows another. :func:`compare` tells them apart from thumbnails
+of :data:`GRID` cells (luminance, area-averaged, so a few pixels of hand shake do not
+matter), using the pixels well exposed in both frames:
+
+* the **rank correlation** of the two frames' values: a camera's response is monotonic,
+  so one scene keeps the order of its pixels at any exposure (whatever the tone curve);
+  another scene does not;
+* the **offset** after normalising by the relative exposure (``t * ISO / N**2``,
+  values linearised with gamma 2.2): one scene lines up within a few stops (the tone
+  curve is not exactly 2.2); the same framing lit 6 stops brighter is another scene.
+
+The verdict is ``"same"``, ``"changed"`` or ``"unknown"`` (too few pixels well exposed
+in both frames, e.g. 4 stops apart, or no thumbnail).
+
+Thumbnails are read cheaply: a JPEG's embedded EXIF thumbnail when it has one, else
+(with OpenCV installed) the JPEG decoded at 1/8 scale by libjpeg's DCT scaling, else the
+smallest MIP level of a tiled TIFF/EXR, else a full decode reduced by area averaging.
+Camera RAW files give no thumbnail here (their verdict is ``"unknown"``).
+"""
+from __future__ import annotations
+
+import logging
+import math
+import os
+from dataclasses import dataclass
+from typing import Dict, Optional
+
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["GRID", "Thumb", "Verdict", "read_thumb", "compare", "SceneCache"]
+
+#: Thumbnail size (rows, columns).
+GRID = (24, 32)
+# Code values (0..1) that count as well exposed.
+_LO, _HI = 0.04, 0.94
+#: Same scene: rank correlation at least this; changed: below _RHO_CHANGED.
+RHO_SAME, RHO_CHANGED = 0.8, 0.5
+#: Exposure-normalised offset (stops) beyond which the scene changed.
+OFFSET_CHANGED = 5.0
+
+_RAW = (".cr2", ".cr3", ".nef", ".arw", ".dng", ".raf", ".rw2", ".orf", ".pef", ".srw")
+
+
+@dataclass
+class Thumb:
+    """A frame's luminance on :data:`GRID` (code values 0..1) and its exposure."""
+
+    lum: np.ndarray
+    exposure: float  # t * ISO/100 / N**2 (relative; 1 where unknown)
+
+
+@dataclass
+class Verdict:
+    """Outcome of :func:`compare`: ``kind`` is ``"same"``, ``"changed"`` or ``"unknown"``."""
+
+    kind: str
+    rho: Optional[float] = None
+    offset: Optional[float] = None
+    pixels: int = 0
+
+    def describe(self) -> str:
+        if self.kind == "unknown":
+            return "scene not comparable" if self.pixels else "no thumbnail"
+        word = "same scene" if self.kind == "same" else "scene changed"
+        return f"{word} (match {self.rho:.2f}, {self.offset:+.1f} EV)"
+
+
+def _reduce(y: np.ndarray) -> np.ndarray:
+    """Area-average a 2-D array onto :data:`GRID`."""
+    gh, gw = GRID
+    h, w = y.shape
+    if h < gh or w < gw:
+        ys = np.minimum((np.arange(gh) * h) // gh, h - 1)
+        xs = np.minimum((np.arange(gw) * w) // gw, w - 1)
+        return y[np.ix_(ys, xs)].astype(np.float64)
+    yb = np.linspace(0, h, gh + 1).astype(int)
+    xb = np.linspace(0, w, gw + 1).astype(int)
+    s = np.add.reduceat(np.add.reduceat(y.astype(np.float64), yb[:-1], 0), xb[:-1], 1)
+    return s / np.outer(np.diff(yb), np.diff(xb))
+
+
+def _lum(a: np.ndarray) -> np.ndarray:
+    if a.ndim == 2:
+        return a
+    if a.shape[2] >= 3:
+        return a[:, :, :3].mean(axis=2)
+    return a[:, :, 0]
+
+
+def _to_unit(a: np.ndarray) -> np.ndarray:
+    if a.dtype == np.uint8:
+        return a.astype(np.float32) / 255.0
+    if a.dtype == np.uint16:
+        return a.astype(np.float32) / 65535.0
+    return a.astype(np.float32)
+
+
+def _decode(path: str) -> Optional[np.ndarray]:
+    """Pixels of a reduced-resolution version of ``path`` (any size), or None."""
+    import OpenImageIO as oiio
+
+    ext = os.path.splitext(path)[1].lower()
+    if ext in _RAW:
+        return None
+    inp = oiio.ImageInput.open(path)
+    if inp is None:
+        return None
+    try:
+        try:  # the embedded EXIF thumbnail (cameras write 160x120)
+            th = inp.get_thumbnail(0)
+        except Exception:  # older OIIO
+            th = None
+        if th is not None and th.spec().width >= GRID[1]:
+            return np.asarray(th.get_pixels(oiio.FLOAT))
+        full = inp.spec()
+        if ext in (".jpg", ".jpeg") and full.width >= 4 * GRID[1] and full.height >= 4 * GRID[0]:
+            try:
+                import cv2  # libjpeg decodes at 1/8 scale from the DCT coefficients
+            except ImportError:
+                cv2 = None
+            if cv2 is not None:
+                k = 8 if full.width >= 8 * 2 * GRID[1] else (4 if full.width >= 4 * 2 * GRID[1] else 2)
+                flag = {8: cv2.IMREAD_REDUCED_GRAYSCALE_8, 4: cv2.IMREAD_REDUCED_GRAYSCALE_4,
+                        2: cv2.IMREAD_REDUCED_GRAYSCALE_2}[k]
+                a = cv2.imread(path, flag | cv2.IMREAD_IGNORE_ORIENTATION)
+                if a is not None:
+                    return a
+        spec = inp.spec()
+        level, n = 0, 0
+        while inp.seek_subimage(0, n + 1):  # MIP levels of a tiled file: the smallest useful one
+            s = inp.spec()
+            if s.width < GRID[1] or s.height < GRID[0]:
+                break
+            n += 1
+            level, spec = n, s
+        a = inp.read_image(0, level, 0, min(spec.nchannels, 3), "float")
+        return None if a is None else np.asarray(a)
+    finally:
+        inp.close()
+
+
+def read_thumb(info) -> Optional[Thumb]:
+    """The thumbnail of a frame described by ``info`` (a FrameInfo), or None."""
+    from hdrcl.shoot.ladder import exposure_value
+
+    try:
+        a = _decode(os.fspath(info.path))
+    except Exception as exc:  # a damaged file: the header reader reports it elsewhere
+        logger.debug("%s: no thumbnail (%s)", info.path, exc)
+        return None
+    if a is None or a.size == 0:
+        return None
+    ev = exposure_value(info)
+    return Thumb(lum=_reduce(_lum(_to_unit(np.asarray(a)))), exposure=2.0 ** ev if ev is not None else 1.0)
+
+
+def _ranks(x: np.ndarray) -> np.ndarray:
+    r = np.empty(len(x))
+    r[np.argsort(x, kind="stable")] = np.arange(len(x))
+    return r
+
+
+def compare(a: Optional[Thumb], b: Optional[Thumb]) -> Verdict:
+    """Whether two thumbnails show the same scene (see the module docstring)."""
+    if a is None or b is None or a.lum.shape != b.lum.shape:
+        return Verdict("unknown")
+    ok = (a.lum > _LO) & (a.lum < _HI) & (b.lum > _LO) & (b.lum < _HI)
+    n = int(ok.sum())
+    if n < max(24, 0.06 * ok.size):
+        return Verdict("unknown", pixels=n)
+    la = 2.2 * np.log2(a.lum[ok]) - math.log2(a.exposure)
+    lb = 2.2 * np.log2(b.lum[ok]) - math.log2(b.exposure)
+    ra, rb = _ranks(la), _ranks(lb)
+    if ra.std() == 0 or rb.std() == 0:
+        return Verdict("unknown", pixels=n)
+    rho = float(np.corrcoef(ra, rb)[0, 1])
+    offset = float(np.median(lb - la))
+    if rho < RHO_CHANGED or abs(offset) > OFFSET_CHANGED:
+        kind = "changed"
+    elif rho >= RHO_SAME:
+        kind = "same"
+    else:
+        kind = "unknown"
+    return Verdict(kind, rho=round(rho, 3), offset=round(offset, 2), pixels=n)
+
+
+class SceneCache:
+    """Thumbnails read once per frame, on first use, by path."""
+
+    def __init__(self):
+        self._cache: Dict[str, Optional[Thumb]] = {}
+
+    def thumb(self, info) -> Optional[Thumb]:
+        key = os.fspath(info.path)
+        if key not in self._cache:
+            self._cache[key] = read_thumb(info)
+        return self._cache[key]
+
+    def compare(self, a, b) -> Verdict:
+        """:func:`compare` of two frames (FrameInfo)."""
+        return compare(self.thumb(a), self.thumb(b))
