@@ -198,23 +198,57 @@ def split_stream(frames: List[FrameInfo], gap: Optional[float], compare: Compare
 
 
 def _bridge(groups: List[_Group], compare: Compare) -> List[_Group]:
-    """Join runs that only a long gap separated and that form one ladder (pass 2)."""
+    """Join runs that only a long gap separated and that form one ladder (pass 2).
+
+    Runs linked by long gaps form a chain; of the ways to cut a chain into ladders the
+    one with the largest sum of squared set sizes wins, so a stray frame before a hand
+    ladder stays alone instead of taking the ladder's first frame with it.
+    """
     out: List[_Group] = []
-    for grp in groups:
-        if out and out[-1].reason.startswith("gap "):
-            p = out[-1]
-            why = _bridge_reason(p, grp, compare)
-            if why is not None:
-                p.gaps.append(_gap(p.frames[-1], grp.frames[0]))
-                p.joins.append(why)
-                p.frames.extend(grp.frames)
-                p.gaps.extend(grp.gaps)
-                p.joins.extend(grp.joins)
-                p.reason = grp.reason
-                continue
-            p.reason += _no_bridge_note(p, grp, compare)
-        out.append(grp)
+    i = 0
+    while i < len(groups):
+        e = i
+        while e + 1 < len(groups) and groups[e].reason.startswith("gap "):
+            e += 1
+        out.extend(_bridge_chain(groups[i:e + 1], compare))
+        i = e + 1
     return out
+
+
+def _joined(a: _Group, b: _Group, why: str) -> _Group:
+    return _Group(a.frames + b.frames, b.reason, a.gaps + [_gap(a.frames[-1], b.frames[0])] + b.gaps,
+                  a.joins + [why] + b.joins)
+
+
+def _bridge_chain(runs: List[_Group], compare: Compare) -> List[_Group]:
+    m = len(runs)
+    if m == 1:
+        return runs
+    valid = {}
+    for i in range(m):
+        acc = _Group(list(runs[i].frames), runs[i].reason, list(runs[i].gaps), list(runs[i].joins))
+        valid[(i, i)] = acc
+        for j in range(i + 1, m):
+            why = _bridge_reason(acc, runs[j], compare)
+            if why is None:
+                break  # a union that is no ladder never becomes one by growing
+            acc = _joined(acc, runs[j], why)
+            valid[(i, j)] = acc
+    best, choice = [0] * (m + 1), [0] * (m + 1)
+    for j in range(1, m + 1):
+        best[j] = -1
+        for i in range(j):
+            g = valid.get((i, j - 1))
+            if g is not None and best[i] + len(g.frames) ** 2 > best[j]:
+                best[j], choice[j] = best[i] + len(g.frames) ** 2, i
+    parts, j = [], m
+    while j > 0:
+        parts.append(valid[(choice[j], j - 1)])
+        j = choice[j]
+    parts.reverse()
+    for a, b in zip(parts, parts[1:]):
+        a.reason += _no_bridge_note(a, b, compare)
+    return parts
 
 
 def _bridge_parts(p: _Group, grp: _Group, compare: Compare):
@@ -254,6 +288,8 @@ def _no_bridge_note(p: _Group, grp: _Group, compare: Compare) -> str:
         return ""
     if verdict is not None and verdict.kind == "changed":
         return f"; {verdict.describe()}"
+    if _bridge_reason(p, grp, compare) is not None:
+        return "; the next frames form a ladder of their own"
     return "; too long to bridge"
 
 
