@@ -147,10 +147,12 @@ def claim_set(out_dir: str, stem: str) -> SetClaim:
 
 
 def remove_orphan_temps(out_dir: str, stems) -> None:
-    """Remove temporary files of sets nobody holds a claim on (their writer is gone)."""
+    """Remove temporary files and claim files of sets nobody holds a claim on (their
+    writer is gone); those of sets a live process works on stay."""
     for stem in stems:
         c = SetClaim(out_dir, stem)
-        if not glob.glob(os.path.join(glob.escape(out_dir), f".{glob.escape(stem)}.tmp-*")):
+        if not (os.path.lexists(c.path)
+                or glob.glob(os.path.join(glob.escape(out_dir), f".{glob.escape(stem)}.tmp-*"))):
             continue
         try:
             got = c.acquire(wait=False)

@@ -256,8 +256,8 @@ class BatchReport:
             "responses": [r.to_dict() for r in self.responses],
             "summary": {"sets": len(self.entries), "done": counts.get(STATUS_DONE, 0),
                         "skipped": counts.get(STATUS_SKIPPED, 0), "failed": counts.get(STATUS_FAILED, 0),
-                        "unreadable_files": len(self.unreadable)},
-            **({"cancelled": signal_name(self.cancelled)} if self.cancelled else {}),
+                        "unreadable_files": len(self.unreadable),
+                        **({"cancelled": signal_name(self.cancelled)} if self.cancelled else {})},
         }
 
 
