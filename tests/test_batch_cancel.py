@@ -205,3 +205,26 @@ def test_nothing_to_merge_exits_non_zero(tmp_path):
     res = CliRunner().invoke(main, ["batch", str(folder), "-o", str(tmp_path / "out")])
     assert res.exit_code == 1
     assert "no bracket sets to merge" in res.output and "single frame" in res.output
+
+
+def test_contact_sheet_lists_unmerged_frames_and_skipped_sets(tmp_path):
+    folder, out = tmp_path / "shoot", tmp_path / "out"
+    make_clean_shoot(folder, sets=3, frames=3)
+    for n in ("IMG_0005.jpg", "IMG_0006.jpg"):  # the third set is left a stray frame
+        os.remove(folder / n)
+    args = ["batch", str(folder), "-o", str(out), "--report", str(out / "report")]
+    assert CliRunner().invoke(main, args).exit_code == 0
+    page = (out / "report" / "index.html").read_text()
+    assert "Not merged (1)" in page and "IMG_0004.jpg: single frame" in page
+    assert "2 sets: 2 merged, 0 failed" in page
+    assert CliRunner().invoke(main, args).exit_code == 0
+    page = (out / "report" / "index.html").read_text()
+    assert "2 sets: 0 merged, 2 skipped (up to date), 0 failed" in page
+
+
+def test_demo_twice_says_skipped(tmp_path, cl_device):
+    args = ["demo", str(tmp_path / "demo"), "--size", "64x48", "--frames", "3"]
+    assert "3 set(s) merged, 0 failed" in CliRunner().invoke(main, args).output
+    again = CliRunner().invoke(main, args)
+    assert again.exit_code == 0, again.output
+    assert "0 set(s) merged, 3 skipped (up to date), 0 failed" in again.output

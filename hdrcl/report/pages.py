@@ -321,16 +321,33 @@ def _card(entry: ReportEntry, index: int) -> str:
     return "\n".join(out)
 
 
-def contact_sheet_html(entries: Sequence[ReportEntry], title: str = "hdrcl quality report") -> str:
+def _unmerged_html(unmerged) -> str:
+    """The frames no set holds, each group with its reason."""
+    if not unmerged:
+        return ""
+    items = []
+    for u in unmerged:
+        files = [os.path.basename(f) for f in u.get("files", [])]
+        more = f" (+{len(files) - 1} more)" if len(files) > 1 else ""
+        items.append(f"<li>{_e(files[0] if files else '?')}{_e(more)}: {_e(u.get('reason', ''))}</li>")
+    return (f'<section class="unmerged" id="unmerged"><h2>Not merged ({len(unmerged)})</h2><ul>'
+            + "".join(items) + "</ul></section>\n")
+
+
+def contact_sheet_html(entries: Sequence[ReportEntry], title: str = "hdrcl quality report",
+                       unmerged: Sequence[dict] = ()) -> str:
     """The contact sheet page for ``entries`` (see :func:`write_contact_sheet`)."""
     from hdrcl.version import __version__
 
     entries = list(entries)
     failed = sum(1 for e in entries if e.status == STATUS_FAILED)
-    merged = sum(1 for e in entries if e.status in (STATUS_DONE, STATUS_SKIPPED))
-    other = len(entries) - failed - merged
-    summary = (f"{len(entries)} set{'s' if len(entries) != 1 else ''}: {merged} merged, {failed} failed"
-               + (f", {other} pending" if other else ""))
+    merged = sum(1 for e in entries if e.status == STATUS_DONE)
+    skipped = sum(1 for e in entries if e.status == STATUS_SKIPPED)
+    other = len(entries) - failed - merged - skipped
+    summary = (f"{len(entries)} set{'s' if len(entries) != 1 else ''}: {merged} merged, "
+               + (f"{skipped} skipped (up to date), " if skipped else "") + f"{failed} failed"
+               + (f", {other} pending" if other else "")
+               + (f"; {sum(len(u.get('files', [])) for u in unmerged)} frame(s) not merged" if unmerged else ""))
     cards = "\n".join(_card(e, i) for i, e in enumerate(entries))
     return (
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
@@ -338,11 +355,11 @@ def contact_sheet_html(entries: Sequence[ReportEntry], title: str = "hdrcl quali
         f"<title>{_e(title)}</title>\n<style>\n{_CSS}\n</style>\n</head>\n<body>\n"
         f"<header><h1>{_e(title)}</h1><p class=\"summary\">{_e(summary)} · hdrcl {_e(__version__)}</p>"
         f"<p id=\"image-check\" data-loaded=\"\" data-total=\"\"></p></header>\n"
-        f"<main>\n{cards}\n</main>\n<script>\n{_SCRIPT}\n</script>\n</body>\n</html>\n")
+        f"<main>\n{cards}\n{_unmerged_html(list(unmerged))}</main>\n<script>\n{_SCRIPT}\n</script>\n</body>\n</html>\n")
 
 
 def write_contact_sheet(folder: Union[str, os.PathLike], entries: Sequence[ReportEntry],
-                        title: str = "hdrcl quality report") -> str:
+                        title: str = "hdrcl quality report", unmerged: Sequence[dict] = ()) -> str:
     """Write ``index.html`` into ``folder``: one card per entry, in the order given.
 
     Each card shows the preview, the figures (:func:`format_figures`), the response and
@@ -352,5 +369,5 @@ def write_contact_sheet(folder: Union[str, os.PathLike], entries: Sequence[Repor
     folder = os.fspath(folder)
     os.makedirs(folder, exist_ok=True)
     path = os.path.join(folder, INDEX_NAME)
-    _write_text(path, contact_sheet_html(entries, title))
+    _write_text(path, contact_sheet_html(entries, title, unmerged))
     return path

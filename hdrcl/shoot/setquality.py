@@ -158,7 +158,7 @@ def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context) -> None:
     _quality_for(res, job, bracket, resp, opened.times, small, opts)
 
 
-def _contact_sheet(plan: "_Plan", entries: List[dict], folder: str) -> str:
+def _contact_sheet(plan: "_Plan", entries: List[dict], folder: str, unmerged=()) -> str:
     """``index.html`` over every set of the manifest, in index order.
 
     ``entries`` are the report's (this run's and earlier runs' into the same folder).
@@ -189,4 +189,4 @@ def _contact_sheet(plan: "_Plan", entries: List[dict], folder: str) -> str:
         elif status is not None:
             card.status = status
         cards.append(card)
-    return write_contact_sheet(folder, cards)
+    return write_contact_sheet(folder, cards, unmerged=list(unmerged))
