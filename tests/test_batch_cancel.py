@@ -228,3 +228,32 @@ def test_demo_twice_says_skipped(tmp_path, cl_device):
     again = CliRunner().invoke(main, args)
     assert again.exit_code == 0, again.output
     assert "0 set(s) merged, 3 skipped (up to date), 0 failed" in again.output
+
+
+def test_batch_has_merges_options(tmp_path):
+    folder, out = tmp_path / "shoot", tmp_path / "out"
+    make_clean_shoot(folder, sets=1, frames=3, width=96, height=64)
+    plain = CliRunner().invoke(main, ["batch", str(folder), "-o", str(out / "plain")])
+    assert plain.exit_code == 0, plain.output
+    args = ["batch", str(folder), "-o", str(out / "opts"), "--align", "--crop", "--neutral", "10,10,8,8",
+            "--fit-exposures", "on"]
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 0, res.output
+    a, b = report_of(out / "plain")["sets"][0], report_of(out / "opts")["sets"][0]
+    assert a["hash"] != b["hash"]  # the options are part of the output's identity
+    rad, meta = read_radiance(b["output"])
+    assert "alignShifts" in meta and rad.shape[2] == 3 and rad.shape[0] <= 64
+    assert CliRunner().invoke(main, ["batch", str(folder), "-o", str(out / "x"), "--crop"]).exit_code == 2
+
+
+def test_times_file_for_frames_without_exif(tmp_path, memorial):
+    folder = tmp_path / "m"
+    folder.mkdir()
+    for k in range(61, 64):
+        shutil.copy(memorial / f"memorial00{k}.png", folder / f"memorial00{k}.png")
+    (tmp_path / "t.txt").write_text("memorial0061.png 32\nmemorial0062.png 16\nmemorial0063.png 8\n")
+    res = CliRunner().invoke(main, ["scan", str(folder)])
+    assert "no exposure time" in res.output
+    res = CliRunner().invoke(main, ["batch", str(folder), "-o", str(tmp_path / "o"), "--times-file",
+                                    str(tmp_path / "t.txt"), "--ignore-color", "0,0,255"])
+    assert res.exit_code == 0 and "1 set(s): 1 done" in res.output, res.output

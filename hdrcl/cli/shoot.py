@@ -246,7 +246,9 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
 
 def _summary(rep) -> None:
     n = len(rep.results)
-    if n == 0:
+    if n == 0 and rep.cancelled:
+        click.echo(f"no set finished before the cancel; report: {rep.path}")
+    elif n == 0:
         click.echo("no bracket sets to merge" + (f"; report: {rep.path}" if rep.path else ""))
         if rep.sets_in_manifest == 0 and rep.unmerged:
             for u in rep.unmerged[:5]:

@@ -16,11 +16,20 @@ bracket set ends and the next begins, using several signals together:
   set, which splits sets shot back to back even when the gap between them is shorter
   than the longest exposure. With auto bracketing the exposure bias sequence (``0, -2,
   +2`` or ``-2, 0, +2``...) is the ladder: a repeated bias value starts a new set. A
-  hand-made monotonic ladder of three or more frames that turns back also restarts.
+  hand-made monotonic ladder of three or more frames that turns back also restarts, and
+  so does an auto-bracket pattern (``0, -2, +2, -4, +4``) that the next frame breaks.
   A change of exposure mode (manual / auto bracket) or of the aperture in the middle of
   a shutter-speed ladder ends the set.
+* **The scene** (with ``compare``, which ``scan_directory`` gives by default): small
+  exposure-normalised thumbnails of a frame and of the set's frame nearest in exposure
+  (:mod:`hdrcl.shoot.scene`); a changed scene ends the set.
+* **Long gaps bridged**: runs that only a long gap separates are joined when together
+  they form one exposure ladder (evenly spaced in ``t``, ``t * ISO`` or the exposure
+  bias, in an order people shoot: :mod:`hdrcl.shoot.ladder`) and the scene matches:
+  hand-made brackets with 5-60 s between frames (:mod:`hdrcl.shoot.splitting`).
 
-No fixed set size is guessed: sets may differ in size. Every set records why it ended.
+No fixed set size is guessed: sets may differ in size. Every set records why it ended
+(:attr:`BracketSet.reason`) and why each frame joined it (:attr:`BracketSet.joins`).
 Groups that cannot be merged are reported in :attr:`Manifest.unmerged`: single frames,
 frames that all share one exposure, aperture bracketing, mixed cameras (possible with
 ``frames_per_set``), frames without an exposure time, unreadable files.
@@ -28,8 +37,8 @@ frames that all share one exposure, aperture bracketing, mixed cameras (possible
 A :class:`Manifest` is the result; it is written to and read from JSON so a user can
 hand-edit the grouping and feed it back (:func:`load_manifest`).
 
-This module imports neither OpenImageIO nor click; :func:`scan_directory` reads headers
-through :func:`hdrcl.io.frames.read_info`, imported when it is called.
+This module imports neither OpenImageIO nor click; :func:`hdrcl.shoot.scan.scan_directory`
+reads headers through :func:`hdrcl.io.frames.read_info`, imported when it is called.
 """
 from __future__ import annotations
 

@@ -35,6 +35,8 @@ logger = logging.getLogger(__name__)
 BRIDGE_SEEN = 120.0
 #: Longest gap (s) bridged when the scene cannot be compared (no thumbnail).
 BRIDGE_UNSEEN = 60.0
+#: Auto-bracket frames closer than this (s) are one burst: the scene does not split them.
+BURST_GAP = 0.5
 
 # compare(a, b) -> hdrcl.shoot.scene.Verdict, or None: no content signal.
 Compare = Optional[Callable[[FrameInfo, FrameInfo], object]]
@@ -177,7 +179,10 @@ def split_stream(frames: List[FrameInfo], gap: Optional[float], compare: Compare
         verdict = None
         if reason is None:
             verdict = _content_reason(cur, f, compare)
-            if verdict is not None and verdict.kind == "changed":
+            # Within an auto-bracket burst nobody re-aims: there a low match is the
+            # exposures, not the scene.
+            burst = g is not None and g < BURST_GAP and f.exposure_mode == 2
+            if verdict is not None and verdict.kind == "changed" and not burst:
                 reason = verdict.describe()
         if reason is None:
             note = _fmt_gap(g)
