@@ -38,7 +38,7 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-__all__ = ["SCENARIOS", "write_card", "scenario"]
+__all__ = ["SCENARIOS", "write_card", "write_shots", "scenario", "Shot", "Frame"]
 
 WIDTH, HEIGHT = 96, 64
 T0 = _dt.datetime(2025, 3, 14, 9, 0, 0)
@@ -214,14 +214,21 @@ def write_card(folder, name: str, seed: int = 0) -> Dict:
         ordered by capture time; ``"unmerged"``: base names of stray frames;
         ``"labels"``: one label per set.
     """
-    folder = os.fspath(folder)
-    os.makedirs(folder, exist_ok=True)
     rng = np.random.default_rng([seed, len(name)])
     shots = _mixed(rng) if name == "mixed" else scenario(name, rng)
-    when = T0
+    return write_shots(folder, shots, seed=seed, scrambled=name in ("subsecond", "mixed"), rng=rng)
+
+
+def write_shots(folder, shots: List[Shot], seed: int = 0, scrambled: bool = False, rng=None) -> Dict:
+    """Write ``shots`` (one scene per shot) into ``folder``; returns as :func:`write_card`.
+
+    ``scrambled``: name the files so that their names do not follow capture order.
+    """
+    folder = os.fspath(folder)
+    os.makedirs(folder, exist_ok=True)
+    rng = rng if rng is not None else np.random.default_rng(seed)
     sets, labels, stray = [], [], []
     n = 0
-    scrambled = name in ("subsecond", "mixed")
     prev_end = None
     for k, shot in enumerate(shots):
         scene = _scene(np.random.default_rng([seed, 7, k]))

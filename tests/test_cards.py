@@ -148,3 +148,15 @@ def test_memorial_exposures_from_image_list(memorial):
     m = scan_directory(memorial)
     assert len(m.sets) == 1 and len(m.sets[0].files) == 16
     assert m.sets[0].exposures[0] == pytest.approx(32.0) and m.sets[0].exposures[-1] == pytest.approx(1 / 1024)
+
+
+def test_uneven_hand_ladder_bridged_only_when_the_scene_matches(tmp_path):
+    # 1/1000, 1/250, 1/125, 1/30: steps of 2, 1 and 2 stops, 20-40 s apart, one scene.
+    shots = [cardgen.Shot([cardgen.Frame(time=t, gap=g) for t, g in
+                           ((1 / 1000, 10.0), (1 / 250, 25.0), (1 / 125, 40.0), (1 / 30, 20.0))])]
+    truth = cardgen.write_shots(tmp_path, shots, seed=2)
+    assert names(scan_directory(tmp_path)) == truth["sets"]
+    m = scan_directory(tmp_path, content=False)  # even steps required without the scene
+    assert names(m) != truth["sets"]
+    assert ladder_of([fi(t, k=k) for k, t in enumerate((1 / 1000, 1 / 250, 1 / 125, 1 / 30))], even=False).order \
+        == "ascending, uneven"

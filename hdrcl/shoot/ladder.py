@@ -93,13 +93,16 @@ def _even(sorted_vals: List[float], step: float) -> bool:
     return all(abs((b - a) - step) <= tol for a, b in zip(sorted_vals, sorted_vals[1:]))
 
 
-def ladder_of(frames: Sequence[FrameInfo]) -> Optional[Ladder]:
+def ladder_of(frames: Sequence[FrameInfo], even: bool = True) -> Optional[Ladder]:
     """The ladder ``frames`` (capture order, one camera) form, or None.
 
     None when: fewer than two frames, the aperture changes, a value is missing or
     repeats, the sorted values are not evenly spaced, the step is below
     :data:`MIN_STEP` or above :data:`MAX_STEP` stops, or the order is not one people
-    shoot (see the module docstring).
+    shoot (see the module docstring). With ``even=False`` a monotonic run whose every
+    step lies between those limits also counts (a hand-turned dial is not always even;
+    used when the scene vouches for the frames), with ``order`` ``"ascending, uneven"``
+    or ``"descending, uneven"``.
     """
     frames = list(frames)
     if len(frames) < 2:
@@ -115,6 +118,8 @@ def ladder_of(frames: Sequence[FrameInfo]) -> Optional[Ladder]:
     if min(diffs) < _TOL:
         return None  # a value repeats
     step = sorted(diffs)[len(diffs) // 2]
+    if not even and not _even(s, step):
+        return _uneven(axis, values)
     if not MIN_STEP <= step <= MAX_STEP or not _even(s, step):
         return None
     # Every prefix must be an unbroken piece of the grid.
@@ -133,6 +138,21 @@ def ladder_of(frames: Sequence[FrameInfo]) -> Optional[Ladder]:
             return None
     v0 = values[0]
     return Ladder(axis=axis, step=round(step, 2), order=order,
+                  values=tuple(round(v - v0, 2) for v in values))
+
+
+def _uneven(axis: str, values: Sequence[float]) -> Optional[Ladder]:
+    """A monotonic run with every step within [MIN_STEP, MAX_STEP] stops, or None."""
+    steps = [b - a for a, b in zip(values, values[1:])]
+    if all(MIN_STEP <= d <= MAX_STEP for d in steps):
+        order = "ascending, uneven"
+    elif all(MIN_STEP <= -d <= MAX_STEP for d in steps):
+        order = "descending, uneven"
+    else:
+        return None
+    mags = sorted(abs(d) for d in steps)
+    v0 = values[0]
+    return Ladder(axis=axis, step=round(mags[len(mags) // 2], 2), order=order,
                   values=tuple(round(v - v0, 2) for v in values))
 
 

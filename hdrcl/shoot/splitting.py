@@ -260,8 +260,9 @@ def _bridge_parts(p: _Group, grp: _Group, compare: Compare):
     g = _gap(p.frames[-1], grp.frames[0])
     if g is None:
         return None, None, None
-    lad = ladder_of(p.frames + grp.frames)
     verdict = None if compare is None else compare(_nearest(p.frames, grp.frames[0]), grp.frames[0])
+    # A scene that matches vouches for a hand-turned ladder whose steps are uneven.
+    lad = ladder_of(p.frames + grp.frames, even=verdict is None or verdict.kind != "same")
     return g, lad, verdict
 
 
