@@ -160,3 +160,16 @@ def test_uneven_hand_ladder_bridged_only_when_the_scene_matches(tmp_path):
     assert names(m) != truth["sets"]
     assert ladder_of([fi(t, k=k) for k, t in enumerate((1 / 1000, 1 / 250, 1 / 125, 1 / 30))], even=False).order \
         == "ascending, uneven"
+
+
+def test_auto_brackets_without_bias_metered_a_third_apart_split():
+    frames, k = [], 0
+    for base in (1 / 100, 1 / 125, 1 / 160):
+        for ev in (0, -1, 1):
+            frames.append(fi(base * 2.0 ** ev, mode=2, k=k))
+            k += 1
+    for i, f in enumerate(frames):
+        f.capture_time = T0 + dt.timedelta(seconds=0.3 * i)
+    m = group_frames(frames)
+    assert [len(s.files) for s in m.sets] == [3, 3, 3]
+    assert m.sets[0].reason == "bracket pattern restarts (exposure off the set's steps)"

@@ -103,7 +103,8 @@ def _pattern_reason(cur: List[FrameInfo], f: FrameInfo) -> Optional[str]:
     if _ladder_turns(cur, f):
         return "exposure ladder restarts"
     if _bias_pattern_breaks(cur, f):
-        return f"bracket pattern restarts ({_fmt_bias(f.exposure_bias)} EV off the set's steps)"
+        return ("bracket pattern restarts (" + (f"{_fmt_bias(f.exposure_bias)} EV" if f.exposure_bias is not None
+                                                 else "exposure") + " off the set's steps)")
     return None
 
 
@@ -133,15 +134,21 @@ def _ladder_turns(cur: List[FrameInfo], f: FrameInfo) -> bool:
 
 
 def _bias_pattern_breaks(cur: List[FrameInfo], f: FrameInfo) -> bool:
-    """An exposure-bias bracket of 3+ frames (an exact pattern) that ``f`` does not extend.
+    """An auto bracket of 3+ frames (an exact pattern) that ``f`` does not extend.
 
     ``0, -2, +2, -4, +4`` followed by ``-1``: the camera started the next bracket with
-    another step. Only when the set so far is a clean bias ladder.
+    another step. Only when the set so far is a clean ladder in the exposure bias, or
+    (auto bracketing that records no bias) in the exposure itself: ``1/100, 1/200, 1/50``
+    followed by ``1/125`` is the next bracket, metered a third of a stop darker.
     """
-    if len(cur) < 3 or f.exposure_bias is None:
+    if len(cur) < 3:
         return False
     lad = ladder_of(cur)
-    if lad is None or lad.axis != "bias":
+    if lad is None:
+        return False
+    if lad.axis != "bias" and not all(g.exposure_mode == 2 for g in cur + [f]):
+        return False
+    if lad.axis == "bias" and f.exposure_bias is None:
         return False
     return ladder_of(cur + [f]) is None
 
