@@ -257,3 +257,17 @@ def test_times_file_for_frames_without_exif(tmp_path, memorial):
     res = CliRunner().invoke(main, ["batch", str(folder), "-o", str(tmp_path / "o"), "--times-file",
                                     str(tmp_path / "t.txt"), "--ignore-color", "0,0,255"])
     assert res.exit_code == 0 and "1 set(s): 1 done" in res.output, res.output
+
+
+def test_scan_of_a_manifest_with_a_fifo_does_not_hang(tmp_path):
+    folder = tmp_path / "shoot"
+    groups = make_clean_shoot(folder, sets=1, frames=3)
+    os.mkfifo(folder / "pipe.jpg")
+    man = tmp_path / "m.json"
+    man.write_text(json.dumps({"sets": [{"files": [str(folder / groups[0][0]), str(folder / "pipe.jpg")]}]}))
+    res = subprocess.run([sys.executable, "-m", "hdrcl", "scan", str(man)], env=ENV, capture_output=True, text=True,
+                         timeout=60)
+    assert res.returncode == 1 and "not a regular file (a FIFO)" in res.stdout
+    res = subprocess.run([sys.executable, "-m", "hdrcl", "scan", str(folder)], env=ENV, capture_output=True,
+                         text=True, timeout=60)
+    assert res.returncode == 0 and "1 set(s)" in res.stdout

@@ -158,11 +158,14 @@ def check_manifest(manifest) -> Dict[int, str]:
     from hdrcl.io.frames import read_info
     from hdrcl.shoot.grouping import unmergeable_reason
 
+    from hdrcl.shoot.claims import check_regular
+
     problems = {}
     for s in manifest.sets:
         infos = []
         for f in s.files:
             try:
+                check_regular(f)  # a FIFO would block the header read
                 infos.append(read_info(f))
             except (InputError, OSError) as exc:
                 problems[s.index] = str(exc).splitlines()[0]
