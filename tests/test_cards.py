@@ -173,3 +173,15 @@ def test_auto_brackets_without_bias_metered_a_third_apart_split():
     m = group_frames(frames)
     assert [len(s.files) for s in m.sets] == [3, 3, 3]
     assert m.sets[0].reason == "bracket pattern restarts (exposure off the set's steps)"
+
+
+@pytest.mark.parametrize("name, frames", [("window_e995", 12), ("frobisher_001", 3)])
+def test_real_brackets_are_one_set_and_the_scene_vouches(memorial, name, frames):
+    # window_e995: a hand ladder 6-8 s apart whose JPEGs carry EXIF thumbnails (the
+    # thumbnail path); frobisher_001: small JPEGs without one (decoded and reduced).
+    folder = memorial.parent / name
+    if not folder.is_dir():
+        pytest.skip(f"{folder} not found")
+    m = scan_directory(folder)
+    assert [len(s.files) for s in m.sets] == [frames] and m.unmerged == []
+    assert all("same scene" in j for j in m.sets[0].joins)
