@@ -185,3 +185,16 @@ def test_real_brackets_are_one_set_and_the_scene_vouches(memorial, name, frames)
     m = scan_directory(folder)
     assert [len(s.files) for s in m.sets] == [frames] and m.unmerged == []
     assert all("same scene" in j for j in m.sets[0].joins)
+
+
+def test_raw_plus_jpeg_pairs_group_as_two_streams():
+    frames = []
+    for k, t in enumerate([1 / 500, 1 / 125, 1 / 30, 1 / 500, 1 / 125, 1 / 30]):
+        when = T0 + dt.timedelta(seconds=2 * k + (60 if k >= 3 else 0))
+        for ext in (".CR2", ".JPG"):
+            frames.append(FrameInfo(path=f"IMG_{k:04d}{ext}", width=32, height=24, nchannels=3, exposure_time=t,
+                                    fnumber=8.0, iso=100.0, exposure_mode=1, capture_time=when))
+    m = group_frames(frames)
+    got = sorted(tuple(s.files) for s in m.sets)
+    want = sorted(tuple(f"IMG_{k:04d}{ext}" for k in ks) for ks in ((0, 1, 2), (3, 4, 5)) for ext in (".CR2", ".JPG"))
+    assert got == want and m.unmerged == []

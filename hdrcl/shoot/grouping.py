@@ -4,7 +4,8 @@ A folder of bracketed shots is a sequence of frames; this module decides where o
 bracket set ends and the next begins, using several signals together:
 
 * **Camera**: frames are first split into one stream per camera body (Make, Model,
-  serial), so two photographers shooting side by side do not break each other's sets.
+  serial), so two photographers shooting side by side do not break each other's sets;
+  camera RAW files and the JPEGs shot with them (RAW+JPEG) are separate streams too.
 * **Lens, focal length, image size**: a change ends the set.
 * **Time gap**, measured from the *end* of one exposure to the *start* of the next:
   ``gap = start(i+1) - (start(i) + exposure_time(i))``. Within a set gaps are short
@@ -56,6 +57,9 @@ from hdrcl.shoot.manifest import BracketSet, Manifest, Unmerged, _is_number
 from hdrcl.shoot.splitting import _Group, chunk, split_stream
 
 logger = logging.getLogger(__name__)
+
+_RAW_EXTENSIONS = (".cr2", ".cr3", ".nef", ".nrw", ".arw", ".dng", ".raf", ".rw2", ".orf", ".pef", ".srw", ".3fr",
+                   ".iiq", ".erf", ".kdc", ".mos", ".mrw", ".x3f")
 
 
 # ---------------------------------------------------------------------- classifying
@@ -196,7 +200,9 @@ def group_frames(infos: Sequence[FrameInfo], *, frames_per_set: Optional[int] = 
     else:
         streams: dict = {}
         for f in frames:
-            streams.setdefault((_camera_key(f), _time(f) is None), []).append(f)
+            # RAW+JPEG cards hold two files per capture: each kind is its own stream.
+            raw = os.path.splitext(os.fspath(f.path))[1].lower() in _RAW_EXTENSIONS
+            streams.setdefault((_camera_key(f), _time(f) is None, raw), []).append(f)
         for stream in streams.values():
             groups.extend(split_stream(stream, gap, compare))
         groups.sort(key=lambda g: _sort_key(g.frames[0]))
