@@ -26,6 +26,9 @@ differ only by exposure and noise, hand held ones by a pixel of shake). Scenario
 ``aeb_orders``
     Auto bracketing in the orders ``0,-,+``, ``0,-2,+2,-4,+4`` and ``-,0,+``, back to
     back (0.5-2 s apart).
+``scene_only``
+    Three hand ladders on three views, each continuing the ladder of the one before,
+    5 s and 40 s apart: only the content tells the sets apart.
 ``mixed``
     All of the above on one card, one camera, in one timeline, with stray frames.
 """
@@ -137,10 +140,17 @@ def scenario(name: str, rng: np.random.Generator) -> List[Shot]:
                       for i, ev in enumerate(evs)]
             shots.append(Shot(frames, label=f"AEB {evs}"))
         return shots
+    if name == "scene_only":
+        # Each set's ladder continues the one before, on another view: only the scene
+        # tells them apart (5 s after one set, and 40 s after the next).
+        return [Shot(_ladder([1 / 1000, 1 / 500, 1 / 250], gaps=[3.0, 3.0], first_gap=60.0), label="view 1"),
+                Shot(_ladder([1 / 125, 1 / 60, 1 / 30], gaps=[3.0, 3.0], first_gap=5.0), label="view 2"),
+                Shot(_ladder([1 / 15, 1 / 8, 1 / 4], gaps=[20.0, 30.0], first_gap=40.0), label="view 3")]
     raise ValueError(name)
 
 
-SCENARIOS = ("manual_long_gaps", "back_to_back", "auto_iso", "exposure_comp", "subsecond", "aeb_orders")
+SCENARIOS = ("manual_long_gaps", "back_to_back", "auto_iso", "exposure_comp", "subsecond", "aeb_orders",
+             "scene_only")
 
 
 def _mixed(rng) -> List[Shot]:

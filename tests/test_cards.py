@@ -62,6 +62,8 @@ def test_card_headers_alone_still_split_the_sets(card):
     m = scan_directory(folder, content=False)
     if name in ("back_to_back", "subsecond", "aeb_orders", "auto_iso"):
         assert names(m) == truth["sets"]
+    if name == "scene_only":  # the ladders continue each other: only the content splits them
+        assert names(m) != truth["sets"]
     assert not any("same scene" in j for s in m.sets for j in s.joins)
 
 
@@ -133,7 +135,7 @@ def test_scene_compare_same_and_changed():
     a = 0.05 * np.exp(3 * x / GRID[1]) * (1 + 0.3 * np.sin(y))
     b = np.roll(rng.permutation(a.ravel()).reshape(a.shape), 3, axis=1)
     v = compare(_thumb(a, 1.0), _thumb(a, 2.0))
-    assert v.kind == "same" and v.rho > 0.95 and abs(v.offset) < 0.2
+    assert v.kind == "same" and v.rho > 0.85 and abs(v.offset) < 0.2
     assert compare(_thumb(a, 1.0), _thumb(b, 2.0)).kind == "changed"
     # The same framing 6 stops brighter after normalising the exposure: another scene.
     assert compare(_thumb(a, 1.0), _thumb(a * 64, 1 / 64)).kind == "changed"
