@@ -17,10 +17,11 @@ matter), using the pixels well exposed in both frames:
 The verdict is ``"same"``, ``"changed"`` or ``"unknown"`` (too few pixels well exposed
 in both frames, e.g. 4 stops apart, or no thumbnail).
 
-Thumbnails are read cheaply: a JPEG's embedded EXIF thumbnail when it has one, else
-(with OpenCV installed) the JPEG decoded at 1/8 scale by libjpeg's DCT scaling, else the
-smallest MIP level of a tiled TIFF/EXR, else a full decode reduced by area averaging.
-Camera RAW files give no thumbnail here (their verdict is ``"unknown"``).
+Thumbnails are read cheaply (:func:`hdrcl.io.probe.reduced_pixels`): a JPEG's embedded
+EXIF thumbnail when it has one, else (with OpenCV installed) the JPEG decoded at 1/8
+scale by libjpeg's DCT scaling, else the smallest MIP level of a tiled TIFF/EXR, else a
+full decode, then reduced by area averaging. Camera RAW files give no thumbnail here
+(their verdict is ``"unknown"``).
 """
 from __future__ import annotations
 
@@ -48,8 +49,6 @@ RHO_SAME, RHO_CHANGED = 0.6, 0.45
 OFFSET_CHANGED = 5.0
 # A low correlation says "changed" only over at least this fraction of the thumbnail.
 _MIN_CHANGED = 0.12
-
-_RAW = (".cr2", ".cr3", ".nef", ".arw", ".dng", ".raf", ".rw2", ".orf", ".pef", ".srw")
 
 
 @dataclass
@@ -106,56 +105,14 @@ def _to_unit(a: np.ndarray) -> np.ndarray:
     return a.astype(np.float32)
 
 
-def _decode(path: str) -> Optional[np.ndarray]:
-    """Pixels of a reduced-resolution version of ``path`` (any size), or None."""
-    import OpenImageIO as oiio
-
-    ext = os.path.splitext(path)[1].lower()
-    if ext in _RAW:
-        return None
-    inp = oiio.ImageInput.open(path)
-    if inp is None:
-        return None
-    try:
-        try:  # the embedded EXIF thumbnail (cameras write 160x120)
-            th = inp.get_thumbnail(0)
-        except Exception:  # older OIIO
-            th = None
-        if th is not None and th.spec().width >= GRID[1]:
-            return np.asarray(th.get_pixels(oiio.FLOAT))
-        full = inp.spec()
-        if ext in (".jpg", ".jpeg") and full.width >= 4 * GRID[1] and full.height >= 4 * GRID[0]:
-            try:
-                import cv2  # libjpeg decodes at 1/8 scale from the DCT coefficients
-            except ImportError:
-                cv2 = None
-            if cv2 is not None:
-                k = 8 if full.width >= 8 * 2 * GRID[1] else (4 if full.width >= 4 * 2 * GRID[1] else 2)
-                flag = {8: cv2.IMREAD_REDUCED_GRAYSCALE_8, 4: cv2.IMREAD_REDUCED_GRAYSCALE_4,
-                        2: cv2.IMREAD_REDUCED_GRAYSCALE_2}[k]
-                a = cv2.imread(path, flag | cv2.IMREAD_IGNORE_ORIENTATION)
-                if a is not None:
-                    return a
-        spec = inp.spec()
-        level, n = 0, 0
-        while inp.seek_subimage(0, n + 1):  # MIP levels of a tiled file: the smallest useful one
-            s = inp.spec()
-            if s.width < GRID[1] or s.height < GRID[0]:
-                break
-            n += 1
-            level, spec = n, s
-        a = inp.read_image(0, level, 0, min(spec.nchannels, 3), "float")
-        return None if a is None else np.asarray(a)
-    finally:
-        inp.close()
-
-
 def read_thumb(info) -> Optional[Thumb]:
     """The thumbnail of a frame described by ``info`` (a FrameInfo), or None."""
     from hdrcl.shoot.ladder import exposure_value
 
+    from hdrcl.io.probe import reduced_pixels
+
     try:
-        a = _decode(os.fspath(info.path))
+        a = reduced_pixels(info.path, GRID)
     except Exception as exc:  # a damaged file: the header reader reports it elsewhere
         logger.debug("%s: no thumbnail (%s)", info.path, exc)
         return None

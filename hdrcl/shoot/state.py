@@ -14,7 +14,6 @@ import stat
 import time as _time
 from typing import Dict, List, Sequence, Tuple
 
-import numpy as np
 
 from hdrcl.errors import HdrclError, InputError
 from hdrcl.shoot.claims import check_regular
@@ -132,34 +131,15 @@ def _up_to_date(job: SetJob, digest: str, options: BatchOptions) -> Tuple[bool, 
     return True, ok, meta, pmeta if ok else {}
 
 
-def verify_exr(path: str, rows: int = 256) -> bool:
+def verify_exr(path: str) -> bool:
     """Whether every pixel of ``path`` can be read (strip by strip, bounded memory).
 
     A header that carries the right digest says nothing about the rest of the file: a
     truncated or damaged EXR fails here and its set is rebuilt.
     """
-    import OpenImageIO as oiio
+    from hdrcl.io.probe import pixels_readable
 
-    inp = oiio.ImageInput.open(path)
-    if inp is None:
-        oiio.geterror()
-        return False
-    try:
-        spec = inp.spec()
-        nch = spec.nchannels
-        for y in range(spec.y, spec.y + spec.height, rows):
-            y1 = min(y + rows, spec.y + spec.height)
-            a = inp.read_scanlines(0, 0, y, y1, 0, 0, nch, oiio.FLOAT)
-            if a is None or inp.has_error:
-                inp.geterror()
-                return False
-            if not np.all(np.isfinite(a)):
-                return False
-        return True
-    except Exception:
-        return False
-    finally:
-        inp.close()
+    return pixels_readable(path)
 
 
 def _preview_metadata(digest: str, options: BatchOptions, counts: dict) -> dict:
