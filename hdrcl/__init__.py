@@ -11,13 +11,14 @@ they are needed.
 from hdrcl.version import __version__
 
 __all__ = [
-    "calibrate", "merge", "expose", "merge_files", "expose_file", "load_bracket",
+    "calibrate", "merge", "expose", "merge_files", "expose_file", "load_bracket", "tonemap", "tonemap_file",
     "Response", "HdrclError", "__version__",
 ]
 
 
 def __getattr__(name):
-    if name in ("calibrate", "merge", "expose", "merge_files", "expose_file", "load_bracket", "merge_bracket"):
+    if name in ("calibrate", "merge", "expose", "merge_files", "expose_file", "load_bracket", "merge_bracket",
+                "tonemap", "tonemap_file"):
         from hdrcl import api
 
         return getattr(api, name)

@@ -215,7 +215,8 @@ def test_contact_sheet_lists_unmerged_frames_and_skipped_sets(tmp_path):
     args = ["batch", str(folder), "-o", str(out), "--report", str(out / "report")]
     assert CliRunner().invoke(main, args).exit_code == 0
     page = (out / "report" / "index.html").read_text()
-    assert "Not merged (1)" in page and "IMG_0004.jpg: single frame" in page
+    assert "Not merged: 1 file in 1 group" in page and 'data-reason="single frame"' in page
+    assert "<figcaption>IMG_0004.jpg</figcaption>" in page
     assert "2 sets: 2 merged, 0 failed" in page
     assert CliRunner().invoke(main, args).exit_code == 0
     page = (out / "report" / "index.html").read_text()

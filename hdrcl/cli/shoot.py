@@ -15,6 +15,7 @@ import click
 
 from hdrcl.cli.group import main
 from hdrcl.cli.options import (
+    colorspace_option,
     deghost_option,
     device_option,
     grouping_options,
@@ -171,6 +172,8 @@ class _Progress:
               help="Write a tone-mapped JPEG beside each EXR.")
 @click.option("--preview-size", type=click.IntRange(min=16), default=512, show_default=True, metavar="PIXELS",
               help="Long side of the previews.")
+@click.option("--tonemap", type=click.Choice(["reinhard", "reinhard-local", "drago", "filmic"]), default="reinhard",
+              show_default=True, help="Tone-mapping operator of the previews (as 'hdrcl tonemap').")
 @grouping_options
 @solve_options
 @weight_option
@@ -178,12 +181,13 @@ class _Progress:
 @deghost_option
 @batch_merge_options
 @output_options
+@colorspace_option
 @device_option
 @click.pass_context
 def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force, calibrate_only, report_dir,
-          report_json, as_json, preview, preview_size, recursive, frames_per_set, gap, samples, smoothness, seed,
-          weight, ignore_color, deghost, align, crop, neutral, fit_exposures, times_file, dtype, compression,
-          device):
+          report_json, as_json, preview, preview_size, tonemap, recursive, frames_per_set, gap, samples, smoothness,
+          seed, weight, ignore_color, deghost, align, crop, neutral, fit_exposures, times_file, dtype, compression,
+          colorspace, device):
     """Merge every bracket set of a folder or manifest into OUT_DIR.
 
     SOURCE is a folder of photographs (grouped as 'hdrcl scan' does) or a manifest
@@ -212,8 +216,9 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
     quiet = bool((ctx.find_root().params or {}).get("quiet"))
     opts = BatchOptions(weight=weight, samples=samples, smoothness=smoothness, seed=seed,
                         ignore_color=ignore_color, deghost=deghost, dtype=dtype, compression=compression,
-                        preview=preview, preview_size=preview_size, device=device, report_dir=report_dir,
-                        align=align, crop=crop, neutral=neutral, fit_exposures=fit_exposures)
+                        preview=preview, preview_size=preview_size, tonemap=tonemap, colorspace=colorspace.lower(),
+                        device=device, report_dir=report_dir, align=align, crop=crop, neutral=neutral,
+                        fit_exposures=fit_exposures)
     progress = _Progress(sys.stderr, sys.stderr.isatty(), quiet)
     try:
         rep = run_batch(source, out_dir, options=opts, sets=sets, response=response, jobs=jobs,
