@@ -77,8 +77,13 @@ class SetClaim:
         """Take the claim; with ``wait`` block until its holder is done.
 
         Returns False (only without ``wait``) when another live process holds it.
+        Where there is no ``flock`` (Windows) claims are not taken: one batch per
+        output folder there.
         """
-        import fcntl
+        try:
+            import fcntl
+        except ImportError:
+            return True
 
         while True:
             try:
