@@ -237,14 +237,16 @@ def tie_to_parent(parent_pid: int) -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     _pdeathsig()
 
+    kill = getattr(signal, "SIGKILL", signal.SIGTERM)  # Windows has no SIGKILL
+
     def watch():
         while True:
             if os.getppid() != parent_pid:
-                os.kill(os.getpid(), signal.SIGKILL)
+                os.kill(os.getpid(), kill)
             time.sleep(WATCHDOG_PERIOD)
 
     if os.getppid() != parent_pid:
-        os.kill(os.getpid(), signal.SIGKILL)
+        os.kill(os.getpid(), kill)
     threading.Thread(target=watch, name="hdrcl-parent-watchdog", daemon=True).start()
 
 
