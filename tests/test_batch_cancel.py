@@ -272,3 +272,25 @@ def test_scan_of_a_manifest_with_a_fifo_does_not_hang(tmp_path):
     res = subprocess.run([sys.executable, "-m", "hdrcl", "scan", str(folder)], env=ENV, capture_output=True,
                          text=True, timeout=60)
     assert res.returncode == 0 and "1 set(s)" in res.stdout
+
+
+def test_watchdog_kills_a_worker_whose_parent_died_without_pdeathsig(tmp_path):
+    """The fallback for systems without PR_SET_PDEATHSIG: the parent-pid watchdog."""
+    pidfile = tmp_path / "grandchild.pid"
+    grandchild = ("import os, sys, time; from hdrcl.shoot import claims; claims._pdeathsig = lambda: False; "
+                  "claims.tie_to_parent(os.getppid()); open(sys.argv[1], 'w').write(str(os.getpid())); "
+                  "time.sleep(60)")
+    child = ("import subprocess, sys, time; subprocess.Popen([sys.executable, '-c', sys.argv[1], sys.argv[2]]); "
+             "time.sleep(60)")
+    proc = subprocess.Popen([sys.executable, "-c", child, grandchild, str(pidfile)], env=ENV)
+    deadline = time.monotonic() + 30
+    while not (pidfile.exists() and pidfile.read_text()) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    pid = int(pidfile.read_text())
+    assert alive([pid]) == [pid]
+    proc.kill()
+    proc.wait()
+    deadline = time.monotonic() + 3.0
+    while alive([pid]) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert alive([pid]) == []
