@@ -255,7 +255,9 @@ def demo(folder, size, frames, seed, no_shoot, device):
     click.echo(f"radiance error: {100 * rep.radiance_error:.2f} % (median, well-exposed pixels)")
     click.echo(f"response: {rep.response}   preview: {rep.preview}")
     if rep.shoot:
-        click.echo(f"sample shoot: {rep.shoot} -> batch: {rep.batch_done} set(s) merged, {rep.batch_failed} failed "
+        skipped = f", {rep.batch_skipped} skipped (up to date)" if rep.batch_skipped else ""
+        click.echo(f"sample shoot: {rep.shoot} -> batch: {rep.batch_done} set(s) merged{skipped}, "
+                   f"{rep.batch_failed} failed "
                    f"into {rep.batch}")
         click.echo(f"quality report: {rep.contact_sheet}")
     click.echo("next: hdrcl expose {0} -o bright.jpg --response {1} --time {2:.4g}".format(
