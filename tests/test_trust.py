@@ -215,6 +215,11 @@ def test_values_beyond_half_are_rescaled_or_written_as_float(tmp_path, field, cl
     assert spec.format == "half" and scale is not None and scale < 1
     assert np.isfinite(px).all() and (px > 0).all()
     np.testing.assert_allclose(px / scale, res.radiance, rtol=2e-3)
+    from hdrcl.io.radiance import read_radiance
+
+    back, meta = read_radiance(out)  # hdrcl's own reader undoes the multiplier
+    assert meta["halfScale"] == scale
+    np.testing.assert_allclose(back, res.radiance, rtol=2e-3)
     assert any("halfScale" in w for w in res.warnings) and res.storage_note
     # Physical units are not rescaled: float, and said so.
     out2 = tmp_path / "abs.exr"

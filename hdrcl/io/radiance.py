@@ -61,7 +61,8 @@ def read_radiance(path) -> tuple:
     Returns
     -------
     pixels : numpy.ndarray
-        ``(H, W, C)`` float32, C = 1 or 3 (alpha and other channels dropped).
+        ``(H, W, C)`` float32, C = 1 or 3 (alpha and other channels dropped); radiance,
+        i.e. divided by ``hdrcl:halfScale`` where the file was stored rescaled.
     metadata : dict
         The ``hdrcl:*`` attributes without the prefix (or the JSON kept in a TIFF's
         ImageDescription); empty when there are none.
@@ -89,6 +90,10 @@ def read_radiance(path) -> tuple:
     if data.ndim == 2:
         data = data[:, :, None]
     pixels = np.ascontiguousarray(data[:, :, channels])
+    scale = metadata.get("halfScale")
+    if isinstance(scale, (int, float)) and scale > 0 and scale != 1:
+        # Stored as radiance x halfScale so that half floats could hold it (issue 9).
+        pixels = (pixels.astype(np.float64) / float(scale)).astype(np.float32)
     return pixels, metadata
 
 
