@@ -28,13 +28,16 @@ def _pick_channels(spec, path: str) -> list:
     )
 
 
-def read_radiance(path) -> tuple:
+def read_radiance(path, *, require_float: bool = False) -> tuple:
     """Read a radiance map written by :func:`write_radiance` (or any float image).
 
     Parameters
     ----------
     path : str or os.PathLike
         EXR, HDR, TIFF, PFM or another format OpenImageIO reads.
+    require_float : bool
+        Refuse files stored as integers (an ordinary 8- or 16-bit photograph is not a
+        radiance map) and files holding NaN or infinite values.
 
     Returns
     -------
@@ -54,7 +57,12 @@ def read_radiance(path) -> tuple:
     try:
         spec = inp.spec()
         channels = _pick_channels(spec, name)
-        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+        if require_float:
+            _check_float_format(spec, name)
+        from hdrcl.io.frames import decoder_stderr
+
+        with decoder_stderr():
+            data = inp.read_image(0, 0, 0, spec.nchannels, "float")
         problem = _read_error(inp, name)
         if problem is None and data is None:
             problem = f"{name}: cannot decode pixel data"
@@ -67,7 +75,21 @@ def read_radiance(path) -> tuple:
     if data.ndim == 2:
         data = data[:, :, None]
     pixels = np.ascontiguousarray(data[:, :, channels])
+    if require_float:
+        bad = int(np.count_nonzero(~np.isfinite(pixels)))
+        if bad:
+            raise InputError(f"{name}: not a usable radiance map ({bad} NaN or infinite sample(s))")
     return pixels, metadata
+
+
+def _check_float_format(spec, name: str) -> None:
+    """Refuse an integer image where radiance is expected."""
+    import OpenImageIO as oiio
+
+    if spec.format.basetype not in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE):
+        bits = 8 * spec.format.size()
+        raise InputError(f"{name}: {'an' if bits == 8 else 'a'} {bits}-bit photograph, not a radiance map; give the .exr, .hdr, "
+                         ".pfm or float TIFF that 'hdrcl merge' wrote")
 
 
 def _spec_metadata(spec) -> dict:
