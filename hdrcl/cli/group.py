@@ -107,23 +107,32 @@ def _os_error_message(exc: OSError) -> str:
     return what
 
 
+def _param_name(param) -> str:
+    if isinstance(param, click.Option):
+        return "/".join(param.opts)
+    return param.human_readable_name
+
+
 def _usage_message(exc: click.UsageError) -> str:
-    msg = " ".join(exc.format_message().split())
+    """click's usage errors as ``SUBJECT: problem`` (no 'Usage:' or 'Try' lines)."""
     param = getattr(exc, "param", None)
-    if isinstance(exc, click.BadParameter) and param is not None:
-        hint = exc.param_hint or param.get_error_hint(exc.ctx) if exc.ctx else param.name
-        if isinstance(hint, (list, tuple)):
-            hint = " / ".join(hint)
-        if isinstance(param, click.Argument):
-            hint = param.human_readable_name
-        text = exc.message
-        return f"{_strip_quotes(hint)}: {text}"
     if isinstance(exc, click.MissingParameter) and param is not None:
-        names = "/".join(param.opts) if isinstance(param, click.Option) else param.human_readable_name
-        return f"{names}: missing (see '{_cmd(exc)} --help')"
+        return f"{_param_name(param)}: missing (see '{_cmd(exc)} --help')"
+    if isinstance(exc, click.BadParameter) and param is not None:
+        return f"{_param_name(param)}: {' '.join(str(exc.message).split())}"
     if isinstance(exc, click.NoSuchOption):
         return f"{exc.option_name}: no such option of '{_cmd(exc)}' (see '{_cmd(exc)} --help')"
-    return f"{_cmd(exc)}: {msg[0].lower() + msg[1:] if msg else 'usage error'}"
+    msg = " ".join(exc.format_message().split())
+    if isinstance(exc, click.BadOptionUsage):
+        if "requires an argument" in msg:
+            return f"{exc.option_name}: needs a value (see '{_cmd(exc)} --help')"
+        return f"{exc.option_name}: {msg[:1].lower() + msg[1:]}"
+    m = re.match(r"No such command '(.+?)'\.?\s*(.*)$", msg)
+    if m:
+        hint = m.group(2).rstrip("?").strip()
+        hint = f"; {hint[:1].lower() + hint[1:]}?" if hint else f" (see '{_cmd(exc)} --help')"
+        return f"{m.group(1)}: no such command{hint}"
+    return f"{_cmd(exc)}: {msg[:1].lower() + msg[1:] if msg else 'usage error'}"
 
 
 def _strip_quotes(s: str) -> str:
