@@ -34,7 +34,10 @@ __all__ = ["run_processes", "run_dask", "dask_client"]
 
 def _worker_init(level: int) -> None:
     """Worker processes log like the parent: one line, same level."""
+    from hdrcl.errors import WarningsBridge
+
     log = logging.getLogger("hdrcl")
+    log.handlers[:] = [h for h in log.handlers if not isinstance(h, WarningsBridge)]  # print, don't warn
     if not log.handlers:
         h = logging.StreamHandler()
         h.setFormatter(logging.Formatter("hdrcl: %(levelname)s: %(message)s"))
