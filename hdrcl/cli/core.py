@@ -26,37 +26,64 @@ from hdrcl.cli.options import (
 @main.command()
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 def devices(as_json):
-    """List the OpenCL devices and the one hdrcl would use."""
+    """List the OpenCL devices, the one hdrcl would use, and why the others were passed over.
+
+    Exits non-zero when no device can be used.
+    """
     from hdrcl.cl.backend import opencl_enabled
 
     if not opencl_enabled():
-        click.echo("OpenCL disabled (HDRCL_OPENCL=0): the NumPy reference path is used.")
+        msg = "OpenCL disabled (HDRCL_OPENCL=0): the NumPy reference path is used."
+        click.echo(json.dumps({"devices": [], "selected": None, "selected_id": None, "problem": None,
+                               "disabled": msg}, indent=1) if as_json else msg)
         return
-    from hdrcl.cl.context import get_context, list_devices
+    from hdrcl.cl.context import get_context, list_devices, selection_report
+    from hdrcl.cl.drivers import prepare_icd_environment
 
-    rows = list_devices()
-    chosen = None
     problem = None
+    chosen = None
     try:
-        ctx = get_context(None)
-        chosen = ctx.name
+        chosen = get_context(None).name
     except Exception as exc:  # reported, not fatal: listing is the point
-        problem = str(exc).splitlines()[0]
-    if as_json:  # the same exit code as the listing: 1 when no device can be used
-        click.echo(json.dumps({"devices": rows, "selected": chosen, "problem": problem}, indent=1))
-        if problem:
-            raise SystemExit(1)
-        return
-    if not rows:
-        click.echo("no OpenCL devices found")
+        problem = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    try:
+        rows = list_devices()
+    except Exception as exc:
+        rows, problem = [], problem or f"listing OpenCL devices failed: {exc}"
+    report = selection_report()
     for r in rows:
-        mark = "*" if chosen == f"{r['platform']} / {r['device']}" else " "
-        click.echo(f"{mark} {r['id']:5s} {r['platform']} / {r['device']}  [{r['type']}, "
-                   f"{r['compute_units']} units, {r['global_memory_mib']} MiB, {r['version']}]")
-    if chosen:
-        click.echo(f"selected: {chosen}")
+        r["status"], r["reason"] = report.get(r["id"], ("not tried", ""))
+    selected_id = next((r["id"] for r in rows if r["status"] == "selected"), None)
+    icd = prepare_icd_environment()
+    if as_json:
+        click.echo(json.dumps({"devices": rows, "selected": chosen, "selected_id": selected_id,
+                               "problem": problem, "icd": icd}, indent=1))
+    else:
+        if not rows:
+            click.echo("no OpenCL devices found")
+        for r in rows:
+            mark = "*" if r["status"] == "selected" else " "
+            click.echo(f"{mark} {r['id']:5s} {r['platform']} / {r['device']}  [{r['type']}, "
+                       f"{r['compute_units']} units, {r['global_memory_mib']} MiB, {r['version']}, "
+                       f"driver {r['driver_version']}]")
+            if r["status"] == "selected":
+                click.echo(f"        selected: {r['reason']}")
+            elif r["status"] == "failed":
+                click.echo(f"        passed over: cannot build hdrcl's kernels: {r['reason']}")
+            elif r["reason"]:
+                click.echo(f"        passed over: {r['status']} ({r['reason']})")
+        if icd.get("set_by") == "hdrcl":
+            click.echo(f"ICD list: {icd['vendors']} (written by hdrcl: Intel's CPU runtime "
+                       f"{icd['intel_cpu']} and the system's drivers)")
+        elif icd.get("set_by"):
+            click.echo(f"ICD list: OCL_ICD_VENDORS={icd.get('vendors')} (set by the {icd['set_by']})")
+        if icd.get("note"):
+            click.echo(f"note: {icd['note']}")
+        if chosen:
+            click.echo(f"selected: {chosen}")
+        if problem:
+            click.echo(f"problem: {problem}")
     if problem:
-        click.echo(f"problem: {problem}")
         raise SystemExit(1)
 
 
