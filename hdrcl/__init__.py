@@ -22,7 +22,7 @@ from hdrcl.version import __version__
 
 #: Public names from :mod:`hdrcl.api`, imported on first use.
 _API = ("calibrate", "merge", "expose", "merge_files", "expose_file", "load_bracket", "merge_bracket",
-        "write_quality_report", "Response", "Bracket", "MergeResult")
+        "write_quality_report", "tonemap", "tonemap_file", "Response", "Bracket", "MergeResult")
 
 __all__ = sorted(_API + ("HdrclError", "HdrclWarning", "InputError", "ProcessingError", "UsageError",
                          "__version__"))

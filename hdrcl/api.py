@@ -8,6 +8,7 @@ command line is a thin layer over the same engine::
     resp = hdrcl.calibrate(["a.jpg", "b.jpg", "c.jpg"], times=["1/250", "1/60", "1/15"])
     radiance = hdrcl.merge(["a.jpg", "b.jpg", "c.jpg"], times="1/250,1/60,1/15", response=resp)
     photo = hdrcl.expose(radiance, resp, time=1/30)          # uint8 (H, W, 3)
+    picture = hdrcl.tonemap(radiance, "reinhard-local")      # sRGB uint8 (H, W, 3)
 
 Errors are :class:`hdrcl.HdrclError` subclasses (``UsageError`` for bad arguments,
 ``InputError`` for unreadable or inconsistent files) whose messages name the parameter
@@ -35,11 +36,12 @@ from hdrcl.core.merge import MergeResult
 from hdrcl.core.response import Response, _as_response
 from hdrcl.errors import HdrclError, UsageError
 from hdrcl.report.merge_report import write_quality_report
+from hdrcl.report.tonemap import tonemap, tonemap_file
 
 __all__ = [
     "Bracket", "MergeResult", "Response", "calibrate", "expose", "expose_file", "exposures_used",
     "load_bracket", "memory_budget", "merge", "merge_bracket", "merge_files", "read_infos",
-    "write_quality_report",
+    "tonemap", "tonemap_file", "write_quality_report",
 ]
 
 _FLAG = re.compile(r"(?<![\w-])--([a-z][a-z0-9-]*)")
@@ -72,6 +74,8 @@ expose = _public(_exposure.expose)
 expose_file = _public(_exposure.expose_file)
 merge_bracket = _public(_merge.merge_bracket)
 merge_files = _public(_merge.merge_files)
+tonemap = _public(tonemap)
+tonemap_file = _public(tonemap_file)
 
 
 @_public

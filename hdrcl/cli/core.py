@@ -13,11 +13,13 @@ from hdrcl.cli.options import (
     OutputFile,
     OutputFolder,
     check_inputs_not_outputs,
+    colorspace_option,
     device_option,
     exposure_options,
     fit_options,
     output_options,
     seconds_callback,
+    warn_inapplicable,
     solve_options,
     weight_option,
 )
@@ -139,23 +141,29 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
               help="Align hand-held frames by translation (median threshold bitmaps) before merging.")
 @click.option("--crop", is_flag=True, help="With --align: crop to the area every frame covers.")
 @click.option("--report", "report", type=OutputFolder("report folder"),
-              help="Write a quality report here: response plot, coverage map, preview, figures, index.html.")
+              help="Write a quality report here (sets accumulate in one folder): preview, input frames, "
+                   "camera settings, response, histogram and coverage plots, figures, index.html.")
 @output_options
+@colorspace_option
+@click.option("--owner", default=None, metavar="TEXT",
+              help="Owner / copyright recorded in the file [default: the frames' EXIF Copyright].")
 @device_option
 def merge(images, output, response, save_response, times, times_file, ignore_color, samples, smoothness,
           seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, neutral, reference_patch, absolute,
-          align, crop, report, dtype, compression, device):
+          align, crop, report, dtype, compression, colorspace, owner, device):
     """Merge one bracket set into a radiance map."""
     from hdrcl.core.merge import merge_files
     from hdrcl.io.metadata import format_time
 
     check_inputs_not_outputs(list(images) + [response, times_file], output, save_response, ghost_mask)
+    warn_inapplicable(output, dtype=dtype, compression=compression)
     res = merge_files(list(images), output, times=times, times_file=times_file, response=response,
                       weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness, seed=seed,
                       dtype=dtype, compression=compression, device=device, fit_exposures=fit_exposures,
                       exposure_tolerance=exposure_tolerance, deghost=deghost, ghost_mask=ghost_mask,
                       neutral=neutral, reference_patch=reference_patch, absolute=absolute,
-                      thumbnail=512 if report else 0, align=align, crop=crop, save_response=save_response)
+                      thumbnail=512 if report else 0, align=align, crop=crop, colorspace=colorspace.lower(),
+                      owner=owner, save_response=save_response)
     h, w_, c = res.shape
     total = sum(res.seconds.values())
     say(f"wrote {output}: {w_}x{h}, {c} channel(s), {len(res.paths)} frames "

@@ -229,3 +229,31 @@ def deghost_option(f):
     return click.option("--deghost", is_flag=True,
                         help="Take pixels where the frames disagree (moving objects) from the middle "
                              "exposure alone.")(f)
+
+
+def colorspace_option(f):
+    """``--colorspace`` of radiance outputs (``merge``, ``batch``)."""
+    return click.option("--colorspace", type=click.Choice(["rec709", "acescg"], case_sensitive=False),
+                        default="rec709", show_default=True,
+                        help="Colour space of the radiance file: linear Rec.709/sRGB primaries, or ACEScg "
+                             "(AP1, for VFX pipelines; EXR or HDR), converted with OpenImageIO's colour "
+                             "management and tagged.")(f)
+
+
+def given(name: str):
+    """The value of option ``name`` if the user gave it on the command line, else None."""
+    ctx = click.get_current_context()
+    source = ctx.get_parameter_source(name)
+    if source is None or source.name in ("DEFAULT", "DEFAULT_MAP"):
+        return None
+    return ctx.params.get(name)
+
+
+def warn_inapplicable(output: str, **options) -> None:
+    """Warn (once each) about explicitly given options the output type ignores."""
+    import logging
+
+    from hdrcl.io.outmeta import inapplicable_options
+
+    for msg in inapplicable_options(output, **{k: given(k) for k in options}):
+        logging.getLogger("hdrcl.cli").warning("%s", msg)

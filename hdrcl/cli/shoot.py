@@ -21,6 +21,7 @@ from hdrcl.cli.options import (
     OutputFile,
     OutputFolder,
     sets_callback,
+    colorspace_option,
     deghost_option,
     device_option,
     grouping_options,
@@ -166,17 +167,20 @@ class _Progress:
               help="Write a tone-mapped JPEG beside each EXR.")
 @click.option("--preview-size", type=click.IntRange(min=16), default=512, show_default=True, metavar="PIXELS",
               help="Long side of the previews.")
+@click.option("--tonemap", type=click.Choice(["reinhard", "reinhard-local", "drago", "filmic"]), default="reinhard",
+              show_default=True, help="Tone-mapping operator of the previews (as 'hdrcl tonemap').")
 @grouping_options
 @solve_options
 @weight_option
 @ignore_color_option
 @deghost_option
 @output_options
+@colorspace_option
 @device_option
 @click.pass_context
 def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force, calibrate_only, report_dir,
-          report_json, as_json, preview, preview_size, recursive, frames_per_set, gap, samples, smoothness, seed,
-          weight, ignore_color, deghost, dtype, compression, device):
+          report_json, as_json, preview, preview_size, tonemap, recursive, frames_per_set, gap, samples, smoothness,
+          seed, weight, ignore_color, deghost, dtype, compression, colorspace, device):
     """Merge every bracket set of a folder or manifest into OUT_DIR.
 
     SOURCE is a folder of photographs (grouped as 'hdrcl scan' does) or a manifest
@@ -199,7 +203,8 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
         check_output(report_json, what="JSON report")  # before any set is merged
     opts = BatchOptions(weight=weight, samples=samples, smoothness=smoothness, seed=seed,
                         ignore_color=ignore_color, deghost=deghost, dtype=dtype, compression=compression,
-                        preview=preview, preview_size=preview_size, device=device, report_dir=report_dir)
+                        preview=preview, preview_size=preview_size, tonemap=tonemap, colorspace=colorspace.lower(),
+                        device=device, report_dir=report_dir)
     progress = _Progress(sys.stderr, sys.stderr.isatty(), quiet)
     try:
         rep = run_batch(source, out_dir, options=opts, sets=sets, response=response, jobs=jobs,

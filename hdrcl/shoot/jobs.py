@@ -48,6 +48,10 @@ class BatchOptions:
         Also write a tone-mapped JPEG per set.
     preview_size : int
         Long side of the preview in pixels.
+    tonemap : str
+        Operator of the previews (:data:`hdrcl.report.tonemap.OPERATORS`).
+    colorspace : {"rec709", "acescg"}
+        Colour space of the EXRs (:mod:`hdrcl.io.colorspace`).
     device : str, optional
         OpenCL device (see ``hdrcl devices``).
     report_dir : str, optional
@@ -68,6 +72,8 @@ class BatchOptions:
     compression: str = "zip"
     preview: bool = True
     preview_size: int = 512
+    tonemap: str = "reinhard"
+    colorspace: str = "rec709"
     device: Optional[str] = None
     report_dir: Optional[str] = None
 
@@ -77,6 +83,8 @@ class BatchOptions:
                "dtype": self.dtype, "compression": str(self.compression).strip().lower()}
         if self.deghost:  # only when on, so that digests of plain merges stay as they were
             out["deghost"] = True
+        if self.colorspace != "rec709":  # likewise
+            out["colorspace"] = self.colorspace
         return out
 
     def solve_params(self) -> dict:

@@ -272,7 +272,7 @@ def run_batch(
         if report_dir is not None:
             # Under the report's lock: of chunks finishing together, the last one to
             # write the contact sheet sees every other's sets.
-            rep.quality_report = _contact_sheet(plan, rep.entries, report_dir)
+            rep.quality_report = _contact_sheet(plan, rep.entries, report_dir, rep.unmerged)
     rep.path = report_path
     rep.seconds = _time.perf_counter() - t_start
     return rep

@@ -78,7 +78,7 @@ def _rebuild_preview(job: SetJob, digest: str, options: BatchOptions) -> None:
         counts = _counts_of(old) if old.get(DIGEST_KEY) == digest else {}
     except HdrclError:
         counts = {}
-    write_ldr(job.preview, encode(downscale(rad, options.preview_size)),
+    write_ldr(job.preview, encode(downscale(rad, options.preview_size), options.tonemap),
               metadata=_preview_metadata(digest, options, counts))
 
 
@@ -146,6 +146,7 @@ def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResu
     from hdrcl.core.merge import MergeResult, _provenance
     from hdrcl.core.pipeline import stream_merge
     from hdrcl.io.reader import BracketReader
+    from hdrcl.io.outmeta import camera_from_infos
     from hdrcl.io.writers import RadianceWriter, write_ldr
     from hdrcl.report.preview import AreaAverage, encode
 
@@ -172,7 +173,8 @@ def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResu
                 if opts.report_dir else None
             thumb = small if small is not None or not opts.report_dir else AreaAverage(h, w, nch, REPORT_IMAGE_SIZE)
             writer = RadianceWriter(job.output, w, h, nch, dtype=opts.dtype, compression=opts.compression,
-                                    metadata=meta, timestamp=opened.stamp)
+                                    metadata=meta, timestamp=opened.stamp, colorspace=opts.colorspace,
+                                    camera=camera_from_infos(opened.infos, reference=job.reference))
             try:
                 has_valid = opts.ignore_color is not None or any(i.nchannels in (2, 4) for i in opened.infos)
                 counts, _ = stream_merge(reader if kept is None else kept, opened.times, resp, _Tee(writer, thumb),
@@ -181,7 +183,7 @@ def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResu
                 t1 = _time.perf_counter()
                 # Preview first: the EXR, moved into place last, marks the set complete.
                 if small is not None:
-                    write_ldr(job.preview, encode(small.result()),
+                    write_ldr(job.preview, encode(small.result(), opts.tonemap),
                               metadata=_preview_metadata(step.digest, opts, counts))
                 t2 = _time.perf_counter()
                 warnings = writer.close()

@@ -117,14 +117,15 @@ def _up_to_date(job: SetJob, digest: str, options: BatchOptions) -> Tuple[bool, 
         pmeta = read_metadata(job.preview)
     except HdrclError:
         return True, False, meta, {}
-    ok = pmeta.get(DIGEST_KEY) == digest and int(pmeta.get("previewSize", -1)) == int(options.preview_size)
+    ok = (pmeta.get(DIGEST_KEY) == digest and int(pmeta.get("previewSize", -1)) == int(options.preview_size)
+          and pmeta.get("tonemap", "reinhard") == options.tonemap)
     return True, ok, meta, pmeta if ok else {}
 
 
 def _preview_metadata(digest: str, options: BatchOptions, counts: dict) -> dict:
     # The counts are known only after the EXR's header is written: the preview keeps
     # them for the report of later runs that skip the set.
-    return {DIGEST_KEY: digest, "previewSize": int(options.preview_size), "tonemap": "reinhard",
+    return {DIGEST_KEY: digest, "previewSize": int(options.preview_size), "tonemap": options.tonemap,
             "clippedHigh": int(counts.get("clipped_high", 0)), "clippedLow": int(counts.get("clipped_low", 0)),
             "noData": int(counts.get("no_data", 0))}
 
