@@ -253,8 +253,9 @@ def demo(folder, size, frames, seed, no_shoot, device):
     say(f"radiance error: {100 * rep.radiance_error:.2f} % (median, well-exposed pixels)")
     say(f"response: {rep.response}   preview: {rep.preview}")
     if rep.shoot:
-        say(f"sample shoot: {rep.shoot} -> batch: {rep.batch_done} set(s) merged, {rep.batch_failed} failed "
-                   f"into {rep.batch}")
+        skipped = f", {rep.batch_skipped} skipped (up to date)" if rep.batch_skipped else ""
+        say(f"sample shoot: {rep.shoot} -> batch: {rep.batch_done} set(s) merged{skipped}, "
+            f"{rep.batch_failed} failed into {rep.batch}")
         say(f"quality report: {rep.contact_sheet}")
     say("next: hdrcl expose {0} -o bright.jpg --response {1} --time {2:.4g}".format(
         rep.radiance, rep.response, rep.times[-1]))

@@ -195,6 +195,23 @@ def grouping_options(f):
     return f
 
 
+def batch_merge_options(f):
+    """The options of ``merge`` that ``batch`` applies to every set."""
+    f = click.option("--times-file", type=click.Path(dir_okay=False),
+                     help="Exposure list for frames without EXIF: HDRShop columns or 'file seconds' lines "
+                          "[default: image_list.txt or times.txt beside the frames, when there is one].")(f)
+    f = click.option("--fit-exposures", type=click.Choice(["auto", "on", "off"]), default="off",
+                     show_default=True,
+                     help="Estimate each frame's exposure from the pixels: auto uses the fitted value only "
+                          "where the metadata is clearly wrong, on always, off never.")(f)
+    f = click.option("--neutral", metavar="X,Y,W,H",
+                     help="White balance every set: make this patch (pixels) neutral grey.")(f)
+    f = click.option("--crop", is_flag=True, help="With --align: crop to the area every frame covers.")(f)
+    f = click.option("--align", is_flag=True,
+                     help="Align hand-held frames by translation (median threshold bitmaps) before merging.")(f)
+    return f
+
+
 def _ignore_color(ctx, param, value):
     if value is None:
         return None

@@ -263,9 +263,11 @@ def contact_sheet_html(entries: Sequence, title: str = "hdrcl quality report",
 
     entries = list(entries)
     failed = sum(1 for e in entries if e.status == STATUS_FAILED)
-    merged = sum(1 for e in entries if e.status in (STATUS_DONE, STATUS_SKIPPED))
-    other = len(entries) - failed - merged
-    summary = (f"{len(entries)} set{'s' if len(entries) != 1 else ''}: {merged} merged, {failed} failed"
+    merged = sum(1 for e in entries if e.status == STATUS_DONE)
+    skipped = sum(1 for e in entries if e.status == STATUS_SKIPPED)
+    other = len(entries) - failed - merged - skipped
+    summary = (f"{len(entries)} set{'s' if len(entries) != 1 else ''}: {merged} merged, "
+               + (f"{skipped} skipped (up to date), " if skipped else "") + f"{failed} failed"
                + (f", {other} pending" if other else ""))
     nfiles = sum(len(g["files"]) for g in unmerged)
     if nfiles:
