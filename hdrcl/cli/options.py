@@ -197,7 +197,7 @@ def grouping_options(f):
 
 def batch_merge_options(f):
     """The options of ``merge`` that ``batch`` applies to every set."""
-    f = click.option("--times-file", type=click.Path(dir_okay=False),
+    f = click.option("--times-file", type=InputFile("times file"),
                      help="Exposure list for frames without EXIF: HDRShop columns or 'file seconds' lines "
                           "[default: image_list.txt or times.txt beside the frames, when there is one].")(f)
     f = click.option("--fit-exposures", type=click.Choice(["auto", "on", "off"]), default="off",

@@ -45,7 +45,7 @@ from hdrcl.cli.options import (
               help="Show every frame with the reason it joined its set, and why each set ended.")
 @click.option("--content/--no-content", default=True, show_default=True,
               help="Compare the frames' content (small exposure-normalised thumbnails) as well as their headers.")
-@click.option("--times-file", type=click.Path(dir_okay=False),
+@click.option("--times-file", type=InputFile("times file"),
               help="Exposure list for frames without EXIF [default: image_list.txt or times.txt beside them].")
 @click.pass_context
 def scan(ctx, source, recursive, frames_per_set, gap, output, as_json, explain, content, times_file):
