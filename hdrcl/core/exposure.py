@@ -26,12 +26,20 @@ def render(radiance: np.ndarray, response: Response, time: float, bits: Optional
     bits : {8, 16}, optional
         Output depth; default the response's own.
     """
-    if not (time > 0 and np.isfinite(time)):
-        raise UsageError(f"exposure time must be a positive number of seconds, not {time}")
-    bits = response.bits if bits is None else int(bits)
+    from hdrcl.io.metadata import coerce_times
+
+    (time,) = coerce_times([time], "time")
+    bits = response.bits if bits is None else bits
+    if str(bits) in ("8", "16"):
+        bits = int(bits)
     if bits not in (8, 16):
-        raise UsageError(f"output depth must be 8 or 16 bits, not {bits}")
+        raise UsageError(f"bits: output depth must be 8 or 16, not {bits!r}")
     rad = np.asarray(radiance, np.float32)
+    if rad.ndim not in (2, 3) or rad.size == 0:
+        raise UsageError(f"radiance: expected an (H, W) or (H, W, C) array, not shape {rad.shape}")
+    bad = int(np.count_nonzero(~np.isfinite(rad)))
+    if bad:
+        raise UsageError(f"radiance: {bad} NaN or infinite value(s); a radiance map must be finite")
     squeeze = rad.ndim == 2
     if squeeze:
         rad = rad[..., None]
@@ -70,15 +78,24 @@ def expose_file(
     from hdrcl.io.radiance import read_radiance
     from hdrcl.io.writers import LDR_EXTENSIONS, write_ldr
 
+    from hdrcl.io.atomic import check_output
+
     output = os.fspath(output)
     ext = os.path.splitext(output)[1].lower()
+    check_output(output, [radiance_path] + ([response] if isinstance(response, (str, os.PathLike)) else []),
+                 what="photograph")
+    if motion_blur is not None:
+        motion_blur = _check_blur(motion_blur)
     if ext not in LDR_EXTENSIONS:
         raise UsageError(f"{output}: unsupported output type '{ext}'; use one of {', '.join(LDR_EXTENSIONS)}")
     if ext in (".jpg", ".jpeg") and bits == 16:
         raise UsageError(f"{output}: JPEG holds 8 bits; use .png or .tif for 16-bit output")
     resp = _as_response(response)
-    rad, _meta = read_radiance(radiance_path)
+    rad, _meta = read_radiance(radiance_path, require_float=True)
     if motion_blur is not None:
+        if max(abs(v) for v in motion_blur) > max(rad.shape[:2]):
+            raise UsageError(f"--motion-blur: {motion_blur[0]:g},{motion_blur[1]:g} is longer than the image "
+                             f"({rad.shape[1]}x{rad.shape[0]})")
         from hdrcl.core.radiometry import motion_blur as _blur
 
         rad = _blur(rad, *motion_blur)
@@ -90,3 +107,13 @@ def expose_file(
     write_ldr(output, img, metadata={"exposure": float(time), "exposureText": format_time(time),
                                      "source": os.path.basename(os.fspath(radiance_path))})
     return img
+
+
+def _check_blur(motion_blur) -> tuple:
+    try:
+        dx, dy = (float(v) for v in motion_blur)
+    except (TypeError, ValueError):
+        raise UsageError(f"--motion-blur: expected DX,DY in pixels, not {motion_blur!r}") from None
+    if not (np.isfinite(dx) and np.isfinite(dy)):
+        raise UsageError(f"--motion-blur: expected finite DX,DY in pixels, not {dx:g},{dy:g}")
+    return dx, dy

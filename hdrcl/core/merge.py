@@ -147,6 +147,7 @@ def merge_files(
     crop: bool = False,
     colorspace: str = "rec709",
     owner: Optional[str] = None,
+    save_response: Union[str, os.PathLike, None] = None,
 ) -> MergeResult:
     """Merge image files into a radiance file (EXR, HDR, TIFF or PFM by extension).
 
@@ -204,12 +205,17 @@ def merge_files(
 
     The file carries the standard metadata of :mod:`hdrcl.io.outmeta` (software, camera,
     lens, the reference exposure, the first frame's capture time).
+    save_response : path, optional
+        Also write the response used (JSON). It is written to a temporary file before
+        the radiance, so a full disk or a read-only folder fails the merge before the
+        radiance file appears, and renamed into place after it.
     """
     from hdrcl.cl.backend import get_processor
     from hdrcl.core.pipeline import ArraySink, ArraySource, Thumbnail, stream_merge
     from hdrcl.io.colorspace import check as check_space
     from hdrcl.io.outmeta import camera_from_infos
     from hdrcl.io.reader import BracketReader
+    from hdrcl.io.atomic import check_output, stage_text
     from hdrcl.io.writers import RADIANCE_EXTENSIONS, RadianceWriter
 
     colorspace = check_space(colorspace)
@@ -220,6 +226,11 @@ def merge_files(
     for target in (output, ghost_mask):
         if target is not None and not os.path.isdir(os.path.dirname(os.path.abspath(os.fspath(target)))):
             raise UsageError(f"{os.fspath(target)}: output folder does not exist")
+    inputs = [p for p in paths if isinstance(p, (str, os.PathLike))]
+    for target, what in ((output, "radiance map"), (ghost_mask, "ghost mask"), (save_response, "response")):
+        if target is not None:
+            check_output(target, inputs + ([response] if isinstance(response, (str, os.PathLike)) else []),
+                         what=what)
     rgb = _parse_ignore_color(ignore_color)
     if crop and not align:
         raise UsageError("--crop needs --align")
@@ -240,6 +251,8 @@ def merge_files(
     first = infos[0]
     nch = 3 if first.nchannels >= 3 else 1
     h, w = first.height, first.width
+    if resp is not None:
+        _check_response_fits(resp, source_name, paths[0], first.bits, nch)
     if resp is None and _all_raw(paths):
         from hdrcl.core.response import linear_response
 
@@ -291,6 +304,8 @@ def merge_files(
     thumb = Thumbnail(h, w, nch, thumbnail) if thumbnail else None
     keep = ArraySink(h, w, nch) if keep_radiance else None
     mask = np.zeros((h, w), bool) if ghost_mask is not None else None
+    # A second output is staged first: a full disk fails here, before the radiance exists.
+    staged = stage_text(save_response, resp.to_json()) if save_response is not None else None
     try:
         factors, units = _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, nch,
                                               neutral, reference_patch, absolute, h, w)
@@ -330,7 +345,11 @@ def merge_files(
             from hdrcl.io.writers import write_ldr
 
             write_ldr(ghost_mask, (mask.astype(np.uint8) * 255)[..., None])
+        if staged is not None:
+            staged.commit()
     finally:
+        if staged is not None:
+            staged.discard()
         if hasattr(source, "close"):
             source.close()
     result.counts = counts
@@ -345,6 +364,17 @@ def merge_files(
         logger.info("%s: ghost pixels %.2f %%", output, 100.0 * counts.get("ghost", 0) / max(h * w, 1))
     result.seconds = {"open": t1 - t0, "calibrate": t2 - t1, "fuse_and_write": _time.perf_counter() - t2}
     return result
+
+
+def _check_response_fits(resp: Response, source: str, first: str, bits: int, nch: int) -> None:
+    """A response for other frames (16-bit curve, 8-bit photographs) is an input error
+    naming the response and a frame, found before any decoding."""
+    from hdrcl.errors import InputError
+
+    if resp.bits != bits:
+        raise InputError(f"{source}: a response for {resp.bits}-bit frames, but {first} is {bits}-bit")
+    if resp.nchannels not in (1, nch):
+        raise InputError(f"{source}: a response with {resp.nchannels} channel(s), but {first} has {nch}")
 
 
 def _storage(output, dtype, resp, times, first, nch, factors, units, meta, result):

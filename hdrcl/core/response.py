@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import tempfile
 from dataclasses import dataclass, field
 from typing import List, Optional
 
@@ -214,29 +213,44 @@ class Response:
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "response") -> "Response":
+        """Build a response from its JSON form, checked against
+        :data:`hdrcl.io.jsondoc.RESPONSE_SCHEMA`; :class:`InputError` names ``source``
+        and the bad field."""
+        from hdrcl.io.jsondoc import RESPONSE_SCHEMA, validate
+
         if not isinstance(d, dict) or d.get("format") != RESPONSE_FORMAT:
             raise InputError(f"{source}: not an hdrcl response file (no \"format\": \"{RESPONSE_FORMAT}\")")
-        if int(d.get("version", 0)) > RESPONSE_VERSION:
+        version = d.get("version", 1)
+        if isinstance(version, int) and not isinstance(version, bool) and version > RESPONSE_VERSION:
             raise InputError(
-                f"{source}: response file version {d.get('version')} is newer than this hdrcl "
+                f"{source}: response file version {version} is newer than this hdrcl "
                 f"understands ({RESPONSE_VERSION}); upgrade hdrcl"
             )
-        try:
-            channels = tuple(d["channels"])
-            knots = np.asarray(d["knots"], np.float64)
-            g = np.asarray([d["g"][c] for c in channels], np.float64)
-            bits = int(d["bits"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{source}: malformed response file ({exc!s})") from None
-        if bits not in (8, 16) or g.shape != (len(channels), knots.size) or knots.size < 3:
-            raise InputError(f"{source}: malformed response file (bits {bits}, curve shape {g.shape})")
-        if not np.all(np.isfinite(g)):
-            raise InputError(f"{source}: response curve holds non-finite values")
+        validate(d, RESPONSE_SCHEMA, source)
+        channels = tuple(d["channels"])
+        if len(set(channels)) != len(channels):
+            raise InputError(f"{source}: channels: a channel is listed twice")
+        missing = [c for c in channels if c not in d["g"]]
+        if missing:
+            raise InputError(f"{source}: g: no curve for channel {missing[0]}")
+        bits = int(d["bits"])
+        knots = np.asarray(d["knots"], np.float64)
+        g = np.asarray([d["g"][c] for c in channels], np.float64)
+        levels = 1 << bits
+        if "levels" in d and int(d["levels"]) != levels:
+            raise InputError(f"{source}: levels: {d['levels']} does not match bits {bits}")
+        if knots.size > levels or np.any(np.diff(knots) <= 0) or knots[0] < 0 or knots[-1] > levels - 1:
+            raise InputError(f"{source}: knots: expected increasing code values within 0..{levels - 1}")
+        for c, name in enumerate(channels):
+            if len(d["g"][name]) != knots.size:
+                raise InputError(f"{source}: g.{name}: {len(d['g'][name])} values for {knots.size} knots")
+        if not np.all(np.isfinite(g)) or np.any(np.abs(g) > 1e6):
+            raise InputError(f"{source}: g: the curve holds non-finite or absurd values")
         resp = cls(
             bits=bits, g=g, knots=knots, channels=channels,
             smoothness=float(d.get("smoothness", 0.0)), weight=str(d.get("weight", "hat")),
-            samples=int(d.get("samples", 0)), seed=int(d.get("seed", 0)), camera=dict(d.get("camera", {})),
-            exposures=list(d.get("exposures", [])), warnings=list(d.get("warnings", [])),
+            samples=int(d.get("samples", 0)), seed=int(d.get("seed", 0)), camera=dict(d.get("camera") or {}),
+            exposures=list(d.get("exposures") or []), warnings=list(d.get("warnings") or []),
         )
         resp.check_given(source)
         return resp
@@ -262,34 +276,25 @@ class Response:
         for msg in self.monotonic_problems():
             logger.warning("%s: %s", source, msg)
 
+    def to_json(self) -> str:
+        """The response file's text (see :meth:`to_dict`)."""
+        return json.dumps(self.to_dict(), indent=1) + "\n"
+
     def save(self, path) -> None:
-        """Write the response as JSON, atomically (temporary file, then rename)."""
-        path = os.fspath(path)
-        folder = os.path.dirname(os.path.abspath(path))
-        if not os.path.isdir(folder):
-            raise UsageError(f"{path}: output folder does not exist")
-        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=folder)
-        try:
-            with os.fdopen(fd, "w") as fh:
-                json.dump(self.to_dict(), fh, indent=1)
-                fh.write("\n")
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        """Write the response as JSON, atomically (temporary file, then rename), with
+        the permissions the umask allows."""
+        from hdrcl.io.atomic import write_text
+
+        write_text(path, self.to_json())
 
     @classmethod
     def load(cls, path) -> "Response":
+        """Read a response file; :class:`InputError` names the file and the problem
+        (a UTF-8 byte-order mark is accepted)."""
+        from hdrcl.io.jsondoc import read_json
+
         path = os.fspath(path)
-        try:
-            with open(path) as fh:
-                d = json.load(fh)
-        except FileNotFoundError:
-            raise InputError(f"{path}: response file not found") from None
-        except (OSError, ValueError) as exc:
-            raise InputError(f"{path}: cannot read response file ({exc!s})") from None
-        return cls.from_dict(d, source=path)
+        return cls.from_dict(read_json(path, "response file"), source=path)
 
 
 def _as_response(response) -> Optional[Response]:

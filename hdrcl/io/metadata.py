@@ -115,6 +115,12 @@ class Exposure:
         return f
 
 
+#: Largest gain (dB) and neutral density a times file may give; beyond them the
+#: exposure factor leaves the range of a float.
+MAX_GAIN_DB = 200.0
+MAX_ND = 30.0
+
+
 def _parse_seconds(text: str) -> Optional[float]:
     """``"1/30"``, ``"0.5"`` or ``"2"`` as seconds; None when not a positive finite time."""
     text = text.strip()
@@ -131,13 +137,15 @@ def _parse_seconds(text: str) -> Optional[float]:
     return value
 
 
-def parse_times(text: str) -> list:
+def parse_times(text: str, name: str = "--times") -> list:
     """Parse a comma-separated list of exposure times in seconds.
 
     Parameters
     ----------
     text : str
         For example ``"1/30,0.5,2"``: fractions, decimals or integers; spaces allowed.
+    name : str
+        The option or parameter the text came from, for messages (``--time``, ``times``).
 
     Returns
     -------
@@ -150,12 +158,51 @@ def parse_times(text: str) -> list:
     """
     items = [t.strip() for t in str(text).split(",")]
     if not any(items):
-        raise UsageError("--times: no exposure times given")
+        raise UsageError(f"{name}: no exposure times given")
     out = []
     for item in items:
         value = _parse_seconds(item)
         if value is None:
-            raise UsageError(f"--times: '{item}' is not a positive exposure time")
+            raise UsageError(f"{name}: '{_clip(item)}' is not a positive exposure time")
+        out.append(value)
+    return out
+
+
+def _clip(text: str, n: int = 40) -> str:
+    text = "".join(ch if ch.isprintable() else "?" for ch in str(text))
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def coerce_times(times, name: str = "--times") -> list:
+    """Exposure times as floats from what a caller may give: numbers, strings such as
+    ``"1/30"`` (one per frame), or one comma-separated string ``"1/30,1/60"``.
+
+    Raises
+    ------
+    UsageError
+        An entry is not a positive, finite number of seconds (the message names ``name``).
+    """
+    if isinstance(times, (str, bytes)):
+        return parse_times(times.decode() if isinstance(times, bytes) else times, name)
+    try:
+        items = list(times)
+    except TypeError:
+        raise UsageError(f"{name}: expected a list of exposure times, not {type(times).__name__}") from None
+    out = []
+    for t in items:
+        if isinstance(t, str):
+            value = _parse_seconds(t)
+        elif isinstance(t, bool):
+            value = None
+        else:
+            try:
+                value = float(t)
+            except (TypeError, ValueError):
+                value = None
+            if value is not None and (not math.isfinite(value) or value <= 0):
+                value = None
+        if value is None:
+            raise UsageError(f"{name}: '{_clip(t)}' is not a positive exposure time")
         out.append(value)
     return out
 
@@ -231,10 +278,14 @@ def read_times_file(path) -> dict:
                     raise bad
                 exposure.fnumber = extra[1]
             if len(extra) >= 3:
+                if abs(extra[2]) > MAX_GAIN_DB:
+                    raise InputError(f"{name} line {lineno}: gain {extra[2]:g} dB is out of range "
+                                     f"(at most {MAX_GAIN_DB:g} dB either way)")
                 exposure.gain_db = extra[2]
             if len(extra) >= 4:
-                if extra[3] < 0:
-                    raise bad
+                if extra[3] < 0 or extra[3] > MAX_ND:
+                    raise InputError(f"{name} line {lineno}: ND density {extra[3]:g} is out of range "
+                                     f"(0 to {MAX_ND:g})")
                 exposure.nd = extra[3]
         key = os.path.basename(fields[0])
         if key in result:
@@ -365,7 +416,7 @@ def resolve_exposures(
         first = names[0] if names else "no input files"
         raise InputError(f"{first}: a bracket set needs at least two exposures")
     if times is not None:
-        times = list(times)
+        times = coerce_times(times)
         if len(times) != len(names):
             raise UsageError(
                 f"--times: {len(times)} exposure time(s) given for {len(names)} files"
@@ -400,6 +451,10 @@ def resolve_exposures(
                 )
             exposures.append(Exposure(time=t, fnumber=info.fnumber, iso=info.iso))
     rel = relative_exposures(exposures)
+    for n, r in zip(names, rel):
+        if not (math.isfinite(r) and r > 0):
+            raise InputError(f"{n}: its exposure ({exposures[names.index(n)].time:g} s with the "
+                             "aperture, ISO, gain and ND given) is out of range")
     check_exposures(names, rel)
     return exposures
 

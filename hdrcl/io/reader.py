@@ -17,6 +17,7 @@ from hdrcl.io.frames import (
     _open_input,
     _read_error,
     check_compatible,
+    decoder_stderr,
     read_info,
 )
 from hdrcl.io.metadata import FrameInfo
@@ -106,7 +107,8 @@ class BracketReader:
         colour, alpha = self._layout[k]
         spec = inp.spec()
         fmt = "uint8" if self.dtype == np.uint8 else "uint16"
-        data = inp.read_scanlines(0, 0, y0, y1, 0, 0, spec.nchannels, fmt)
+        with decoder_stderr():
+            data = inp.read_scanlines(0, 0, y0, y1, 0, 0, spec.nchannels, fmt)
         problem = _read_error(inp, name)
         if problem is None and data is None:
             problem = f"{name}: cannot decode pixel data"
