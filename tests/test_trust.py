@@ -230,6 +230,33 @@ def test_values_beyond_half_are_rescaled_or_written_as_float(tmp_path, field, cl
     assert any("written as float to keep its units" in w for w in res2.warnings)
 
 
+def test_batch_keeps_values_beyond_half(tmp_path, field, cl_device):
+    """The batch path takes the same storage decision as merge: no value clamped."""
+    from click.testing import CliRunner
+
+    from hdrcl.cli import main
+    from hdrcl.io.radiance import read_radiance
+
+    rad, c = field
+    times = s.stops(5, 2.0, centre=c)
+    frames = s.bracket(rad, times, CAM, noise=0.5, seed=7)
+    folder = tmp_path / "set"
+    folder.mkdir()
+    paths = _write_set(folder, frames)
+    (folder / "times.txt").write_text("".join(f"{p.name} {float(t) * 1e-7!r}\n" for p, t in zip(paths, times)))
+    true_response().save(str(tmp_path / "true.json"))
+    out = tmp_path / "out"
+    res = CliRunner().invoke(main, ["batch", str(folder), "-o", str(out), "--response", str(tmp_path / "true.json")])
+    assert res.exit_code == 0, res.output
+    (exr,) = sorted(out.glob("*.exr"))
+    px, spec = _read(exr)
+    scale = spec.getattribute("hdrcl:halfScale")
+    assert spec.format == "half" and scale is not None and scale < 1
+    assert np.isfinite(px).all() and (px > 0).all() and px.max() < 65504
+    back, _meta = read_radiance(str(exr))
+    assert back.max() > 65504  # radiance beyond half, kept through the multiplier
+
+
 def test_absurd_times_are_refused(tmp_path, field):
     from hdrcl.core.merge import merge_files
 
@@ -295,3 +322,20 @@ def test_streamed_file_merge_learns_the_residuals_from_the_grid(tmp_path, cl_dev
                       ghost_mask=mask, ghost_threshold=8.0)
     whole = fuse_frames(frames, times, true_response(), deghost=True)
     assert res.counts["ghost"] == int(whole.ghost_mask.sum()) > 900
+
+
+def test_steep_toe_alone_is_not_a_stretched_curve():
+    """A film-like curve whose span over codes 10..245 comes from a steep, weakly
+    constrained toe (the Memorial set: 6.5 decades, 2.2 over codes 25..230) is not
+    warned about; the same curve stretched uniformly (wrong exposure times) is."""
+    from hdrcl.core.response import Response, knot_positions
+
+    z = np.arange(256, dtype=np.float64)
+    body = np.log(np.clip(z, 1, None) / 128.0) * 2.1  # ~2 decades over 25..230, ~2.9 over 10..245
+    toe = np.where(z < 25, -0.6 * (25 - z), 0.0)  # 6 ln units more between 10 and 25
+    g = (body + toe)[None, :]
+    film = Response(bits=8, g=g, knots=knot_positions(8), channels=("Y",))
+    assert film.span_decades() > 4.0 and film.span_decades(25, 230) < 2.8
+    assert film.span_problem() is None
+    stretched = Response(bits=8, g=2.0 * body[None, :], knots=knot_positions(8), channels=("Y",))
+    assert stretched.span_decades() > 4.0 and "stretch" in stretched.span_problem()

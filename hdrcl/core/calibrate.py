@@ -16,7 +16,7 @@ from hdrcl.core.bracket import (
     _parse_ignore_color,
     load_bracket,
 )
-from hdrcl.core.response import Response
+from hdrcl.core.response import SPAN_BODY, Response
 from hdrcl.core.solve import recover_response
 from hdrcl.core.weights import DEFAULT_WEIGHT
 
@@ -102,8 +102,9 @@ def report_span(resp: Response, warn: bool = True) -> float:
     """Log the curve's span in decades (codes 10..245) and warn (``warn``), into
     ``resp.warnings`` too, when an 8-bit curve is stretched (:meth:`Response.span_problem`)."""
     span = resp.span_decades()
-    logger.log(logging.INFO if warn else logging.DEBUG, "response spans %.2f decades between codes 10 and 245",
-               span)
+    logger.log(logging.INFO if warn else logging.DEBUG,
+               "response spans %.2f decades between codes 10 and 245 (%.2f between %d and %d)",
+               span, resp.span_decades(*SPAN_BODY), *SPAN_BODY)
     problem = resp.span_problem()
     if problem and problem not in resp.warnings:
         if warn:

@@ -17,7 +17,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from hdrcl.core.response import Response, _check_smoothness, _segments, knot_positions
+from hdrcl.core.response import SPAN_BODY, Response, _check_smoothness, _segments, knot_positions
 from hdrcl.core.solve import solve_curve
 from hdrcl.core.weights import weight_values
 from hdrcl.errors import UsageError
@@ -358,8 +358,8 @@ class ExposureCheck:
     """Checks the exposures of a merge with a given response against the pixels.
 
     With the curve known, the pixels tell each exposure ratio directly: for two frames
-    adjacent in exposure, ``g(Z_b) - g(Z_a)`` over pixels both hold in their working
-    range is ``ln(dt_b / dt_a)``. Strips are added as they stream by (a subsample of
+    adjacent in exposure, ``g(Z_b) - g(Z_a)`` over pixels both hold in the curve's body
+    (codes 25..230 in 8-bit units) is ``ln(dt_b / dt_a)``. Strips are added as they stream by (a subsample of
     their pixels, in the middle channel) and :meth:`problems` compares the median with
     the metadata.
 
@@ -388,7 +388,10 @@ class ExposureCheck:
         self.channel = ch
         levels = self.table.size
         scale = (levels - 1) / 255.0
-        self.lo, self.hi = 10 * scale, 245 * scale
+        # The body of the curve only: near black, film fog and scanner floor hold codes
+        # that do not change with exposure (the Memorial set's short frames sit at 10-20
+        # in most of the picture), which would read as a ratio of 1.
+        self.lo, self.hi = SPAN_BODY[0] * scale, SPAN_BODY[1] * scale
         nb = int(round(2 * self.RANGE / self.BIN))
         self.hist = np.zeros((max(len(self.log_times) - 1, 0), nb), np.int64)
 

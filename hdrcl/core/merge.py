@@ -311,7 +311,7 @@ def merge_files(
                                               neutral, reference_patch, absolute, h, w)
         meta = _provenance(result, source_name)
         meta.update(units)
-        dtype, half_scale = _storage(output, dtype, resp, rel, first, nch, factors, units, meta, result)
+        dtype, half_scale = choose_storage(output, dtype, resp, rel, first, nch, factors, units, meta, result)
         check = None
         if not calibrated:  # a given response: check the exposures against the pixels
             from hdrcl.core.exposure_fit import ExposureCheck
@@ -327,7 +327,7 @@ def merge_files(
         when = first.capture_time.strftime("%Y:%m:%d %H:%M:%S") if first.capture_time else None
         with RadianceWriter(output, w, h, nch, dtype=dtype, compression=compression, metadata=meta,
                             timestamp=when, colorspace=colorspace, camera=camera) as writer:
-            sink = writer if half_scale == 1.0 else _Rescaled(writer, half_scale)
+            sink = writer if half_scale == 1.0 else RescaledSink(writer, half_scale)
             sink = sink if keep is None else _Tee(sink, keep)
             if factors is not None:
                 from hdrcl.core.radiometry import ScaledSink
@@ -377,7 +377,7 @@ def _check_response_fits(resp: Response, source: str, first: str, bits: int, nch
         raise InputError(f"{source}: a response with {resp.nchannels} channel(s), but {first} has {nch}")
 
 
-def _storage(output, dtype, resp, times, first, nch, factors, units, meta, result):
+def choose_storage(output, dtype, resp, times, first, nch, factors, units, meta, result):
     """The EXR sample type and multiplier that keep every value (:mod:`hdrcl.io.halfrange`):
     half as asked, half rescaled by a power of two (``hdrcl:halfScale``), or float
     (physical units, or a range beyond half floats); said in ``result.warnings``."""
@@ -391,8 +391,9 @@ def _storage(output, dtype, resp, times, first, nch, factors, units, meta, resul
         lo, hi = lo * float(np.min(factors)), hi * float(np.max(factors))
     hp = halfrange.plan(lo, hi, dtype, keep_units=units.get("units", "relative") != "relative")
     if hp.message:
+        # A decision, not a fault: the summary line ("storage:") and the report say it.
         msg = f"{output}: {hp.message}"
-        logger.warning("%s", msg)
+        logger.info("%s", msg)
         result.warnings.append(msg)
         result.storage_note = hp.message
     if hp.scale != 1.0:
@@ -415,7 +416,7 @@ def _report_exposure_check(check, result, tolerance):
         result.warnings.append(m)
 
 
-class _Rescaled:
+class RescaledSink:
     """Passes strips on multiplied by ``scale`` (a copy: other sinks still see radiance)."""
 
     def __init__(self, sink, scale: float):

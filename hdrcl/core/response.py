@@ -39,6 +39,13 @@ DEFAULT_SMOOTHNESS = {"hat": 40.0, "gaussian": 60.0}
 #: decades beyond which an 8-bit curve is reported as stretched.
 SPAN_LOW, SPAN_HIGH = 10, 245
 SPAN_WARN_DECADES = 4.0
+#: The body of the curve (codes 25..230) and the decades beyond which it counts as
+#: stretched. A uniform stretch (wrong exposure times) widens the body as much as the
+#: ends; a steep toe or shoulder that few samples constrain (film scans: the Memorial
+#: set spans 6.5 decades over 10..245 but 2.2 over 25..230) widens only the ends. A
+#: camera JPEG's body spans about 1.9 decades.
+SPAN_BODY = (25, 230)
+SPAN_BODY_WARN_DECADES = 2.8
 
 
 def default_smoothness(weight: str = "hat") -> float:
@@ -150,9 +157,13 @@ class Response:
         return float(np.max(t[:, hi] - t[:, lo]) / np.log(10.0))
 
     def span_problem(self) -> Optional[str]:
-        """A warning when an 8-bit curve spans more than :data:`SPAN_WARN_DECADES`."""
+        """A warning when an 8-bit curve spans more than :data:`SPAN_WARN_DECADES`
+        between codes 10 and 245 *and* its body (:data:`SPAN_BODY`) more than
+        :data:`SPAN_BODY_WARN_DECADES`: the mark of exposure times that stretched it, not
+        of a steep, weakly constrained toe."""
         span = self.span_decades()
-        if self.bits == 8 and span > SPAN_WARN_DECADES:
+        if (self.bits == 8 and span > SPAN_WARN_DECADES
+                and self.span_decades(*SPAN_BODY) > SPAN_BODY_WARN_DECADES):
             return (f"the response spans {span:.1f} decades between codes {SPAN_LOW} and {SPAN_HIGH} "
                     f"(camera JPEGs span about 2.5): wrong exposure times stretch a curve so; "
                     f"check them unless this is film")
