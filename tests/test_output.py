@@ -1,7 +1,6 @@
 """What the output files carry: ACEScg through OpenImageIO's colour management, standard
 EXR attributes and Radiance header lines (read back with OpenImageIO), one time format,
 warnings for options that do not apply, and curve warnings only when earned."""
-import logging
 
 import numpy as np
 import pytest
