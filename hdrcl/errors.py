@@ -65,14 +65,42 @@ def install_warnings_bridge() -> None:
         log.addHandler(WarningsBridge())
 
 
-def check_readable(name: str) -> None:
-    """Raise :class:`InputError` unless ``name`` is an existing, readable, non-empty file."""
+def check_regular(path, what: str = "image") -> None:
+    """Raise :class:`InputError` at once unless ``path`` is a regular file.
+
+    A FIFO would block the first read for ever and ``/dev/zero`` never ends: every file a
+    user names for reading (images, times files, response and manifest JSON) is checked
+    here before it is opened. ``what`` names the expected kind in the folder message.
+    """
+    import os
+    import stat
+
+    name = os.fspath(path)
+    try:
+        st = os.stat(name)
+    except FileNotFoundError:
+        raise InputError(f"{name}: no such file") from None
+    except OSError as exc:
+        raise InputError(f"{name}: cannot read ({exc.strerror or exc})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{name}: is a folder, not {_article(what)}")
+    if not stat.S_ISREG(st.st_mode):
+        kind = ("a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device" if stat.S_ISCHR(st.st_mode)
+                or stat.S_ISBLK(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode) else "special")
+        raise InputError(f"{name}: not a regular file ({kind})")
+
+
+def _article(what: str) -> str:
+    return ("an " if what[:1].lower() in "aeiou" else "a ") + what
+
+
+def check_readable(name, what: str = "image") -> None:
+    """Raise :class:`InputError` unless ``name`` is an existing, readable, non-empty
+    regular file (:func:`check_regular`: no FIFO, device or folder)."""
     import os
 
-    if not os.path.exists(name):
-        raise InputError(f"{name}: no such file")
-    if os.path.isdir(name):
-        raise InputError(f"{name}: is a folder, not an image")
+    name = os.fspath(name)
+    check_regular(name, what)
     if not os.access(name, os.R_OK):
         raise InputError(f"{name}: permission denied")
     if os.path.getsize(name) == 0:

@@ -85,6 +85,8 @@ def fx(tmp_path_factory):
     f["jpeg"] = str(sorted(shoot.glob("*.jpg"))[0])
     (d / "ro").mkdir()
     f["ro"] = str(d / "ro")
+    os.mkfifo(d / "fifo")  # nobody ever writes it: a reader that opens it waits for ever
+    f["fifo"] = str(d / "fifo")
     return f
 
 
@@ -213,15 +215,48 @@ CASES = [
                                        "{o}/p.jpg"], 2, r"^hdrcl: error: --time: 'abc' is not", ["p.jpg"], None),
     ("response-bom", lambda x: _merge8(x, "--response", str(x["dir"] / "bom.json"), "-o", "{o}/a.exr"), 0, None, [],
      None),
+    # a FIFO or a device where a file is read: refused at once (a read would block for ever)
+    ("fifo-times-file", lambda x: ["merge", *x["f8"], "--times-file", x["fifo"], "-o", "{o}/a.exr"], 3,
+     r"fifo: not a regular file \(a FIFO\)", ["a.exr"], None),
+    ("fifo-response", lambda x: _merge8(x, "--response", x["fifo"], "-o", "{o}/a.exr"), 3,
+     r"fifo: not a regular file \(a FIFO\)", ["a.exr"], None),
+    ("fifo-image", lambda x: ["merge", x["f8"][0], x["fifo"], "--times", "1/60,1/15", "-o", "{o}/a.exr"], 3,
+     r"fifo: not a regular file \(a FIFO\)", ["a.exr"], None),
+    ("device-image", lambda x: ["merge", x["f8"][0], "/dev/zero", "--times", "1/60,1/15", "-o", "{o}/a.exr"], 3,
+     r"^hdrcl: error: /dev/zero: not a regular file \(a device\)$", ["a.exr"], None),
+    ("fifo-scan", lambda x: ["scan", x["fifo"]], 3, r"fifo: not a regular file \(a FIFO\)", [], None),
+    ("fifo-batch-manifest", lambda x: ["batch", x["fifo"], "-o", "{o}/batch"], 3,
+     r"fifo: not a regular file \(a FIFO\)", ["batch"], None),
+    ("fifo-batch-times-file", lambda x: ["batch", x["shoot"], "--times-file", x["fifo"], "-o", "{o}/batch"], 3,
+     r"fifo: not a regular file \(a FIFO\)", ["batch"], None),
+    ("fifo-scan-times-file", lambda x: ["scan", x["shoot"], "--times-file", x["fifo"]], 3,
+     r"fifo: not a regular file \(a FIFO\)", [], None),
 ]
 
 
+class _Hung(Exception):
+    """A command still running after :data:`HANG_SECONDS` (a read blocked on a FIFO)."""
+
+
+#: A case that takes longer than this hangs: it fails instead of blocking the test run.
+HANG_SECONDS = 60
+
+
 def _invoke(args, monkeypatch, fx, condition):
+    import signal
+
+    def hung(signum, frame):
+        raise _Hung(f"still running after {HANG_SECONDS} s")
+
     if condition:
         CONDITIONS[condition](monkeypatch, fx)
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(HANG_SECONDS)
     try:
         return CliRunner().invoke(main, args)
     finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
         monkeypatch.undo()
 
 

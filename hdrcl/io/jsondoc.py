@@ -22,7 +22,7 @@ import math
 import os
 from typing import Any, Optional
 
-from hdrcl.errors import InputError
+from hdrcl.errors import InputError, check_regular
 
 #: Deepest nesting of arrays and objects accepted in a document.
 MAX_DEPTH = 64
@@ -54,13 +54,12 @@ def read_json(path, what: str) -> Any:
     Raises
     ------
     InputError
-        Missing, a folder, unreadable, binary, not UTF-8, not JSON, or nested deeper
+        Missing, a folder, a FIFO or device, unreadable, binary, not UTF-8, not JSON, or nested deeper
         than :data:`MAX_DEPTH`; the message names ``path``.
     """
     name = os.fspath(path)
+    check_regular(name, what)  # a FIFO or a device would block or never end
     try:
-        if os.path.isdir(name):
-            raise InputError(f"{name}: is a folder, not a {what}")
         with open(name, "rb") as fh:
             data = fh.read(MAX_BYTES + 1)
     except FileNotFoundError:
