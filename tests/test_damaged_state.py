@@ -4,7 +4,6 @@
 type-checked; a damaged one counts as absent or stale (rebuilt), never as an error.
 """
 import json
-from pathlib import Path
 
 import pytest
 from click.testing import CliRunner

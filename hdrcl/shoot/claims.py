@@ -28,7 +28,6 @@ import glob
 import logging
 import os
 import signal
-import stat
 import threading
 import time
 from typing import Iterator, Optional
