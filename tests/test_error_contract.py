@@ -521,3 +521,55 @@ def test_merge_has_the_options_of_merge_files(fx, tmp_path, cl_device):
                             crop=True, deghost=True, keep_radiance=True)
     assert aligned.shape == ref.radiance.shape
     np.testing.assert_allclose(aligned, ref.radiance, rtol=1e-5, atol=1e-7)
+
+
+# ------------------------------------------------------------------------------ signals
+
+
+@pytest.fixture(scope="module")
+def big_bracket(tmp_path_factory):
+    """Three 2400x3600 frames (a small synthetic bracket tiled): a merge takes seconds."""
+    from hdrcl.io.writers import write_ldr
+
+    d = tmp_path_factory.mktemp("big")
+    rad = s.radiance_field(200, 300, decades=3.0, seed=3)
+    paths = []
+    for k, frame in enumerate(s.bracket(rad, TIMES, s.Camera(a=1.1, bits=8), noise=0.3, seed=4)):
+        paths.append(str(d / f"big{k}.tif"))
+        write_ldr(paths[-1], np.tile(frame, (12, 12, 1)))
+    return paths
+
+
+@pytest.mark.parametrize("command", ["merge", "tonemap"])
+def test_sigterm_removes_the_temporary_file(big_bracket, tmp_path, command):
+    """SIGTERM while the output is being written: exit 143, one line, no temporary file."""
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    out.mkdir()
+    if command == "merge":
+        args = ["merge", *big_bracket, "--times", "1/60,1/15,1/4", "-o", str(out / "m.exr")]
+    else:
+        rad = tmp_path / "r.exr"
+        done = subprocess.run([sys.executable, "-m", "hdrcl", "merge", *big_bracket, "--times", "1/60,1/15,1/4",
+                               "-o", str(rad), "-q"], cwd=Path(__file__).resolve().parents[1], timeout=300)
+        assert done.returncode == 0
+        args = ["tonemap", str(rad), "--operator", "reinhard-local", "-o", str(out / "m.tif"), "--bits", "16"]
+    proc = subprocess.Popen([sys.executable, "-m", "hdrcl", *args], cwd=Path(__file__).resolve().parents[1],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not list(out.glob(".*tmp*")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert proc.poll() is None, "finished before its temporary file could be seen"
+        assert list(out.glob(".*tmp*")), "no temporary file appeared"
+        proc.send_signal(signal.SIGTERM)
+        _stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 143, (proc.returncode, stderr)
+    assert stderr.splitlines() == ["hdrcl: terminated"], stderr
+    assert list(out.iterdir()) == [], "output or temporary file left behind"
