@@ -67,7 +67,8 @@ def fx(tmp_path_factory):
     bad = {"version_abc": {"version": "abc"}, "version_null": {"version": None},
            "samples_abc": {"samples": "abc"}, "camera_list": {"camera": [1, 2]},
            "exposure_no_nominal": {"exposures": [{"file": "a.png"}]},
-           "knots_reversed": {"knots": resp["knots"][::-1]}}
+           "knots_reversed": {"knots": resp["knots"][::-1]}, "version_2_0": {"version": 2.0},
+           "version_1e300": {"version": 1e300}, "version_1_5": {"version": 1.5}}
     for name, change in bad.items():
         (d / f"{name}.json").write_text(json.dumps({**resp, **change}))
     (d / "deep.json").write_text('{"format": "hdrcl-response", "camera": ' + "[" * 100000 + "]" * 100000 + "}")
@@ -164,7 +165,10 @@ CASES = [
       for n, field in [("version_abc", r"version: expected an integer"), ("version_null", "version: expected"),
                        ("samples_abc", "samples: expected an integer"), ("camera_list", "camera: expected an object"),
                        ("exposure_no_nominal", r"exposures\[0\]: missing 'nominal'"),
-                       ("knots_reversed", "knots: expected increasing")]],
+                       ("knots_reversed", "knots: expected increasing"),
+                       ("version_2_0", r"response file version 2 is newer than this hdrcl"),
+                       ("version_1e300", r"response file version 1e\+300 is newer than this hdrcl"),
+                       ("version_1_5", r"version: expected an integer, not 1.5")]],
     ("response-deep", lambda x: _merge8(x, "--response", str(x["dir"] / "deep.json"), "-o", "{o}/a.exr"),
      3, r"deep.json: response file nested too deeply", ["a.exr"], None),
     ("manifest-deep", lambda x: ["batch", str(x["dir"] / "mdeep.json"), "-o", "{o}/batch"], 3,
@@ -197,6 +201,9 @@ CASES = [
      r"f1.png: an 8-bit photograph, not a radiance map", ["p.jpg"], None),
     ("tonemap-exposure-nan", lambda x: ["tonemap", x["rad"], "--exposure", "nan", "-o", "{o}/p.jpg"], 2,
      r"--exposure: expected a finite number", ["p.jpg"], None),
+    *[(f"tonemap-exposure-{v}", (lambda v: lambda x: ["tonemap", x["rad"], "--exposure", v, "-o", "{o}/p.jpg"])(v),
+       2, r"^hdrcl: error: --exposure: .* out of range \(at most 64 either way\)", ["p.jpg"], None)
+      for v in ("2000", "1e308", "-65")],
     ("sets-negative", lambda x: ["batch", x["shoot"] + "/manifest.json", "-o", "{o}/batch", "--sets=-1"], 2,
      r"--sets: '-1' reads as a negative index", ["batch"], None),
     ("response-16-on-8", lambda x: _merge8(x, "--response", x["r16"], "-o", "{o}/a.exr"), 3,
@@ -282,6 +289,17 @@ def test_error_contract(case, fx, tmp_path, monkeypatch, capfd):
     assert not [p for p in tmp_path.rglob(".*tmp*")], "temporary file left behind"
     after = {p.name: p.stat().st_mtime_ns for p in fx["dir"].iterdir() if p.is_file()}
     assert after == before, "an input file was changed"
+
+
+def test_flat_curve_warning_reads_sensibly(fx, tmp_path):
+    """Two copies of one frame make a curve with no rising step: no 'inf code levels'."""
+    a, b = tmp_path / "a.png", tmp_path / "b.png"
+    shutil.copy(fx["f8"][1], a)
+    shutil.copy(fx["f8"][1], b)
+    res = CliRunner().invoke(main, ["merge", str(a), str(b), "--times", "1,2", "-o", str(tmp_path / "a.exr")])
+    assert "not monotonic" in res.stderr or "does not rise" in res.stderr, (res.exit_code, res.stderr)
+    assert "inf code levels" not in res.stderr and "nan" not in res.stderr, res.stderr
+    assert "does not rise between codes 10 and 245" in res.stderr, res.stderr
 
 
 def test_output_equal_to_an_input_is_refused_before_it_is_destroyed(fx, tmp_path):
@@ -458,6 +476,9 @@ def test_api_takes_times_as_the_cli_does(fx):
     (lambda h, fx: h.expose(np.full((4, 4, 3), np.nan, np.float32), fx["r8"], 1 / 30),
      r"^radiance: 48 NaN or infinite value\(s\)"),
     (lambda h, fx: h.expose(np.ones((4, 4, 3), np.float32), fx["r8"], "soon"), r"^time: 'soon' is not"),
+    (lambda h, fx: h.tonemap(np.ones((4, 4, 3), np.float32), exposure=2000), r"^exposure: 2000 stops is out of"),
+    (lambda h, fx: h.tonemap(np.ones((4, 4, 3), np.float32), exposure=float("nan")), r"^exposure: nan is not a"),
+    (lambda h, fx: h.tonemap_file(fx["rad"], fx["dir"] / "never.jpg", exposure=-1e308), r"^exposure: -1e\+308"),
 ])
 def test_api_errors_name_parameters(fx, call, message):
     import hdrcl

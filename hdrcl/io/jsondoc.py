@@ -61,6 +61,8 @@ def read_json(path, what: str) -> Any:
         than :data:`MAX_DEPTH`; the message names ``path``.
     """
     name = os.fspath(path)
+    if not os.path.lexists(name):
+        raise InputError(f"{name}: no such {what}")
     check_regular(name, what)  # a FIFO or a device would block or never end
     try:
         with open(name, "rb") as fh:
@@ -255,7 +257,7 @@ RESPONSE_SCHEMA = {
     "required": ["format", "bits", "channels", "knots", "g"],
     "properties": {
         "format": {"const": "hdrcl-response"},
-        "version": {"type": "integer", "minimum": 1},
+        "version": {"type": "integer", "minimum": 1, "maximum": 1},  # RESPONSE_VERSION
         "bits": {"enum": [8, 16]},
         "levels": {"enum": [256, 65536]},
         "channels": {"type": "array", "minItems": 1, "maxItems": 4,
