@@ -34,7 +34,7 @@ from hdrcl.core.bracket import Bracket, PathOrArray, memory_budget, read_infos
 from hdrcl.core.calibrate import exposures_used
 from hdrcl.core.merge import MergeResult
 from hdrcl.core.response import Response, _as_response
-from hdrcl.errors import HdrclError, UsageError
+from hdrcl.errors import HdrclError, UsageError, auto_install_warnings_bridge
 from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.report.merge_report import write_quality_report
 from hdrcl.report.tonemap import tonemap, tonemap_file
@@ -44,6 +44,9 @@ __all__ = [
     "load_bracket", "memory_budget", "merge", "merge_bracket", "merge_files", "read_infos",
     "tonemap", "tonemap_file", "write_quality_report",
 ]
+
+# First use of the API: its warnings also go through the warnings module (HdrclWarning).
+auto_install_warnings_bridge()
 
 _FLAG = re.compile(r"(?<![\w-])--([a-z][a-z0-9-]*)")
 

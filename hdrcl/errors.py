@@ -7,11 +7,11 @@ the problem on one line. The CLI prints ``hdrcl: error: <message>`` and exits wi
 Warnings: modules log them (``logging.getLogger(__name__).warning``); for library users
 :class:`WarningsBridge` on the ``hdrcl`` logger also raises each one through the
 :mod:`warnings` module as an :class:`HdrclWarning`, so ``warnings.catch_warnings``,
-``-W error::hdrcl.HdrclWarning`` and pytest's warning capture all see them. The command
-line replaces the bridge by its one-line stderr handler.
+``-W error::hdrcl.HdrclWarning`` and pytest's warning capture all see them. The bridge is
+installed on first use of the API (:func:`hdrcl.api` import, or ``hdrcl.<name>``), not
+by ``import hdrcl``, which stays cheap (no :mod:`logging`). The command line replaces the
+bridge by its one-line stderr handler (:func:`disable_warnings_bridge`).
 """
-import logging
-import warnings
 
 
 class HdrclError(Exception):
@@ -42,27 +42,70 @@ class HdrclWarning(UserWarning):
     """Category of hdrcl's warnings (a doubtful input, a value clamped, a frame flagged)."""
 
 
-class WarningsBridge(logging.Handler):
-    """Logging handler that re-raises ``hdrcl`` warning records as :class:`HdrclWarning`.
+_bridge = {"auto": True}
 
-    Installed on the ``hdrcl`` logger when the package is imported. Records keep
-    propagating to the root logger, so an application's logging set-up sees them too;
-    with the bridge present, logging's bare last-resort printing is not used.
-    """
 
-    def __init__(self):
-        super().__init__(level=logging.WARNING)
+def _bridge_class():
+    """:class:`WarningsBridge`, defined on first use so that importing this module does
+    not import :mod:`logging`."""
+    cls = _bridge.get("class")
+    if cls is None:
+        import logging
+        import warnings
 
-    def emit(self, record: logging.LogRecord) -> None:  # exceptions (warnings as errors) propagate
-        warnings.warn_explicit(record.getMessage(), HdrclWarning, record.pathname, record.lineno,
-                               module=record.module)
+        class WarningsBridge(logging.Handler):
+            """Logging handler that re-raises ``hdrcl`` warning records as :class:`HdrclWarning`.
+
+            Installed on the ``hdrcl`` logger on first use of the API. Records keep
+            propagating to the root logger, so an application's logging set-up sees them
+            too; with the bridge present, logging's bare last-resort printing is not used.
+            """
+
+            def __init__(self):
+                super().__init__(level=logging.WARNING)
+
+            def emit(self, record: logging.LogRecord) -> None:  # warnings as errors propagate
+                warnings.warn_explicit(record.getMessage(), HdrclWarning, record.pathname, record.lineno,
+                                       module=record.module)
+
+        WarningsBridge.__module__ = __name__
+        WarningsBridge.__qualname__ = "WarningsBridge"
+        cls = _bridge["class"] = WarningsBridge
+    return cls
+
+
+def __getattr__(name):
+    if name == "WarningsBridge":
+        return _bridge_class()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def install_warnings_bridge() -> None:
     """Add one :class:`WarningsBridge` to the ``hdrcl`` logger (idempotent)."""
+    import logging
+
+    cls = _bridge_class()
     log = logging.getLogger("hdrcl")
-    if not any(isinstance(h, WarningsBridge) for h in log.handlers):
-        log.addHandler(WarningsBridge())
+    if not any(isinstance(h, cls) for h in log.handlers):
+        log.addHandler(cls())
+
+
+def auto_install_warnings_bridge() -> None:
+    """:func:`install_warnings_bridge` on first use of the API, unless the command line
+    (:func:`disable_warnings_bridge`) owns the ``hdrcl`` logger."""
+    if _bridge["auto"]:
+        _bridge["auto"] = False
+        install_warnings_bridge()
+
+
+def disable_warnings_bridge() -> None:
+    """The command line prints warnings itself: remove the bridge and install none later."""
+    _bridge["auto"] = False
+    if "class" in _bridge:
+        import logging
+
+        log = logging.getLogger("hdrcl")
+        log.handlers[:] = [h for h in log.handlers if not isinstance(h, _bridge["class"])]
 
 
 def check_regular(path, what: str = "image") -> None:

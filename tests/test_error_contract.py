@@ -594,3 +594,23 @@ def test_sigterm_removes_the_temporary_file(big_bracket, tmp_path, command):
     assert proc.returncode == 143, (proc.returncode, stderr)
     assert stderr.splitlines() == ["hdrcl: terminated"], stderr
     assert list(out.iterdir()) == [], "output or temporary file left behind"
+
+
+def test_import_does_not_load_logging_and_the_bridge_comes_with_the_api(fx, tmp_path):
+    """``import hdrcl`` stays ~1 ms (no logging); the warnings bridge is installed on first
+    use of the API, and its warnings still arrive as HdrclWarning."""
+    t = tmp_path / "times.txt"
+    t.write_text("".join(f"f{k}.png {v!r} {3.0 / v!r} 8 0 0\n" for k, v in enumerate(TIMES)))
+    code = ("import sys, warnings, hdrcl\n"
+            "print('logging' in sys.modules)\n"
+            "with warnings.catch_warnings(record=True) as w:\n"
+            "    warnings.simplefilter('always')\n"
+            f"    hdrcl.load_bracket({fx['f8']!r}, times_file={str(t)!r})\n"
+            "print([str(x.message) for x in w if issubclass(x.category, hdrcl.HdrclWarning)])\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=Path(__file__).resolve().parents[1], timeout=120)
+    assert out.returncode == 0, out.stderr
+    loaded, warned = out.stdout.splitlines()
+    assert loaded == "False", "import hdrcl imported logging"
+    assert "columns disagree" in warned, (warned, out.stderr)
+    assert out.stderr == "", out.stderr  # no bare last-resort lines

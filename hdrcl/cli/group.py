@@ -21,7 +21,7 @@ import warnings
 
 import click
 
-from hdrcl.errors import HdrclError, HdrclWarning
+from hdrcl.errors import HdrclError, HdrclWarning, disable_warnings_bridge
 
 _GLOBAL_FLAGS = ("-q", "--quiet", "--debug")
 _state = {"verbose": 0, "quiet": False, "debug": False}
@@ -36,6 +36,7 @@ class _OneLine(logging.Formatter):
 def _setup_logging() -> None:
     verbose, quiet = _state["verbose"], _state["quiet"]
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    disable_warnings_bridge()  # the line below is the one message; the API bridge stays off
     root = logging.getLogger("hdrcl")
     root.handlers[:] = []
     h = logging.StreamHandler(sys.stderr)
