@@ -142,11 +142,7 @@ def merge(
         raise UsageError(f"{name}: a response for {resp.bits}-bit frames, but the frames are "
                          f"{8 * br.frames[0].dtype.itemsize}-bit")
     if align:
-        frames, valid, _shifts, box = _merge._align(br.frames, br.valid, br.times, device)
-        if crop:
-            y0, y1, x0, x1 = box
-            frames = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in frames]
-            valid = [None if v is None else np.ascontiguousarray(v[y0:y1, x0:x1]) for v in valid]
+        frames, valid, _shifts, _box = _merge._align(br.frames, br.valid, br.times, device, crop)
         br = Bracket(frames=frames, times=br.times, valid=valid, paths=br.paths, infos=br.infos)
     res = _merge.merge_bracket(br, resp, weight=weight, samples=samples, smoothness=smoothness, seed=seed,
                                device=device, fit_exposures=fit_exposures,
