@@ -72,6 +72,14 @@ class Thumbnail:
         self.array[g0:g0 + rows.shape[0]] = rows
 
 
+def strip_rows(width: int, device: Optional[str] = None) -> int:
+    """Rows per strip :func:`stream_merge` uses for frames ``width`` pixels wide."""
+    proc = get_processor("fusion", device)
+    if proc is not None:
+        return proc.strip_rows(width)
+    return max(1, NUMPY_STRIP_PIXELS // max(width, 1))
+
+
 def stream_merge(
     source,
     times: Sequence[float],
@@ -131,7 +139,7 @@ def stream_merge(
         plan = proc.plan(len(order), source.width, nch, source.dtype, log_t, tables, wts, has_valid)
         rows = plan.rows
     else:
-        rows = max(1, NUMPY_STRIP_PIXELS // max(source.width, 1))
+        rows = strip_rows(source.width, device)
     counts = {"clipped_high": 0, "clipped_low": 0, "no_data": 0}
     ghosts = {"ghost": 0, "ghost_unresolved": 0}
     ref = len(order) // 2  # middle exposure, in exposure order
