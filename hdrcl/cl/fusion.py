@@ -27,7 +27,7 @@ class FusionPlan:
             raise ValueError(f"fusion handles 1 or 3 channels, not {nch}")
         self.levels = tables.shape[1]
         self.has_valid = has_valid
-        opts = (f"-DPIXEL_T={_PIXEL_T[self.dtype]}", f"-DNCH={nch}", f"-DLEVELS={self.levels}") + (
+        opts = (f"-DPIXEL_T={_PIXEL_T[self.dtype]}", f"-DNCH={nch}", f"-DLEVELS={self.levels}", f"-DNFRAMES={nframes}") + (
             ("-DHAS_VALID",) if has_valid else ())
         self.knl = proc.ctx.kernel("fusion", "fuse", opts)
         self.fix = proc.ctx.kernel("fusion", "fuse_fix", opts)
