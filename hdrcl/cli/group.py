@@ -6,6 +6,7 @@ class: 1 processing failed, 2 usage, 3 unreadable input. ``--debug`` shows trace
 from __future__ import annotations
 
 import logging
+import os
 import sys
 
 import click
@@ -60,8 +61,11 @@ class HdrclGroup(click.Group):
 @click.option("-v", "--verbose", count=True, help="More messages (-vv for debugging detail).")
 @click.option("-q", "--quiet", is_flag=True, help="Only errors.")
 @click.option("--debug", is_flag=True, help="Show tracebacks instead of one-line errors.")
+@click.option("--max-pixels", type=click.IntRange(min=1), default=None, metavar="N",
+              help="Refuse frames of more than N pixels, checked before decoding "
+                   "[default: HDRCL_MAX_PIXELS, else 1000000000].")
 @click.pass_context
-def main(ctx, verbose, quiet, debug):
+def main(ctx, verbose, quiet, debug, max_pixels):
     """Merge bracketed photographs into HDR radiance maps (Debevec & Malik 1997).
 
     Fusion and virtual exposures run as OpenCL kernels (any OpenCL device; PoCL on
@@ -70,8 +74,10 @@ def main(ctx, verbose, quiet, debug):
     \b
     Exit codes: 0 success, 1 processing failed, 2 usage error, 3 unreadable input.
     Environment: PYOPENCL_CTX picks the device (or --device); HDRCL_OPENCL=0 uses the
-    slower NumPy path.
+    slower NumPy path; HDRCL_MAX_PIXELS bounds the pixels of one frame (--max-pixels).
     """
     ctx.ensure_object(dict)
     ctx.obj["debug"] = debug
+    if max_pixels is not None:  # the environment carries it to batch workers too
+        os.environ["HDRCL_MAX_PIXELS"] = str(max_pixels)
     _setup_logging(verbose, quiet)

@@ -136,17 +136,21 @@ def load_bracket(
 
 
 def read_infos(paths: Sequence[str]) -> list:
-    """Headers of ``paths`` (no pixels decoded), read in parallel; InputError names the file."""
+    """Headers of ``paths`` (no pixels decoded), read in parallel; InputError names the file
+    (also a frame over the pixel limit, :func:`hdrcl.io.frames.max_pixels`)."""
     import concurrent.futures
 
-    from hdrcl.io.frames import read_info
+    from hdrcl.io.frames import check_pixel_limit, read_info
 
     if len(paths) < 2:
         from hdrcl.io.metadata import resolve_exposures
 
         resolve_exposures(paths)  # raises the "needs at least two exposures" error
     with concurrent.futures.ThreadPoolExecutor(max_workers=min(8, len(paths))) as pool:
-        return list(pool.map(read_info, paths))
+        infos = list(pool.map(read_info, paths))
+    for info in infos:
+        check_pixel_limit(info)
+    return infos
 
 
 def memory_budget() -> int:

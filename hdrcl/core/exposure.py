@@ -52,6 +52,28 @@ def expose(radiance: np.ndarray, response: Union[Response, str, os.PathLike], ti
     return render(radiance, _as_response(response), time, bits=bits, device=device)
 
 
+#: Longest ``--motion-blur`` in pixels: its cost grows with the length (one shifted
+#: copy of the image per pixel), so a typo like 1e9 must not run for ever.
+MAX_MOTION_BLUR = 1000
+
+
+def _check_blur(blur, shape) -> None:
+    """UsageError unless ``blur = (dx, dy)`` is finite and no longer than
+    :data:`MAX_MOTION_BLUR` nor the image's diagonal (``shape``; None: not known yet)."""
+    dx, dy = (float(v) for v in blur)
+    text = f"{blur[0]:g},{blur[1]:g}"
+    if not (np.isfinite(dx) and np.isfinite(dy)):
+        raise UsageError(f"--motion-blur: {text} is not a finite length in pixels")
+    length = float(np.hypot(dx, dy))
+    limit, what = float(MAX_MOTION_BLUR), f"{MAX_MOTION_BLUR} pixels"
+    if shape is not None:
+        diagonal = float(np.hypot(shape[0], shape[1]))
+        if diagonal < limit:
+            limit, what = diagonal, f"the image diagonal ({diagonal:.0f} pixels)"
+    if length > limit:
+        raise UsageError(f"--motion-blur: {text} is {length:.3g} pixels long; at most {what}")
+
+
 def expose_file(
     radiance_path: Union[str, os.PathLike],
     output: Union[str, os.PathLike],
@@ -65,7 +87,9 @@ def expose_file(
     """Render a radiance file as a virtual photograph file (JPEG, PNG or TIFF).
 
     ``motion_blur=(dx, dy)`` first blurs the radiance along that vector
-    (:func:`hdrcl.core.radiometry.motion_blur`), as a camera moving during the exposure would.
+    (:func:`hdrcl.core.radiometry.motion_blur`), as a camera moving during the exposure would;
+    it must be finite and at most :data:`MAX_MOTION_BLUR` pixels and the image diagonal long
+    (UsageError otherwise).
     """
     from hdrcl.io.radiance import read_radiance
     from hdrcl.io.writers import LDR_EXTENSIONS, write_ldr
@@ -77,8 +101,11 @@ def expose_file(
     if ext in (".jpg", ".jpeg") and bits == 16:
         raise UsageError(f"{output}: JPEG holds 8 bits; use .png or .tif for 16-bit output")
     resp = _as_response(response)
+    if motion_blur is not None:
+        _check_blur(motion_blur, None)
     rad, _meta = read_radiance(radiance_path)
     if motion_blur is not None:
+        _check_blur(motion_blur, rad.shape)
         from hdrcl.core.radiometry import motion_blur as _blur
 
         rad = _blur(rad, *motion_blur)

@@ -17,6 +17,7 @@ from hdrcl.io.frames import (
     _open_input,
     _read_error,
     check_compatible,
+    check_pixel_limit,
     read_info,
 )
 from hdrcl.io.metadata import FrameInfo
@@ -54,6 +55,8 @@ class BracketReader:
             odd = self.paths[raws.index(False) if raws[0] else raws.index(True)]
             raise InputError(f"{odd}: a bracket set mixes RAW and non-RAW files")
         self.infos = list(infos) if infos is not None else [read_info(p) for p in self.paths]
+        for info in self.infos:
+            check_pixel_limit(info)
         check_compatible(self.infos)
         first = self.infos[0]
         self.width, self.height = first.width, first.height
