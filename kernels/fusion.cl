@@ -4,7 +4,7 @@
  *
  *   ln E = sum_j w(Z_j) (g_c(Z_j) - ln dt_j) / sum_j w(Z_j)
  *
- * Two kernels share one strip of codes:
+ * Three kernels share one strip of codes:
  *
  *   fuse      the fast path. Each work item takes 4 pixels (4*NCH consecutive values,
  *             so every value's channel is known at compile time) and makes one 8-byte
@@ -14,6 +14,7 @@
  *             per value, none per sample. A value whose
  *             weights sum to zero is written as -1 (impossible radiance) and raises a
  *             flag (a plain store of 1: no atomics on the fast path).
+ *   fuse_tail the last npix % 4 pixels, one value at a time, same arithmetic.
  *   fuse_fix  run only when fuse raised the flag: one work item per pixel applies
  *             the twin's rule to them. Clipped high (the shortest valid frame reads
  *             2Z >= L) -> g_c(Zmax) - ln dt_shortest; otherwise black ->
@@ -76,7 +77,7 @@ inline float4 quotient(const float4 num, const float4 den)
     return select(exp2(num / den), (float4)(-1.0f), den <= 0.0f);
 }
 
-/* Scalar version of one value, for the ragged end of a strip. */
+/* Scalar version of one value, for the ragged end of a strip (fuse_tail). */
 inline float one_value(__global const PIXEL_T *frames, __global const uchar *valid,
                        __global const float2 *lut, __global uint *counts, const int i, const int c,
                        const int nframes, const int levels, const int plane, const int vplane)
@@ -116,15 +117,8 @@ __kernel void fuse(__global const PIXEL_T *frames,
 {
     const int q = get_global_id(0);
     const int i0 = q * 4; /* first pixel of this work item */
-    if (i0 >= npix)
+    if (i0 + 4 > npix) /* the last npix % 4 pixels are fuse_tail's */
         return;
-    if (i0 + 4 > npix) { /* ragged end */
-        for (int i = i0; i < npix; ++i)
-            for (int c = 0; c < NCH; ++c)
-                out[(size_t)i * NCH + c] = one_value(frames, valid, lut, counts, i, c, nframes, levels,
-                                                     plane, vplane);
-        return;
-    }
     const size_t v0 = (size_t)i0 * NCH;
     float2 a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, a3 = 0.0f;
 #if NCH == 3
@@ -153,6 +147,28 @@ __kernel void fuse(__global const PIXEL_T *frames,
 #endif
     if (any(zero))
         counts[3] = 1u; /* a flag, not a count: every writer stores the same value */
+}
+
+/* The last npix % 4 pixels of a strip (fuse takes whole groups of 4): one work item per
+ * pixel from `first`. A separate kernel keeps the ragged end's loops out of fuse, where
+ * they stop some drivers from vectorising across work items. */
+__kernel void fuse_tail(__global const PIXEL_T *frames,
+                        __global const uchar *valid,
+                        __global const float2 *lut,
+                        __global float *out,
+                        __global uint *counts,
+                        const int npix,
+                        const int nframes,
+                        const int levels,
+                        const int plane,
+                        const int vplane,
+                        const int first)
+{
+    const int i = first + (int)get_global_id(0);
+    if (i >= npix)
+        return;
+    for (int c = 0; c < NCH; ++c)
+        out[(size_t)i * NCH + c] = one_value(frames, valid, lut, counts, i, c, nframes, levels, plane, vplane);
 }
 
 __kernel void fuse_fix(__global const PIXEL_T *frames,
