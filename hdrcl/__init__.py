@@ -8,16 +8,17 @@ and virtual exposures run as OpenCL kernels (``kernels/``), with float64 NumPy t
 Importing hdrcl is cheap: no OpenCL device scan and no OpenImageIO load happen until
 they are needed.
 """
-__version__ = "0.1.0"
+from hdrcl.version import __version__
 
 __all__ = [
-    "calibrate", "merge", "expose", "merge_files", "expose_file", "load_bracket",
+    "calibrate", "merge", "expose", "merge_files", "expose_file", "load_bracket", "tonemap", "tonemap_file",
     "Response", "HdrclError", "__version__",
 ]
 
 
 def __getattr__(name):
-    if name in ("calibrate", "merge", "expose", "merge_files", "expose_file", "load_bracket", "merge_bracket"):
+    if name in ("calibrate", "merge", "expose", "merge_files", "expose_file", "load_bracket", "merge_bracket",
+                "tonemap", "tonemap_file"):
         from hdrcl import api
 
         return getattr(api, name)

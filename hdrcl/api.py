@@ -8,6 +8,7 @@ command line is a thin layer over these functions::
     resp = hdrcl.calibrate(["a.jpg", "b.jpg", "c.jpg"], times=[1/250, 1/60, 1/15])
     radiance = hdrcl.merge(["a.jpg", "b.jpg", "c.jpg"], times=[1/250, 1/60, 1/15], response=resp)
     photo = hdrcl.expose(radiance, resp, time=1/30)          # uint8 (H, W, 3)
+    picture = hdrcl.tonemap(radiance, "reinhard-local")      # sRGB uint8 (H, W, 3)
 """
 from __future__ import annotations
 
@@ -28,11 +29,12 @@ from hdrcl.core.exposure import expose, expose_file
 from hdrcl.core.merge import MergeResult, merge_bracket, merge_files
 from hdrcl.core.response import Response, _as_response
 from hdrcl.report.merge_report import write_quality_report
+from hdrcl.report.tonemap import tonemap, tonemap_file
 
 __all__ = [
     "Bracket", "MergeResult", "Response", "calibrate", "expose", "expose_file", "exposures_used",
     "load_bracket", "memory_budget", "merge", "merge_bracket", "merge_files", "read_infos",
-    "write_quality_report",
+    "tonemap", "tonemap_file", "write_quality_report",
 ]
 
 

@@ -2,8 +2,11 @@
 
 OpenCL tests use the ``cl_device`` fixture: it skips only when no OpenCL device can be
 used *and* ``HDRCL_REQUIRE_OPENCL`` is unset; CI sets it, so there a missing device
-fails the run instead of passing silently.
+fails the run instead of passing silently. ``HDRCL_REQUIRE_DRIVER`` (a driver's short
+name, ``intel-cpu`` or ``pocl``, or a piece of its platform name) also makes the run
+fail unless the kernels run on that driver: CI runs the kernel tests once per driver.
 """
+import os
 from pathlib import Path
 
 import numpy as np
@@ -20,10 +23,17 @@ def cl_device():
         proc = get_processor("fusion")
     except Exception as exc:  # required and broken: fail loudly
         pytest.fail(f"OpenCL required but unavailable: {exc}")
+    want = (os.environ.get("HDRCL_REQUIRE_DRIVER") or "").strip()
     if proc is None:
-        if opencl_required():
-            pytest.fail("HDRCL_REQUIRE_OPENCL is set but no OpenCL device could be used")
+        if opencl_required() or want:
+            pytest.fail("HDRCL_REQUIRE_OPENCL/HDRCL_REQUIRE_DRIVER is set but no OpenCL device could be used")
         pytest.skip("no usable OpenCL device (set HDRCL_REQUIRE_OPENCL=1 to make this an error)")
+    if want:
+        from hdrcl.cl.drivers import DRIVER_ALIASES
+
+        platform = DRIVER_ALIASES.get(want.lower(), want)
+        if platform.lower() not in proc.ctx.device.platform.name.lower():
+            pytest.fail(f"HDRCL_REQUIRE_DRIVER={want}, but the kernels would run on {proc.ctx.name}")
     return proc.ctx
 
 

@@ -589,7 +589,8 @@ def test_quality_report_in_chromium(tmp_path):
     assert [s["status"] for s in sets] == ["skipped", "done", "done"]
     entries = [load_set_report(rep_dir, stem) for stem in stems]
     for s, e in zip(sets, entries):
-        assert set(e.files) == {"response", "coverage", "preview", "json"}
+        assert set(e.files) == {"response", "histogram", "coverage", "preview", "json"}
+        assert len(e.inputs) == len(s["files"]) and e.camera.get("camera")
         assert s["quality"] == e.figures.to_dict()  # report.json carries the same figures
         assert e.figures.frames == len(s["files"]) and e.figures.loo_rmse is not None
 
@@ -622,5 +623,7 @@ def test_quality_report_in_chromium(tmp_path):
     # The page's own script counted the images that decoded, after the load event.
     m = re.search(r'id="image-check" data-loaded="(\d+)" data-total="(\d+)"', dom)
     assert m, "the page's load handler did not run"
-    assert int(m.group(2)) == p.imgs == 3 * len(stems)  # preview, response plot, coverage map per set
+    # per set: preview, response, histogram, coverage map and a thumbnail per frame; the stray frame
+    assert int(m.group(2)) == p.imgs == sum(4 + len(e.inputs) for e in entries) + 1
+    assert "Not merged: 1 file in 1 group" in text
     assert m.group(1) == m.group(2), f"only {m.group(1)} of {m.group(2)} images loaded"

@@ -371,11 +371,17 @@ def test_frames_per_set_with_gap():
 
 
 def test_gap_override():
-    # Slow hand bracketing, 20 s between frames: default splits, --gap 30 keeps it.
+    # Slow hand bracketing, 20 s between frames: the default bridges the gaps (one clean
+    # ladder), --gap 10 makes the limit exact, --gap 30 keeps the set.
     sh = Shoot()
     a = sh.ladder([1 / 250, 1 / 60, 1 / 15], gap=20)
     m = group_frames(sh.frames)
+    assert files(m) == [a]
+    assert m.sets[0].joins == ["gap 20.0 s bridged: exposure ladder, 2.1 EV steps, ascending, scene not compared",
+                               "gap 20.0 s bridged: exposure ladder, 2.1 EV steps, ascending, scene not compared"]
+    m = group_frames(sh.frames, gap=10)
     assert m.sets == [] and len(m.unmerged) == 3
+    assert [u.ended for u in m.unmerged] == ["gap 20.0 s", "gap 20.0 s", "end of files"]
     m = group_frames(sh.frames, gap=30)
     assert files(m) == [a]
     # A tight gap splits a burst.
@@ -416,7 +422,7 @@ def test_manifest_json_shape_and_round_trip():
     assert s0["index"] == 0 and s0["files"] == ["IMG_0001.jpg", "IMG_0002.jpg", "IMG_0003.jpg"]
     assert all(isinstance(t, float) for t in s0["exposures"])
     assert d["sets"][1]["ev"] == [0.0, -2.0, 2.0]
-    assert d["unmerged"] == [{"files": ["IMG_0007.jpg"], "reason": "single frame"}]
+    assert d["unmerged"] == [{"files": ["IMG_0007.jpg"], "reason": "single frame", "ended": "end of files"}]
     assert Manifest.from_dict(d) == m
 
 

@@ -22,11 +22,12 @@ from hdrcl.report.pages import (
     INDEX_NAME,
     ReportEntry,
     format_figures,
+    load_report_folder,
     load_set_report,
     write_contact_sheet,
     write_set_report,
 )
-from hdrcl.report.plots import coverage_image, response_plot
+from hdrcl.report.plots import clip_points, coverage_image, coverage_legend, histogram_svg, response_svg
 from hdrcl.report.quality import measure
 
 # (name, height, width, decades, frames): odd sizes; the last set is clipped at both ends.
@@ -36,10 +37,18 @@ SETS = [
     ("café interior", 41, 59, 6.5, 3),
 ]
 FAILED = ReportEntry(name="IMG_0200 <broken>", status="failed", error="IMG_0202.JPG: truncated file (3 of 6 MB)")
+#: Per merged set: preview, response, histogram, coverage, and one thumbnail per frame.
+FILES = {"response", "histogram", "coverage", "preview", "json"}
+
+
+def _images(entries, unmerged_readable=0):
+    return sum(4 + len(e.inputs) for e in entries if e.figures is not None) + unmerged_readable
 
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
+    from hdrcl.io.writers import write_photo
+
     folder = tmp_path_factory.mktemp("report")
     cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
     entries = []
@@ -50,41 +59,84 @@ def report(tmp_path_factory):
         res = merge_bracket(br)
         fig = measure(br, res.response, res.radiance)
         entries.append(write_set_report(folder, name, fig, res.response, res.radiance,
-                                        warnings=res.warnings + [f"note <{k}> & more"]))
+                                        warnings=res.warnings + [f"note <{k}> & more"], bracket=br))
     entries.append(FAILED)
-    index = write_contact_sheet(folder, entries)
+    # Frames a batch did not merge: one readable stray frame, one corrupt file.
+    stray = folder.parent / (folder.name + "-in")
+    stray.mkdir()
+    write_photo(stray / "IMG_0300.png", np.full((20, 30, 3), 128, np.uint8))
+    (stray / "IMG_0301 <bad>.jpg").write_bytes(b"not a jpeg")
+    unmerged = [{"files": [str(stray / "IMG_0300.png")], "reason": "single frame"},
+                {"files": [str(stray / "IMG_0301 <bad>.jpg")], "reason": "corrupt or unreadable"}]
+    index = write_contact_sheet(folder, entries, unmerged=unmerged)
     return folder, index, entries
 
 
 def test_set_files(report):
     folder, index, entries = report
     assert os.path.basename(index) == INDEX_NAME
-    for e in entries[:-1]:
-        assert set(e.files) == {"response", "coverage", "preview", "json"}
+    for e, (_name, h, w, _dec, n) in zip(entries[:-1], SETS):
+        assert set(e.files) == FILES
+        assert [r["thumb"] for r in e.inputs] == [f"{e.files['json'][:-5]}-frame-{k:02d}.jpg" for k in range(n)]
+        assert [r["time"] for r in e.inputs] == sorted(r["time"] for r in e.inputs)  # shortest first
         for f in e.files.values():
             assert (folder / f).is_file() and not f.startswith(".")
         d = json.loads((folder / e.files["json"]).read_text())
         assert d["name"] == e.name and d["figures"]["frames"] == e.figures.frames
         again = load_set_report(folder, e.name)
         assert again.figures.to_dict() == e.figures.to_dict() and again.files == e.files
+        assert again.inputs == e.inputs
     assert not [p for p in os.listdir(folder) if ".tmp-" in p]  # atomic writes left nothing behind
     assert load_set_report(folder, "no such set") is None
 
 
-def test_plots_are_images():
+def test_plots():
+    """The charts are well-formed SVG with their curves, labels and clip markers."""
+    import xml.etree.ElementTree as ET
+
     from hdrcl.core.response import Response
 
+    ns = {"svg": "http://www.w3.org/2000/svg"}
     g = np.stack([np.linspace(-5, 5, 256) + k * 0.1 for k in range(3)])
-    img = response_plot(Response(bits=8, g=g, knots=np.arange(256.0)))
-    assert img.shape == (400, 560, 3) and img.dtype == np.uint8
-    for colour in ((205, 40, 40), (30, 150, 50), (40, 80, 210)):  # every channel's curve is drawn
-        assert (img == colour).all(axis=2).sum() > 200
+    resp = Response(bits=8, g=g, knots=np.arange(256.0))
+    root = ET.fromstring(response_svg(resp))
+    lines = root.findall(".//svg:polyline", ns)
+    assert {ln.get("stroke") for ln in lines} == {"#cd2828", "#1e9632", "#2850d2"}  # R, G, B
+    texts = [t.text for t in root.iter("{http://www.w3.org/2000/svg}text")]
+    assert "g(z) = ln exposure" in texts and "R" in texts and "255" in texts
+    # The clip points: code 0 of the longest frame, the top code of the shortest.
+    lo, hi = clip_points(resp, [0.5, 2.0], 3)
+    luma = np.array([0.2126, 0.7152, 0.0722])
+    assert lo == pytest.approx(float(np.exp(g[:, 0]) @ luma) / 2.0)
+    assert hi == pytest.approx(float(np.exp(g[:, -1]) @ luma) / 0.5)
+    rad = np.exp(np.random.default_rng(0).normal(0, 1, (20, 30, 3)))
+    root = ET.fromstring(histogram_svg(rad, resp, [0.5, 2.0]))
+    texts = [t.text for t in root.iter("{http://www.w3.org/2000/svg}text")]
+    assert "every frame clips above" in texts and "no frame reads below" in texts
+    heights = [float(r.get("height")) for r in root.iter("{http://www.w3.org/2000/svg}rect")]
+    assert len(heights) > 10  # bars
     cov = np.zeros((31, 47), np.uint8)
     cov[10:] = 3
     cov[:, :5] = 255  # no data
     out = coverage_image(cov, frames=3)
     assert out.dtype == np.uint8 and out.shape[1] >= 47 and out.shape[0] > 31
-    assert len(np.unique(out.reshape(-1, 3), axis=0)) >= 5  # 0..3, no data, ink
+    assert len(np.unique(out.reshape(-1, 3), axis=0)) == 3  # 0, 3 and no data
+    assert [label for label, _c in coverage_legend(3, no_data=True)] == ["0 (clipped)", "1", "2", "3", "no data"]
+
+
+def test_wording():
+    """No "median of 1 interior frames"; the figures say what they are."""
+    from hdrcl.report.quality import LeaveOneOut
+
+    br = load_bracket(s.bracket(s.radiance_field(20, 30, decades=3.0, seed=1), [0.25, 1.0, 4.0],
+                                s.Camera(a=1.1, x0=(1.0, 1.2, 0.8)), noise=0.5, seed=0), [0.25, 1.0, 4.0])
+    res = merge_bracket(br)
+    fig = measure(br, res.response, res.radiance)
+    assert len(fig.loo) == 1
+    rows = dict(format_figures(fig))
+    assert "the one interior frame" in rows["Leave-one-out RMSE"] and "median" not in rows["Leave-one-out RMSE"]
+    fig.loo = [fig.loo[0], LeaveOneOut(index=1, time=1.0, rmse=2.0, pixels=10)]
+    assert "median over 2 interior frames" in dict(format_figures(fig))["Leave-one-out RMSE"]
 
 
 class _Page(HTMLParser):
@@ -113,7 +165,14 @@ def test_contact_sheet_html(report):
     for e in entries:
         assert e.name in text
     assert FAILED.error in text and "1 failed" in text
-    assert len(p.imgs) == 3 * len(SETS)
+    assert len(p.imgs) == _images(entries, unmerged_readable=1)
+    assert "images loaded" not in page  # no internal bookkeeping on the page
+    for k in range(len(SETS)):  # camera settings: the synthetic frames carry none, so no empty line
+        assert f'id="set-{k}"' in page
+    # The frames not merged, with their reason; the corrupt one says why it has no thumbnail.
+    assert "Not merged: 2 files in 2 groups" in text and "single frame" in text
+    assert "IMG_0301 <bad>.jpg" in html.unescape(text) and "corrupt or unreadable" in text
+    assert "unmerged-IMG_0300_png.jpg" in p.imgs
     from urllib.parse import unquote
 
     for ref in p.imgs + p.links:
@@ -158,12 +217,15 @@ def test_contact_sheet_in_chromium(report, tmp_path):
             for label, value in format_figures(e.figures):
                 assert label in text and value in text, (e.name, label, value)
     assert FAILED.error in text
-    # The page's own script counted the images that decoded, after the load event.
+    assert "Not merged: 2 files in 2 groups" in text and "IMG_0300.png" in text and "IMG_0301 <bad>.jpg" in text
+    assert len(re.findall(r'<article class="unmerged-group"', dom)) == 2
+    # The page's own script counted the images that decoded (SVG charts included).
     m = re.search(r'id="image-check" data-loaded="(\d+)" data-total="(\d+)"', dom)
     assert m, "the page's load handler did not run: " + re.search(r'<p id="image-check"[^>]*>', dom).group(0)
     loaded, total = int(m.group(1)), int(m.group(2))
-    assert total == len(p.imgs) == 3 * len(SETS)
+    assert total == len(p.imgs) == _images(entries, unmerged_readable=1)
     assert loaded == total, f"only {loaded} of {total} images loaded"
+    assert re.search(r'<p id="image-check"[^>]*></p>', dom)  # says nothing when all is there
 
     shot = tmp_path / "sheet.png"
     _run_chromium(browser, tmp_path, "--hide-scrollbars", "--window-size=1280,1600", f"--screenshot={shot}", url)
@@ -174,3 +236,39 @@ def test_contact_sheet_in_chromium(report, tmp_path):
     rgb = pixels[..., :3].reshape(-1, 3)
     assert rgb.std() > 10  # not blank
     assert len(np.unique(rgb, axis=0)) > 500  # photographs and plots, not just text on a background
+
+
+def test_missing_picture_is_reported(report, tmp_path):
+    """A picture gone from the folder is named on the page (and only then)."""
+    browser = _chromium()
+    folder, index, entries = report
+    moved = tmp_path / "copy"
+    shutil.copytree(folder, moved)
+    (moved / entries[0].files["histogram"]).unlink()
+    dom = _run_chromium(browser, tmp_path, "--dump-dom", "file://" + str(moved / INDEX_NAME))
+    m = re.search(r'<p id="image-check"[^>]*>([^<]*)</p>', dom)
+    assert m and m.group(1).startswith("1 of ") and m.group(1).endswith("pictures are missing from this folder")
+
+
+def test_report_folder_accumulates(tmp_path):
+    """Two ``merge --report DIR`` runs into one folder: the page shows both sets."""
+    from click.testing import CliRunner
+
+    from hdrcl.cli import main
+    from hdrcl.io.writers import write_photo
+
+    cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
+    folder = tmp_path / "rep"
+    for k, name in enumerate(("first", "second")):
+        rad = s.radiance_field(24, 32, decades=3.0, seed=k)
+        times = s.stops(3, 2.0, centre=1.0 / float(np.median(rad)))
+        paths = []
+        for j, f in enumerate(s.bracket(rad, times, cam, noise=0.5, seed=k)):
+            paths.append(str(tmp_path / f"{name}_{j}.png"))
+            write_photo(paths[-1], f)
+        res = CliRunner().invoke(main, ["merge", *paths, "--times", ",".join(f"{t:.6g}" for t in times),
+                                        "-o", str(tmp_path / f"{name}.exr"), "--report", str(folder)])
+        assert res.exit_code == 0, res.output
+    assert [e.name for e in load_report_folder(folder)] == ["first", "second"]
+    page = (folder / INDEX_NAME).read_text()
+    assert 'data-set="first"' in page and 'data-set="second"' in page and "2 sets: 2 merged" in page

@@ -40,8 +40,8 @@ def _warn_once(msg: str) -> None:
 
 
 def get_processor(kind: str, device: Optional[str] = None):
-    """The process-wide OpenCL processor of ``kind`` ('fusion', 'exposure' or 'align'),
-    or None.
+    """The process-wide OpenCL processor of ``kind`` ('fusion', 'exposure', 'align' or
+    'tonemap'), or None.
 
     None means: use the NumPy twins (:mod:`hdrcl.core.reference`, :mod:`hdrcl.core.align`).
     """
@@ -64,6 +64,8 @@ def _get_processor(kind: str, device: Optional[str]):
             from hdrcl.cl.fusion import FusionProcessor as cls
         elif kind == "align":
             from hdrcl.cl.align import AlignProcessor as cls
+        elif kind == "tonemap":
+            from hdrcl.cl.tonemap import TonemapProcessor as cls
         else:
             from hdrcl.cl.exposure import ExposureProcessor as cls
         proc = cls(device=device)

@@ -1,18 +1,29 @@
 """OpenCL device selection and the per-process context cache.
 
 Devices are chosen without interaction: an explicit ``device`` string, else
-``PYOPENCL_CTX`` (pyopencl's own convention, e.g. ``0`` or ``0:1``; ``portable``
-selects PoCL), else the first GPU, else the first device of any kind.
+``PYOPENCL_CTX`` (pyopencl's own convention, e.g. ``0`` or ``0:1``; ``pocl`` or
+``portable`` selects PoCL, ``intel-cpu`` Intel's CPU runtime), else the first GPU, else
+the first CPU driver in :func:`~hdrcl.cl.drivers.cpu_driver_order`, each
+only if it builds hdrcl's kernels. Before the first OpenCL call,
+:func:`~hdrcl.cl.drivers.prepare_icd_environment` makes an Intel CPU runtime installed
+from PyPI visible to the ICD loader.
 """
 from __future__ import annotations
 
 import logging
 import os
 import threading
+import warnings
 from typing import Dict, List, Optional, Tuple
 
 import pyopencl as cl
 
+from hdrcl.cl.drivers import (
+    DRIVER_ALIASES,
+    cpu_driver_order,
+    driver_rank,
+    prepare_icd_environment,
+)
 from hdrcl.cl.resources import kernel_source
 from hdrcl.errors import HdrclError, UsageError
 
@@ -52,7 +63,16 @@ class DeviceContext:
             knl = self._kernels.get(key)
             if knl is None:
                 try:
-                    prg = cl.Program(self.context, kernel_source(source)).build(options=list(options))
+                    # Intel's runtime always logs its progress and vectoriser remarks:
+                    # pyopencl's CompilerWarning about them is noise, kept at debug level.
+                    with warnings.catch_warnings(record=True) as caught:
+                        warnings.simplefilter("always", cl.CompilerWarning)
+                        prg = cl.Program(self.context, kernel_source(source)).build(options=list(options))
+                    for w in caught:
+                        if issubclass(w.category, cl.CompilerWarning):
+                            logger.debug("building kernels/%s.cl for %s: %s", source, self.name, w.message)
+                        else:
+                            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
                 except cl.Error as exc:
                     raise HdrclError(
                         f"building kernels/{source}.cl for {self.name} failed: {_build_error(exc)}"
@@ -66,11 +86,13 @@ class DeviceContext:
 def _build_error(exc: Exception) -> str:
     """The compiler's own error lines from a pyopencl build failure, on one line."""
     lines = [ln.strip() for ln in str(exc).splitlines()]
-    errs = [ln for ln in lines if "error" in ln.lower() and "clBuildProgram failed" not in ln]
+    errs = [ln for ln in lines if any(w in ln.lower() for w in ("error", "invalid build option", "unknown target"))
+            and "clBuildProgram failed" not in ln]
     return "; ".join(dict.fromkeys(errs)) or (lines[0] if lines else type(exc).__name__)
 
 
 def _all_devices() -> List[Tuple[int, int, "cl.Device"]]:
+    prepare_icd_environment()  # before the loader's first clGetPlatformIDs reads its variables
     out = []
     try:
         platforms = cl.get_platforms()
@@ -86,6 +108,13 @@ def _all_devices() -> List[Tuple[int, int, "cl.Device"]]:
     return out
 
 
+def _device_id(dev: "cl.Device") -> Optional[str]:
+    for pi, di, d in _all_devices():
+        if d == dev:
+            return f"{pi}:{di}"
+    return None
+
+
 def list_devices() -> List[dict]:
     """Every OpenCL device visible to this process, as plain dicts."""
     rows = []
@@ -96,10 +125,23 @@ def list_devices() -> List[dict]:
             "device": d.name.strip(),
             "type": cl.device_type.to_string(d.type),
             "version": d.version.strip(),
+            "driver_version": d.driver_version.strip(),
             "compute_units": d.max_compute_units,
             "global_memory_mib": d.global_mem_size >> 20,
         })
     return rows
+
+
+def _match(spec: str, devices) -> Optional["cl.Device"]:
+    """The first device whose platform, else whose device name, matches ``spec``."""
+    s = DRIVER_ALIASES.get(spec.strip().lower(), spec.strip()).lower()
+    for test in (lambda d: d.platform.name.strip().lower() == s,
+                 lambda d: s in d.platform.name.lower(),
+                 lambda d: s in f"{d.platform.name} {d.name}".lower()):
+        for _, _, dev in devices:
+            if test(dev):
+                return dev
+    return None
 
 
 def select_device(spec: Optional[str] = None) -> "cl.Device":
@@ -109,23 +151,21 @@ def select_device(spec: Optional[str] = None) -> "cl.Device":
     ----------
     spec : str, optional
         ``"P:D"`` (platform and device index, as ``hdrcl devices`` lists them), ``"P"``,
-        or a case-insensitive piece of the platform or device name (``"pocl"``,
-        ``"nvidia"``). Default: ``PYOPENCL_CTX`` if set, else the first GPU, else the
-        first device.
+        a driver's short name (``"pocl"``, ``"intel-cpu"``), or a case-insensitive piece
+        of the platform name, else of the device name (``"nvidia"``). Default:
+        ``PYOPENCL_CTX`` if set, else the first GPU, else the preferred CPU driver
+        (without checking that it builds the kernels: :func:`get_context` does).
     """
     devices = _all_devices()
     if not devices:
         raise HdrclError(
-            "no OpenCL device found: install a driver (on CPU-only machines: pip install 'hdrcl[pocl]') "
+            "no OpenCL device found: install a driver (on CPU-only machines: pip install 'hdrcl[cpu]') "
             "or set HDRCL_OPENCL=0 to use the slower NumPy path"
         )
     spec = spec if spec is not None else os.environ.get("PYOPENCL_CTX") or None
     if spec is None:
-        gpus = [d for _, _, d in devices if d.type & cl.device_type.GPU]
-        return gpus[0] if gpus else devices[0][2]
+        return _candidates()[0]
     s = spec.strip()
-    if s.lower() == "portable":
-        s = "portable computing language"
     parts = s.split(":")
     if all(p.isdigit() for p in parts if p) and parts[0]:
         pi = int(parts[0])
@@ -134,20 +174,29 @@ def select_device(spec: Optional[str] = None) -> "cl.Device":
             if (p_, d_) == (pi, di):
                 return dev
         raise UsageError(f"OpenCL device '{spec}' does not exist; 'hdrcl devices' lists them")
-    for _, _, dev in devices:
-        if s.lower() in f"{dev.platform.name} {dev.name}".lower():
-            return dev
-    raise UsageError(f"no OpenCL device matches '{spec}'; 'hdrcl devices' lists them")
+    dev = _match(s, devices)
+    if dev is None:
+        raise UsageError(f"no OpenCL device matches '{spec}'; 'hdrcl devices' lists them")
+    return dev
 
 
 _contexts: Dict[str, DeviceContext] = {}
 _ctx_lock = threading.Lock()
+#: How the last selection went, per device id: (status, reason); for ``hdrcl devices``.
+_report: Dict[str, Tuple[str, str]] = {}
 
 
 def _candidates() -> List["cl.Device"]:
-    """Devices in order of preference when none is named: GPUs first."""
+    """Devices in order of preference when none is named: GPUs first, then CPU drivers
+    in :func:`~hdrcl.cl.drivers.cpu_driver_order`, then the rest."""
     devs = [d for _, _, d in _all_devices()]
-    return sorted(devs, key=lambda d: 0 if d.type & cl.device_type.GPU else 1)
+
+    def rank(d):
+        if d.type & cl.device_type.GPU:
+            return (0, 0)
+        return (1, driver_rank(d.platform.name))
+
+    return sorted(devs, key=rank)  # stable: the loader's order within a rank
 
 
 def _usable(ctx: DeviceContext) -> Optional[str]:
@@ -158,6 +207,22 @@ def _usable(ctx: DeviceContext) -> Optional[str]:
         return None
     except HdrclError as exc:
         return str(exc).splitlines()[0]
+    except cl.Error as exc:  # context or queue creation failed
+        return f"{ctx.name}: {str(exc).splitlines()[0]}"
+
+
+def _open(dev: "cl.Device") -> Tuple[Optional[DeviceContext], Optional[str]]:
+    try:
+        ctx = DeviceContext(dev)
+    except cl.Error as exc:
+        return None, f"creating a context failed: {str(exc).splitlines()[0]}"
+    return ctx, _usable(ctx)
+
+
+def selection_report() -> Dict[str, Tuple[str, str]]:
+    """Device id -> (status, reason) from the last default selection: ``selected``,
+    ``failed`` (with the build error's first line), ``not preferred`` or ``not named``."""
+    return dict(_report)
 
 
 def get_context(spec: Optional[str] = None) -> DeviceContext:
@@ -175,21 +240,38 @@ def get_context(spec: Optional[str] = None) -> DeviceContext:
         if ctx is not None:
             return ctx
         if spec is not None or env is not None:
-            ctx = DeviceContext(select_device(spec))
-            problem = _usable(ctx)
+            named = select_device(spec)
+            ctx, problem = _open(named)
+            who = "--device" if spec is not None else "PYOPENCL_CTX"
+            _report.clear()
+            for pi, di, dev in _all_devices():
+                _report[f"{pi}:{di}"] = (("not named", f"{who} names another device") if dev != named
+                                         else ("failed", problem) if problem else ("selected", f"named by {who}"))
             if problem:
                 raise HdrclError(problem)
         else:
             if not _all_devices():
                 select_device(None)  # raises the "no OpenCL device" error
             problems = []
+            _report.clear()
+            any_gpu = any(d.type & cl.device_type.GPU for _, _, d in _all_devices())
             for dev in _candidates():
-                cand = DeviceContext(dev)
-                problem = _usable(cand)
+                did = _device_id(dev) or "?"
+                if ctx is not None:
+                    _report[did] = ("not preferred", "a device earlier in the order builds the kernels")
+                    continue
+                cand, problem = _open(dev)
                 if problem is None:
                     ctx = cand
-                    break
-                logger.info("skipping OpenCL device %s: %s", cand.name, problem)
+                    _report[did] = ("selected", "the first GPU that builds the kernels"
+                                    if dev.type & cl.device_type.GPU else
+                                    ("no GPU builds the kernels" if any_gpu else "no GPU")
+                                    + "; the first CPU driver that builds them, in hdrcl's order: "
+                                    + ", then ".join(cpu_driver_order()))
+                    continue
+                name = f"{dev.platform.name.strip()} / {dev.name.strip()}"
+                logger.info("skipping OpenCL device %s: %s", name, problem)
+                _report[did] = ("failed", problem)
                 problems.append(problem)
             if ctx is None:
                 raise HdrclError(

@@ -4,7 +4,7 @@
 Errors are one line on stderr (``hdrcl: error: ...``) with the exit code of their
 class: 1 processing failed, 2 usage, 3 unreadable input. ``--debug`` shows tracebacks.
 """
-from hdrcl.cli import core, shoot  # noqa: F401,E402  (register the commands)
+from hdrcl.cli import core, output, shoot  # noqa: F401,E402  (register the commands)
 from hdrcl.cli.group import main
 
 __all__ = ["main"]

@@ -8,11 +8,13 @@ import click
 
 from hdrcl.cli.group import main
 from hdrcl.cli.options import (
+    colorspace_option,
     device_option,
     exposure_options,
     fit_options,
     output_options,
     seconds_callback,
+    warn_inapplicable,
     solve_options,
     weight_option,
 )
@@ -21,35 +23,64 @@ from hdrcl.cli.options import (
 @main.command()
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 def devices(as_json):
-    """List the OpenCL devices and the one hdrcl would use."""
+    """List the OpenCL devices, the one hdrcl would use, and why the others were passed over.
+
+    Exits non-zero when no device can be used.
+    """
     from hdrcl.cl.backend import opencl_enabled
 
     if not opencl_enabled():
-        click.echo("OpenCL disabled (HDRCL_OPENCL=0): the NumPy reference path is used.")
+        msg = "OpenCL disabled (HDRCL_OPENCL=0): the NumPy reference path is used."
+        click.echo(json.dumps({"devices": [], "selected": None, "selected_id": None, "problem": None,
+                               "disabled": msg}, indent=1) if as_json else msg)
         return
-    from hdrcl.cl.context import get_context, list_devices
+    from hdrcl.cl.context import get_context, list_devices, selection_report
+    from hdrcl.cl.drivers import prepare_icd_environment
 
-    rows = list_devices()
-    chosen = None
     problem = None
+    chosen = None
     try:
-        ctx = get_context(None)
-        chosen = ctx.name
+        chosen = get_context(None).name
     except Exception as exc:  # reported, not fatal: listing is the point
-        problem = str(exc).splitlines()[0]
-    if as_json:
-        click.echo(json.dumps({"devices": rows, "selected": chosen, "problem": problem}, indent=1))
-        return
-    if not rows:
-        click.echo("no OpenCL devices found")
+        problem = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    try:
+        rows = list_devices()
+    except Exception as exc:
+        rows, problem = [], problem or f"listing OpenCL devices failed: {exc}"
+    report = selection_report()
     for r in rows:
-        mark = "*" if chosen == f"{r['platform']} / {r['device']}" else " "
-        click.echo(f"{mark} {r['id']:5s} {r['platform']} / {r['device']}  [{r['type']}, "
-                   f"{r['compute_units']} units, {r['global_memory_mib']} MiB, {r['version']}]")
-    if chosen:
-        click.echo(f"selected: {chosen}")
+        r["status"], r["reason"] = report.get(r["id"], ("not tried", ""))
+    selected_id = next((r["id"] for r in rows if r["status"] == "selected"), None)
+    icd = prepare_icd_environment()
+    if as_json:
+        click.echo(json.dumps({"devices": rows, "selected": chosen, "selected_id": selected_id,
+                               "problem": problem, "icd": icd}, indent=1))
+    else:
+        if not rows:
+            click.echo("no OpenCL devices found")
+        for r in rows:
+            mark = "*" if r["status"] == "selected" else " "
+            click.echo(f"{mark} {r['id']:5s} {r['platform']} / {r['device']}  [{r['type']}, "
+                       f"{r['compute_units']} units, {r['global_memory_mib']} MiB, {r['version']}, "
+                       f"driver {r['driver_version']}]")
+            if r["status"] == "selected":
+                click.echo(f"        selected: {r['reason']}")
+            elif r["status"] == "failed":
+                click.echo(f"        passed over: cannot build hdrcl's kernels: {r['reason']}")
+            elif r["reason"]:
+                click.echo(f"        passed over: {r['status']} ({r['reason']})")
+        if icd.get("set_by") == "hdrcl":
+            click.echo(f"ICD list: {icd['vendors']} (written by hdrcl: Intel's CPU runtime "
+                       f"{icd['intel_cpu']} and the system's drivers)")
+        elif icd.get("set_by"):
+            click.echo(f"ICD list: OCL_ICD_VENDORS={icd.get('vendors')} (set by the {icd['set_by']})")
+        if icd.get("note"):
+            click.echo(f"note: {icd['note']}")
+        if chosen:
+            click.echo(f"selected: {chosen}")
+        if problem:
+            click.echo(f"problem: {problem}")
     if problem:
-        click.echo(f"problem: {problem}")
         raise SystemExit(1)
 
 
@@ -101,12 +132,16 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
               help="Align hand-held frames by translation (median threshold bitmaps) before merging.")
 @click.option("--crop", is_flag=True, help="With --align: crop to the area every frame covers.")
 @click.option("--report", "report", type=click.Path(file_okay=False),
-              help="Write a quality report here: response plot, coverage map, preview, figures, index.html.")
+              help="Write a quality report here (sets accumulate in one folder): preview, input frames, "
+                   "camera settings, response, histogram and coverage plots, figures, index.html.")
 @output_options
+@colorspace_option
+@click.option("--owner", default=None, metavar="TEXT",
+              help="Owner / copyright recorded in the file [default: the frames' EXIF Copyright].")
 @device_option
 def merge(images, output, response, save_response, times, times_file, ignore_color, samples, smoothness,
           seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, neutral, reference_patch, absolute,
-          align, crop, report, dtype, compression, device):
+          align, crop, report, dtype, compression, colorspace, owner, device):
     """Merge one bracket set into a radiance map."""
     from hdrcl.core.merge import merge_files
     from hdrcl.errors import UsageError
@@ -115,12 +150,14 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
     for target in (save_response,):  # fail before the merge, not after it
         if target and not os.path.isdir(os.path.dirname(os.path.abspath(target))):
             raise UsageError(f"{target}: output folder does not exist")
+    warn_inapplicable(output, dtype=dtype, compression=compression)
     res = merge_files(list(images), output, times=times, times_file=times_file, response=response,
                       weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness, seed=seed,
                       dtype=dtype, compression=compression, device=device, fit_exposures=fit_exposures,
                       exposure_tolerance=exposure_tolerance, deghost=deghost, ghost_mask=ghost_mask,
                       neutral=neutral, reference_patch=reference_patch, absolute=absolute,
-                      thumbnail=512 if report else 0, align=align, crop=crop)
+                      thumbnail=512 if report else 0, align=align, crop=crop, colorspace=colorspace.lower(),
+                      owner=owner)
     if save_response:
         res.response.save(save_response)
     h, w_, c = res.shape
@@ -210,7 +247,9 @@ def demo(folder, size, frames, seed, no_shoot, device):
     click.echo(f"radiance error: {100 * rep.radiance_error:.2f} % (median, well-exposed pixels)")
     click.echo(f"response: {rep.response}   preview: {rep.preview}")
     if rep.shoot:
-        click.echo(f"sample shoot: {rep.shoot} -> batch: {rep.batch_done} set(s) merged, {rep.batch_failed} failed "
+        skipped = f", {rep.batch_skipped} skipped (up to date)" if rep.batch_skipped else ""
+        click.echo(f"sample shoot: {rep.shoot} -> batch: {rep.batch_done} set(s) merged{skipped}, "
+                   f"{rep.batch_failed} failed "
                    f"into {rep.batch}")
         click.echo(f"quality report: {rep.contact_sheet}")
     click.echo("next: hdrcl expose {0} -o bright.jpg --response {1} --time {2:.4g}".format(

@@ -87,6 +87,23 @@ def grouping_options(f):
     return f
 
 
+def batch_merge_options(f):
+    """The options of ``merge`` that ``batch`` applies to every set."""
+    f = click.option("--times-file", type=click.Path(dir_okay=False),
+                     help="Exposure list for frames without EXIF: HDRShop columns or 'file seconds' lines "
+                          "[default: image_list.txt or times.txt beside the frames, when there is one].")(f)
+    f = click.option("--fit-exposures", type=click.Choice(["auto", "on", "off"]), default="off",
+                     show_default=True,
+                     help="Estimate each frame's exposure from the pixels: auto uses the fitted value only "
+                          "where the metadata is clearly wrong, on always, off never.")(f)
+    f = click.option("--neutral", metavar="X,Y,W,H",
+                     help="White balance every set: make this patch (pixels) neutral grey.")(f)
+    f = click.option("--crop", is_flag=True, help="With --align: crop to the area every frame covers.")(f)
+    f = click.option("--align", is_flag=True,
+                     help="Align hand-held frames by translation (median threshold bitmaps) before merging.")(f)
+    return f
+
+
 def _ignore_color(ctx, param, value):
     if value is None:
         return None
@@ -121,3 +138,31 @@ def deghost_option(f):
     return click.option("--deghost", is_flag=True,
                         help="Take pixels where the frames disagree (moving objects) from the middle "
                              "exposure alone.")(f)
+
+
+def colorspace_option(f):
+    """``--colorspace`` of radiance outputs (``merge``, ``batch``)."""
+    return click.option("--colorspace", type=click.Choice(["rec709", "acescg"], case_sensitive=False),
+                        default="rec709", show_default=True,
+                        help="Colour space of the radiance file: linear Rec.709/sRGB primaries, or ACEScg "
+                             "(AP1, for VFX pipelines; EXR or HDR), converted with OpenImageIO's colour "
+                             "management and tagged.")(f)
+
+
+def given(name: str):
+    """The value of option ``name`` if the user gave it on the command line, else None."""
+    ctx = click.get_current_context()
+    source = ctx.get_parameter_source(name)
+    if source is None or source.name in ("DEFAULT", "DEFAULT_MAP"):
+        return None
+    return ctx.params.get(name)
+
+
+def warn_inapplicable(output: str, **options) -> None:
+    """Warn (once each) about explicitly given options the output type ignores."""
+    import logging
+
+    from hdrcl.io.outmeta import inapplicable_options
+
+    for msg in inapplicable_options(output, **{k: given(k) for k in options}):
+        logging.getLogger("hdrcl.cli").warning("%s", msg)

@@ -15,10 +15,12 @@ import click
 
 from hdrcl.cli.group import main
 from hdrcl.cli.options import (
+    colorspace_option,
     deghost_option,
     device_option,
     grouping_options,
     ignore_color_option,
+    batch_merge_options,
     output_options,
     solve_options,
     weight_option,
@@ -33,8 +35,14 @@ from hdrcl.cli.options import (
 @click.option("-o", "--output", type=click.Path(dir_okay=False),
               help="Write the manifest (JSON, paths relative to its folder) for 'hdrcl batch'.")
 @click.option("--json", "as_json", is_flag=True, help="Print the grouping as one JSON object.")
+@click.option("--explain", is_flag=True,
+              help="Show every frame with the reason it joined its set, and why each set ended.")
+@click.option("--content/--no-content", default=True, show_default=True,
+              help="Compare the frames' content (small exposure-normalised thumbnails) as well as their headers.")
+@click.option("--times-file", type=click.Path(dir_okay=False),
+              help="Exposure list for frames without EXIF [default: image_list.txt or times.txt beside them].")
 @click.pass_context
-def scan(ctx, source, recursive, frames_per_set, gap, output, as_json):
+def scan(ctx, source, recursive, frames_per_set, gap, output, as_json, explain, content, times_file):
     """Group the photographs of a folder into bracket sets.
 
     SOURCE is a folder, or a manifest written by 'scan -o' (possibly edited by hand:
@@ -47,9 +55,10 @@ def scan(ctx, source, recursive, frames_per_set, gap, output, as_json):
     """
     from hdrcl.shoot.manifest import save_manifest
     from hdrcl.shoot.plan import check_manifest, load_source
-    from hdrcl.shoot.scan import format_table
+    from hdrcl.shoot.scan import format_explain, format_table
 
-    manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap)
+    manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap,
+                           times_file=times_file, content=content)
     problems = {} if os.path.isdir(source) else check_manifest(manifest)
     if output:
         save_manifest(manifest, output)
@@ -60,6 +69,9 @@ def scan(ctx, source, recursive, frames_per_set, gap, output, as_json):
                 s["problem"] = problems[s["index"]]
         click.echo(json.dumps(d, indent=1))
     else:
+        if explain:
+            click.echo(format_explain(manifest))
+            click.echo("")
         click.echo(format_table(manifest))
         for i in sorted(problems):
             click.echo(f"set {i} cannot be merged: {problems[i]}")
@@ -160,17 +172,22 @@ class _Progress:
               help="Write a tone-mapped JPEG beside each EXR.")
 @click.option("--preview-size", type=click.IntRange(min=16), default=512, show_default=True, metavar="PIXELS",
               help="Long side of the previews.")
+@click.option("--tonemap", type=click.Choice(["reinhard", "reinhard-local", "drago", "filmic"]), default="reinhard",
+              show_default=True, help="Tone-mapping operator of the previews (as 'hdrcl tonemap').")
 @grouping_options
 @solve_options
 @weight_option
 @ignore_color_option
 @deghost_option
+@batch_merge_options
 @output_options
+@colorspace_option
 @device_option
 @click.pass_context
 def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force, calibrate_only, report_dir,
-          report_json, as_json, preview, preview_size, recursive, frames_per_set, gap, samples, smoothness, seed,
-          weight, ignore_color, deghost, dtype, compression, device):
+          report_json, as_json, preview, preview_size, tonemap, recursive, frames_per_set, gap, samples, smoothness,
+          seed, weight, ignore_color, deghost, align, crop, neutral, fit_exposures, times_file, dtype, compression,
+          colorspace, device):
     """Merge every bracket set of a folder or manifest into OUT_DIR.
 
     SOURCE is a folder of photographs (grouped as 'hdrcl scan' does) or a manifest
@@ -180,24 +197,45 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
 
     \b
     Exit codes: 0 every set done or skipped; 1 some sets failed (the others
-    completed; see report.json); 2 usage error; 3 unreadable folder, manifest
-    or response file.
+    completed; see report.json), or nothing could be merged; 2 usage error;
+    3 unreadable folder, manifest or response file; 143 / 130 stopped by
+    SIGTERM / Ctrl-C (report.json holds the sets that finished; run again to
+    finish the rest).
     """
     from hdrcl.shoot.jobs import BatchOptions
+    from hdrcl.errors import UsageError
+    from hdrcl.shoot.claims import Cancelled
     from hdrcl.shoot.run import run_batch
 
+    if crop and not align:
+        raise UsageError("--crop needs --align")
+    if neutral is not None:
+        from hdrcl.core.radiometry import parse_patch
+
+        parse_patch(neutral, "--neutral")
     quiet = bool((ctx.find_root().params or {}).get("quiet"))
     opts = BatchOptions(weight=weight, samples=samples, smoothness=smoothness, seed=seed,
                         ignore_color=ignore_color, deghost=deghost, dtype=dtype, compression=compression,
-                        preview=preview, preview_size=preview_size, device=device, report_dir=report_dir)
+                        preview=preview, preview_size=preview_size, tonemap=tonemap, colorspace=colorspace.lower(),
+                        device=device, report_dir=report_dir, align=align, crop=crop, neutral=neutral,
+                        fit_exposures=fit_exposures)
     progress = _Progress(sys.stderr, sys.stderr.isatty(), quiet)
     try:
         rep = run_batch(source, out_dir, options=opts, sets=sets, response=response, jobs=jobs,
                         scheduler=scheduler, retries=retries, force=force, report=report_json,
                         calibrate_only=calibrate_only, recursive=recursive, frames_per_set=frames_per_set,
-                        gap=gap, progress=progress)
+                        gap=gap, progress=progress, times_file=times_file)
+    except Cancelled as exc:  # before any set ran (scanning, calibrating): nothing to report
+        progress.close()
+        click.echo(f"hdrcl: {exc}", err=True)
+        ctx.exit(exc.exit_code)
     finally:
         progress.close()
+    if rep.cancelled:
+        from hdrcl.shoot.jobs import signal_name
+
+        click.echo(f"hdrcl: cancelled by {signal_name(rep.cancelled)}: {len(rep.results)} set(s) finished; "
+                   f"report: {rep.path}", err=True)
     if as_json:
         click.echo(json.dumps(rep.to_dict(), indent=1))
     elif calibrate_only:
@@ -213,8 +251,14 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
 
 def _summary(rep) -> None:
     n = len(rep.results)
-    if n == 0:
+    if n == 0 and rep.cancelled:
+        click.echo(f"no set finished before the cancel; report: {rep.path}")
+    elif n == 0:
         click.echo("no bracket sets to merge" + (f"; report: {rep.path}" if rep.path else ""))
+        if rep.sets_in_manifest == 0 and rep.unmerged:
+            for u in rep.unmerged[:5]:
+                more = f" (+{len(u['files']) - 1} more)" if len(u["files"]) > 1 else ""
+                click.echo(f"  not merged: {os.path.basename(u['files'][0])}{more}: {u['reason']}")
     else:
         click.echo(f"{n} set(s): {rep.count('done')} done, {rep.count('skipped')} skipped, "
                    f"{rep.count('failed')} failed in {rep.seconds:.1f} s; report: {rep.path}")

@@ -35,6 +35,7 @@ def calibrate(
     seed: int = 0,
     fit_exposures: str = "auto",
     exposure_tolerance: Optional[float] = None,
+    warn: bool = True,
 ) -> Response:
     """Recover the camera response from a bracket set.
 
@@ -44,6 +45,8 @@ def calibrate(
     0.5). ``auto`` uses the fitted value only for those frames, ``on`` for all, ``off``
     never fits. The times used are recorded per frame in ``Response.exposures``
     (``nominal``, ``fitted``, ``used``) and a merge of the same set uses them.
+    ``warn=False`` keeps the curve's problems out of the log (they stay in
+    ``Response.warnings``): for re-solves the user did not ask for.
 
     Returns
     -------
@@ -98,7 +101,7 @@ def calibrate(
         elif fit.flagged.any():
             used = np.where(fit.flagged, fit.fitted, used)
     resp = recover_response(br.frames, used, valid=br.valid_all, samples=samples,
-                            smoothness=smoothness, weight=weight, seed=seed, decimate=not br.grid)
+                            smoothness=smoothness, weight=weight, seed=seed, decimate=not br.grid, warn=warn)
     resp.camera = br.camera
     resp.exposures = [
         {"file": os.path.basename(n), "nominal": float(t), "fitted": None if fitted is None else float(f),

@@ -91,7 +91,6 @@ def _provenance(result: MergeResult, response_source: str) -> dict:
 
     r = result.response
     meta = {
-        "software": "hdrcl",
         "sources": [os.path.basename(p) for p in result.paths],
         "exposures": [float(t) for t in result.times],
         "exposuresNominal": [float(t) for t in (result.nominal if result.nominal is not None else result.times)],
@@ -137,6 +136,8 @@ def merge_files(
     absolute: bool = False,
     align: bool = False,
     crop: bool = False,
+    colorspace: str = "rec709",
+    owner: Optional[str] = None,
 ) -> MergeResult:
     """Merge image files into a radiance file (EXR, HDR, TIFF or PFM by extension).
 
@@ -175,12 +176,23 @@ def merge_files(
         frame. The frames are held in memory for this.
     crop : bool
         With ``align``: crop the output to the box every frame covers.
+    colorspace : {"rec709", "acescg"}
+        Colour space of the file (:mod:`hdrcl.io.colorspace`; ACEScg needs EXR or HDR).
+        The merge itself, ``result.radiance`` and ``result.thumbnail`` stay linear Rec.709.
+    owner : str, optional
+        The file's ``owner`` (EXR) / Copyright; default the frames' EXIF Copyright.
+
+    The file carries the standard metadata of :mod:`hdrcl.io.outmeta` (software, camera,
+    lens, the reference exposure, the first frame's capture time).
     """
     from hdrcl.cl.backend import get_processor
     from hdrcl.core.pipeline import ArraySink, ArraySource, Thumbnail, strip_rows, stream_merge
+    from hdrcl.io.colorspace import check as check_space
+    from hdrcl.io.outmeta import camera_from_infos
     from hdrcl.io.reader import BracketReader
     from hdrcl.io.writers import RADIANCE_EXTENSIONS, RadianceWriter
 
+    colorspace = check_space(colorspace)
     output = os.fspath(output)
     ext = os.path.splitext(output)[1].lower()
     if ext not in RADIANCE_EXTENSIONS:
@@ -193,6 +205,9 @@ def merge_files(
         raise UsageError("--crop needs --align")
     if ghost_mask is not None and not deghost:
         raise UsageError("--ghost-mask needs --deghost")
+    if colorspace != "rec709" and ext not in (".exr", ".hdr"):
+        raise UsageError(f"{output}: --colorspace {colorspace} needs an .exr or .hdr output "
+                         f"({ext} cannot say which primaries it holds)")
     source_name = os.fspath(response) if isinstance(response, (str, os.PathLike)) else (
         "given" if response is not None else "calibrated from these frames")
     resp = _as_response(response)
@@ -261,9 +276,13 @@ def merge_files(
                                               neutral, reference_patch, absolute, h, w)
         meta = _provenance(result, source_name)
         meta.update(units)
+        meta["colorspace"] = colorspace
         if shifts is not None:
             meta["alignShifts"] = [list(map(int, sh)) for sh in shifts]
-        with RadianceWriter(output, w, h, nch, dtype=dtype, compression=compression, metadata=meta) as writer:
+        camera = camera_from_infos(infos, owner=owner, units=units.get("units", "relative"))
+        when = first.capture_time.strftime("%Y:%m:%d %H:%M:%S") if first.capture_time else None
+        with RadianceWriter(output, w, h, nch, dtype=dtype, compression=compression, metadata=meta,
+                            timestamp=when, colorspace=colorspace, camera=camera) as writer:
             sink = writer if keep is None else _Tee(writer, keep)
             if factors is not None:
                 from hdrcl.core.radiometry import ScaledSink

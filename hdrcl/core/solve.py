@@ -125,6 +125,7 @@ def recover_response(
     seed: int = 0,
     channels: Optional[Sequence[str]] = None,
     decimate: bool = True,
+    warn: bool = True,
 ) -> Response:
     """Recover the response of a bracket.
 
@@ -140,6 +141,9 @@ def recover_response(
         Number of pixels; default :func:`hdrcl.core.sampling.default_sample_count`.
     smoothness, weight, seed, decimate
         See :func:`solve_curve` and :func:`hdrcl.core.sampling.select_samples`.
+    warn : bool
+        Log the curve's problems (they are in ``Response.warnings`` either way); off for
+        the internal re-solves of the quality figures.
 
     Returns
     -------
@@ -175,7 +179,8 @@ def recover_response(
             "(N(P-1) should exceed %d); the curve leans on smoothness", idx.size, len(frames), knots.size,
         )
     zs = np.stack([f.reshape(-1, nch)[idx] for f in frames], axis=1)  # (N, P, C)
-    return _finish(zs, np.broadcast_to(log_t, zs.shape[:2]), None, bits, smoothness, weight, seed, channels)
+    return _finish(zs, np.broadcast_to(log_t, zs.shape[:2]), None, bits, smoothness, weight, seed, channels,
+                   warn=warn)
 
 
 #: A sample whose residual (weighted RMS over its frames, ln units) exceeds this many
@@ -202,7 +207,7 @@ def _sample_residuals(z, log_t, usable, g_tables, weight, levels):
     return res
 
 
-def _finish(zs, log_t, usable, bits, smoothness, weight, seed, channels) -> Response:
+def _finish(zs, log_t, usable, bits, smoothness, weight, seed, channels, warn: bool = True) -> Response:
     nch = zs.shape[2]
     smoothness = _check_smoothness(smoothness, weight)
     knots = knot_positions(bits)
@@ -227,8 +232,9 @@ def _finish(zs, log_t, usable, bits, smoothness, weight, seed, channels) -> Resp
     resp = Response(bits=bits, g=g, knots=knots, channels=names, smoothness=float(smoothness),
                     weight=weight, samples=int(keep.sum()), seed=int(seed))
     resp.warnings.extend(resp.monotonic_problems())
-    for wmsg in resp.warnings:
-        logger.warning(wmsg)
+    if warn:
+        for wmsg in resp.warnings:
+            logger.warning(wmsg)
     return resp
 
 

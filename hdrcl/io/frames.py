@@ -207,7 +207,7 @@ def _info_from_spec(spec, path: str) -> FrameInfo:
     mode = _as_float(spec.getattribute("Exif:ExposureMode"))
     extra = {}
     for key in ("Orientation", "oiio:BitsPerSample", "Exif:ExposureProgram",
-                "Exif:WhiteBalance", "oiio:ColorSpace"):
+                "Exif:WhiteBalance", "oiio:ColorSpace", "Copyright", "Artist"):
         v = spec.getattribute(key)
         if v is not None:
             extra[key] = v

@@ -301,15 +301,24 @@ def relative_exposures(exposures: Sequence[Exposure]) -> np.ndarray:
     return out
 
 
+#: Shorter times are written as fractions (``1/250 s``), longer ones as decimals, as
+#: cameras show them.
+FRACTION_BELOW = 0.3
+
+
 def format_time(seconds: float) -> str:
-    """Exposure time for messages: ``"1/30 s"``, ``"2 s"``, ``"0.4 s"``."""
+    """Exposure time, one format everywhere: ``"1/30 s"``, ``"1/122.5 s"``, ``"0.4 s"``, ``"2 s"``.
+
+    Below :data:`FRACTION_BELOW` seconds a fraction ``1/N`` with N to four significant
+    digits (whole from 1000 on), a nominal 1/30 s and a fitted 1/122.5 s alike;
+    otherwise seconds to four significant digits.
+    """
     s = float(seconds)
     if not math.isfinite(s) or s <= 0:
         return f"{s:g} s"
-    if s < 1.0:
-        n = round(1.0 / s)
-        if n >= 1 and abs(1.0 / s - n) <= 1e-3 * n:
-            return f"1/{n} s"
+    if s < FRACTION_BELOW:
+        n = 1.0 / s
+        return f"1/{n:.0f} s" if n >= 1000 else f"1/{float(f'{n:.4g}'):g} s"
     if abs(s - round(s)) <= 1e-6 * s:
         return f"{round(s)} s"
     return f"{s:.4g} s"

@@ -28,6 +28,28 @@ def _pick_channels(spec, path: str) -> list:
     )
 
 
+def read_radiance_colorspace(path) -> tuple:
+    """:func:`read_radiance`'s pixels and the file's colour space, ``rec709`` or ``acescg``.
+
+    From ``oiio:ColorSpace`` (EXR), or a Radiance file's ``PRIMARIES=`` line (which
+    OpenImageIO does not read); ``rec709`` when the file says nothing else.
+    """
+    from hdrcl.io.colorspace import from_file_tag
+
+    name = os.fspath(path)
+    pixels, _meta = read_radiance(name)
+    if os.path.splitext(name)[1].lower() == ".hdr":
+        from hdrcl.io.outmeta import hdr_colorspace
+
+        return pixels, hdr_colorspace(name) or "rec709"
+    inp = _open_input(name)
+    try:
+        tag = inp.spec().getattribute("oiio:ColorSpace")
+    finally:
+        inp.close()
+    return pixels, from_file_tag(tag)
+
+
 def read_radiance(path) -> tuple:
     """Read a radiance map written by :func:`write_radiance` (or any float image).
 

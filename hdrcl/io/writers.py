@@ -8,9 +8,13 @@ Formats, chosen by extension:
 
 ========  ==============================================================
 ``.exr``  OpenEXR, half (default) or float, any OpenEXR compression;
-          metadata as ``hdrcl:*`` header attributes, Rec.709 chromaticities
+          metadata as ``hdrcl:*`` header attributes plus the standard ones
+          (``Software``, ``owner``, ``capDate``, camera, lens, reference
+          exposure: :mod:`hdrcl.io.outmeta`), the colour space's
+          ``chromaticities`` (Rec.709 or ACEScg AP1) and ``oiio:ColorSpace``
 ``.hdr``  Radiance RGBE (shared 8-bit exponent: about 1% precision;
-          grey is written as RGB); no metadata
+          grey is written as RGB); header lines SOFTWARE, EXPOSURE,
+          PRIMARIES, CAPDATE; no ``hdrcl:*`` metadata
 ``.tif``  32-bit float TIFF; metadata as JSON in ImageDescription
 ``.pfm``  Portable float map (1 or 3 channels); no metadata
 ========  ==============================================================
@@ -109,8 +113,9 @@ def _description(metadata: Optional[Mapping]) -> Optional[str]:
     return json.dumps({"hdrcl": plain}, default=str, sort_keys=True)
 
 
-def _write(path: str, pixels: np.ndarray, fmt: str, attributes: list, channelnames=None):
-    """Write ``pixels`` (H, W, C) to ``path`` atomically with OIIO in the given format."""
+def _write(path: str, pixels: np.ndarray, fmt: str, attributes: list, channelnames=None, hdr_lines=None):
+    """Write ``pixels`` (H, W, C) to ``path`` atomically with OIIO in the given format;
+    ``hdr_lines`` are added to a Radiance header before the file is moved into place."""
     oiio = _oiio()
     h, w, c = pixels.shape
     spec = oiio.ImageSpec(w, h, c, fmt)
@@ -131,6 +136,19 @@ def _write(path: str, pixels: np.ndarray, fmt: str, attributes: list, channelnam
         if not (ok and closed) or out.has_error:
             detail = _clean_error(out.geterror() or oiio.geterror(), tmp)
             raise ProcessingError(f"{path}: cannot write ({detail or 'unknown error'})")
+        if hdr_lines:
+            from hdrcl.io.outmeta import patch_hdr_header
+
+            patch_hdr_header(tmp, hdr_lines)
+
+
+def _hdr_lines(ext, camera, colorspace, timestamp):
+    """Radiance header lines (SOFTWARE, EXPOSURE, PRIMARIES, CAPDATE) or None."""
+    if ext != ".hdr":
+        return None
+    from hdrcl.io.outmeta import hdr_header_lines
+
+    return hdr_header_lines(camera, colorspace, timestamp)
 
 
 def _exr_compression(compression: str) -> str:
@@ -143,11 +161,14 @@ def _exr_compression(compression: str) -> str:
     return text
 
 
-def _radiance_header(path, nch: int, dtype: str, compression: str, metadata, timestamp):
+def _radiance_header(path, nch: int, dtype: str, compression: str, metadata, timestamp,
+                     colorspace: str = "rec709", camera: Optional[Mapping] = None):
     """Checked target, extension, and the OIIO header of a radiance file.
 
     Returns ``(target, ext, fmt, attrs, channelnames, warnings)``; shared by
-    :func:`write_radiance` and :class:`RadianceWriter`.
+    :func:`write_radiance` and :class:`RadianceWriter`. The standard attributes
+    (:func:`hdrcl.io.outmeta.standard_attributes`) are part of ``attrs``; a Radiance
+    file's header lines are added after writing (:func:`_hdr_lines`).
     """
     target = os.fspath(path)
     ext = _ext(target)
@@ -160,16 +181,26 @@ def _radiance_header(path, nch: int, dtype: str, compression: str, metadata, tim
         raise UsageError(f"--dtype: '{dtype}' is not one of half, float")
     warnings = []
     attrs = _metadata_attributes(metadata)  # validates keys for every format
-    attrs.append(("oiio:ColorSpace", LINEAR_COLORSPACE))
+    from hdrcl.io.colorspace import COLORSPACES, chromaticities
+    from hdrcl.io.colorspace import check as check_space
+    from hdrcl.io.outmeta import standard_attributes
+
+    colorspace = check_space(colorspace)
+    if colorspace != "rec709" and ext not in (".exr", ".hdr"):
+        raise UsageError(f"{target}: --colorspace {colorspace} needs an .exr or .hdr output "
+                         f"({ext} cannot say which primaries it holds)")
+    attrs.append(("oiio:ColorSpace", LINEAR_COLORSPACE if colorspace == "rec709" else COLORSPACES[colorspace]))
+    attrs.extend(standard_attributes(ext, camera))
     fmt = "float"
     channelnames = None
     if ext == ".exr":
         oiio = _oiio()
         fmt = dtype
         attrs.append(("compression", _exr_compression(compression)))
-        attrs.append(("chromaticities", oiio.TypeDesc("float[8]"), REC709_CHROMATICITIES))
+        attrs.append(("chromaticities", oiio.TypeDesc("float[8]"), chromaticities(colorspace)))
         if timestamp is not None:
-            # OIIO stamps the time of writing unless DateTime is set ("" leaves it out).
+            # OIIO stamps the time of writing unless DateTime is set ("" leaves it out);
+            # it is the EXR's capDate.
             attrs.append(("DateTime", str(timestamp)))
         if nch == 1:
             channelnames = ("Y",)
@@ -195,7 +226,7 @@ def _radiance_header(path, nch: int, dtype: str, compression: str, metadata, tim
 
 
 def write_radiance(path, image, *, dtype="half", compression="zip", metadata=None,
-                   timestamp=None) -> list:
+                   timestamp=None, colorspace="rec709", camera=None) -> list:
     """Write a floating-point radiance map; the format follows the extension.
 
     Parameters
@@ -220,7 +251,15 @@ def write_radiance(path, image, *, dtype="half", compression="zip", metadata=Non
         EXR only: the ``DateTime`` attribute (``"YYYY:MM:DD HH:MM:SS"``) instead of the
         time of writing, which OpenImageIO records by default; ``""`` records none. Given,
         the same pixels and metadata always give the same bytes (``hdrcl batch`` uses
-        the capture time of the first frame).
+        the capture time of the first frame). Radiance files get it as ``CAPDATE=``.
+    colorspace : {"rec709", "acescg"}
+        Colour space of the file (EXR and HDR): ``image`` is linear Rec.709 and is
+        converted to ACEScg (:mod:`hdrcl.io.colorspace`) when asked; the file is tagged
+        with the space's ``oiio:ColorSpace`` and primaries (EXR ``chromaticities``,
+        Radiance ``PRIMARIES``).
+    camera : mapping, optional
+        Standard metadata (:mod:`hdrcl.io.outmeta`): make, model, lens, focal length,
+        owner and the reference exposure.
 
     Returns
     -------
@@ -241,9 +280,11 @@ def write_radiance(path, image, *, dtype="half", compression="zip", metadata=Non
         img = img[:, :, None]
     if img.ndim != 3 or img.shape[2] not in (1, 3) or img.shape[0] < 1 or img.shape[1] < 1:
         raise ValueError(f"radiance image must be (H, W, 1) or (H, W, 3), got {img.shape}")
-    img = np.ascontiguousarray(img)
     target, ext, fmt, attrs, channelnames, warnings = _radiance_header(
-        path, img.shape[2], dtype, compression, metadata, timestamp)
+        path, img.shape[2], dtype, compression, metadata, timestamp, colorspace, camera)
+    from hdrcl.io.colorspace import convert
+
+    img = np.ascontiguousarray(convert(img, "rec709", colorspace))
     finite = np.isfinite(img)
     if not finite.all():
         bad = img.size - int(np.count_nonzero(finite))
@@ -260,7 +301,7 @@ def write_radiance(path, image, *, dtype="half", compression="zip", metadata=Non
             warnings.append(f"{target}: negative values are written as 0 in RGBE")
         if img.shape[2] == 1:
             img = np.ascontiguousarray(np.repeat(img, 3, axis=2))
-    _write(target, img, fmt, attrs, channelnames)
+    _write(target, img, fmt, attrs, channelnames, _hdr_lines(ext, camera, colorspace, timestamp))
     for w in warnings:
         logger.warning("%s", w)
     return warnings
@@ -310,7 +351,9 @@ def write_ldr(path, pixels, *, metadata=None) -> None:
     """
     target, ext, px = _ldr_target(path, pixels, (1, 2, 3, 4))
     px = np.ascontiguousarray(px)
-    attrs = _metadata_attributes(metadata)
+    from hdrcl.io.outmeta import software
+
+    attrs = _metadata_attributes(metadata) + [("Software", software())]
     if ext in (".jpg", ".jpeg"):
         if px.dtype != np.uint8:
             raise UsageError(f"{target}: JPEG holds 8-bit data only; write .png or .tif")
@@ -388,11 +431,14 @@ class RadianceWriter:
     """
 
     def __init__(self, path, width: int, height: int, nch: int, *, dtype: str = "half",
-                 compression: str = "zip", metadata=None, timestamp=None):
+                 compression: str = "zip", metadata=None, timestamp=None, colorspace: str = "rec709",
+                 camera=None):
         if nch not in (1, 3):
             raise ValueError(f"radiance must have 1 or 3 channels, not {nch}")
         target, ext, fmt, attrs, channelnames, warnings = _radiance_header(
-            path, nch, dtype, compression, metadata, timestamp)
+            path, nch, dtype, compression, metadata, timestamp, colorspace, camera)
+        self.colorspace = str(colorspace).strip().lower()
+        self._hdr_lines = _hdr_lines(ext, camera, colorspace, timestamp)
         self.path, self.ext = target, ext
         self.width, self.height, self.nch = int(width), int(height), int(nch)
         self.dtype = dtype
@@ -437,6 +483,10 @@ class RadianceWriter:
         """Write rows ``y0 .. y1`` (in order) from a float32 ``(rows, W, C)`` array."""
         if y0 != self._next_row:
             raise ValueError(f"rows must be written in order: expected {self._next_row}, got {y0}")
+        if self.colorspace != "rec709":
+            from hdrcl.io.colorspace import convert
+
+            data = convert(data, "rec709", self.colorspace)
         data = np.ascontiguousarray(data, dtype=np.float32)
         self._check(data)
         if self._whole is not None:
@@ -464,6 +514,14 @@ class RadianceWriter:
                 self.abort()
                 raise ProcessingError(f"{self.path}: cannot write ({detail or 'unknown error'})")
             self._out = None
+            if self._hdr_lines:
+                from hdrcl.io.outmeta import patch_hdr_header
+
+                try:
+                    patch_hdr_header(self._tmp, self._hdr_lines)
+                except BaseException:
+                    self.abort()
+                    raise
         total = self.width * self.height * self.nch
         if self._nonfinite:
             self.warnings.append(f"{self.path}: {self._nonfinite} value(s) are NaN or infinite")

@@ -23,10 +23,11 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
                          loo: bool = True):
     """Quality figures of a file merge and their report in ``folder``.
 
-    Writes the response plot, coverage map, preview and JSON of the set, and an
-    ``index.html`` contact sheet (:mod:`hdrcl.report`). The frames are read again: whole
-    when they fit :func:`memory_budget`, else as the sampling grid (the clipping and
-    coverage figures are then on that grid).
+    Writes the set's preview, frame thumbnails, plots and JSON, and an ``index.html``
+    contact sheet over every set in ``folder`` (earlier runs' too;
+    :mod:`hdrcl.report.pages`). The frames are read again: whole when they fit
+    :func:`memory_budget`, else as the sampling grid (the clipping and coverage figures
+    are then on that grid).
 
     Returns
     -------
@@ -34,7 +35,7 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
     """
     from hdrcl.core.sampling import grid_stride
     from hdrcl.io.reader import BracketReader
-    from hdrcl.report.pages import write_contact_sheet, write_set_report
+    from hdrcl.report.pages import load_report_folder, write_contact_sheet, write_set_report
     from hdrcl.report.quality import measure
 
     folder = os.fspath(folder)
@@ -63,6 +64,9 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
     preview = result.thumbnail if result.thumbnail is not None else result.radiance
     fig = measure(br, result.response, preview, weight=weight, times=result.times, device=device, loo=loo)
     stem = name or os.path.splitext(os.path.basename(result.output or paths[0]))[0]
-    entry = write_set_report(folder, stem, fig, result.response, preview, fig.coverage, warnings=result.warnings)
-    write_contact_sheet(folder, [entry])
+    entry = write_set_report(folder, stem, fig, result.response, preview, fig.coverage, warnings=result.warnings,
+                             bracket=br)
+    # The folder accumulates: every set reported into it before (any run) is on the page.
+    entries = [e for e in load_report_folder(folder) if e.name != entry.name] + [entry]
+    write_contact_sheet(folder, sorted(entries, key=lambda e: e.name))
     return fig, entry

@@ -9,7 +9,8 @@ Reinhard et al.'s global operator on luminance (SIGGRAPH 2002, eq. 1-4)::
     Ld     = L (1 + L / Lwhite^2) / (1 + L)     Lwhite: the 99.9th percentile of L
     RGBd   = RGBw * Ld / Lw
 
-and sRGB-encoded to 8 bits. Everything is float64 NumPy on a few hundred thousand
+and sRGB-encoded to 8 bits (``hdrcl batch --tonemap`` chooses another operator of
+:mod:`hdrcl.report.tonemap`). Everything is float64 NumPy on a few hundred thousand
 pixels at most, so it costs little next to the merge, and is deterministic: the same
 radiance map always gives the same bytes.
 """
@@ -82,7 +83,8 @@ class AreaAverage:
 
 
 def tone_map(radiance: np.ndarray) -> np.ndarray:
-    """Reinhard global tone map of linear radiance to display-linear values in [0, 1].
+    """Reinhard global tone map of linear radiance to display-linear values in [0, 1]
+    (:func:`hdrcl.report.tonemap.display_global` with the scene's own statistics).
 
     Parameters
     ----------
@@ -93,40 +95,32 @@ def tone_map(radiance: np.ndarray) -> np.ndarray:
     -------
     ndarray, (H, W, C) float64
     """
-    rad = np.nan_to_num(np.asarray(radiance, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-    rad = np.maximum(rad, 0.0)
+    from hdrcl.report.tonemap import display_global, statistics
+
+    rad = np.asarray(radiance, np.float64)
     if rad.ndim == 2:
         rad = rad[:, :, None]
-    lum = rad[..., 0] if rad.shape[2] == 1 else rad[..., :3] @ _LUMA
-    positive = lum[lum > 0]
-    if positive.size == 0:
-        return np.zeros_like(rad)
-    eps = 1e-6 * float(np.max(positive))
-    key = float(np.exp(np.mean(np.log(eps + lum))))
-    scaled = (KEY / key) * lum
-    white = max(float(np.percentile(scaled, 99.9)), 1e-12)
-    display = scaled * (1.0 + scaled / (white * white)) / (1.0 + scaled)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(lum > 0, display / lum, 0.0)
-    return np.clip(rad * ratio[..., None], 0.0, 1.0)
+    return display_global(rad, statistics(rad, "reinhard"))
 
 
-def _srgb(linear: np.ndarray) -> np.ndarray:
-    """sRGB transfer function (IEC 61966-2-1), [0, 1] in and out."""
-    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
+def encode(small: np.ndarray, operator: str = "reinhard") -> np.ndarray:
+    """Tone-map an already reduced radiance map with ``operator`` and encode it as sRGB
+    ``uint8`` (the float64 NumPy path: deterministic, the same bytes every time)."""
+    from hdrcl.report.tonemap import tone_map_array
+
+    rad = np.asarray(small, np.float64)
+    if rad.ndim == 2:
+        rad = rad[:, :, None]
+    return tone_map_array(rad, operator)
 
 
-def encode(small: np.ndarray) -> np.ndarray:
-    """Tone-map an already reduced radiance map and encode it as sRGB ``uint8``."""
-    return np.round(255.0 * _srgb(tone_map(small))).astype(np.uint8)
-
-
-def preview(radiance: np.ndarray, size: int = DEFAULT_SIZE) -> np.ndarray:
-    """An sRGB 8-bit preview of ``radiance``, long side at most ``size`` pixels.
+def preview(radiance: np.ndarray, size: int = DEFAULT_SIZE, operator: str = "reinhard") -> np.ndarray:
+    """An sRGB 8-bit preview of ``radiance``, long side at most ``size`` pixels, tone-mapped
+    with ``operator`` (:mod:`hdrcl.report.tonemap`).
 
     Returns
     -------
     ndarray, (h, w, C) uint8
         C = 1 or 3 as the input (grey stays grey).
     """
-    return encode(downscale(radiance, size))
+    return encode(downscale(radiance, size), operator)

@@ -62,7 +62,9 @@ def leave_one_out(
     keep = [k for k in range(len(bracket.frames)) if k != index]
     sub = Bracket(frames=[bracket.frames[k] for k in keep], times=bracket.times[keep],
                   valid=[bracket.valid[k] for k in keep])
-    resp = calibrate(sub, smoothness=smoothness, samples=samples, weight=weight, fit_exposures=fit_exposures)
+    # warn=False: the re-solves' curves are a measuring device, not the user's response.
+    resp = calibrate(sub, smoothness=smoothness, samples=samples, weight=weight, fit_exposures=fit_exposures,
+                     warn=False)
     res = merge_bracket(sub, resp, weight=weight, device=device)
     real = bracket.frames[index]
     scale = 1.0 if real.dtype == np.uint8 else 257.0

@@ -28,6 +28,7 @@ class DemoReport:
     shoot: str = ""
     batch: str = ""
     batch_done: int = 0
+    batch_skipped: int = 0
     batch_failed: int = 0
     contact_sheet: str = ""
 
@@ -107,6 +108,7 @@ def _demo_batch(rep: DemoReport, device) -> None:
     write_sample_shoot(rep.shoot)
     out = run_batch(rep.shoot, rep.batch, options=BatchOptions(device=device,
                                                                report_dir=os.path.join(rep.batch, "report")))
-    rep.batch_done = sum(1 for r in out.results if r.status in ("done", "skipped"))
+    rep.batch_done = sum(1 for r in out.results if r.status == "done")
+    rep.batch_skipped = sum(1 for r in out.results if r.status == "skipped")
     rep.batch_failed = sum(1 for r in out.results if r.status == "failed")
     rep.contact_sheet = out.quality_report or ""

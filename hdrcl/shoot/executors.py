@@ -9,7 +9,10 @@ pipeline (``jobs=1``) lives in :mod:`hdrcl.shoot.run`.
 **Worker processes** start with ``spawn``: a forked child would inherit the parent's
 OpenCL driver state, which no OpenCL implementation supports. Each worker creates its
 own context and builds the kernels once, on its first set, and reuses them for every
-later set (:func:`hdrcl.cl.backend.get_processor` caches them per process).
+later set (:func:`hdrcl.cl.backend.get_processor` caches them per process). Workers
+die with the batch whatever kills it (:func:`hdrcl.shoot.claims.tie_to_parent`), and
+an exception in the batch (SIGTERM, Ctrl-C) kills them at once (:func:`_kill_pool`)
+instead of waiting for the queued sets.
 
 **Dask**: the sets are submitted as tasks to an existing scheduler; each worker
 process makes its own OpenCL context the same way. A task that raises an unexpected
@@ -32,8 +35,11 @@ logger = logging.getLogger(__name__)
 __all__ = ["run_processes", "run_dask", "dask_client"]
 
 
-def _worker_init(level: int) -> None:
-    """Worker processes log like the parent: one line, same level."""
+def _worker_init(level: int, parent: int) -> None:
+    """Worker processes die with their parent and log like it: one line, same level."""
+    from hdrcl.shoot.claims import tie_to_parent
+
+    tie_to_parent(parent)
     log = logging.getLogger("hdrcl")
     if not log.handlers:
         h = logging.StreamHandler()
@@ -51,8 +57,9 @@ def run_processes(set_jobs: List, ctx, emit: Callable, *, task: Callable, failed
     """
     mp = multiprocessing.get_context("spawn")
     level = logging.getLogger("hdrcl").getEffectiveLevel()
-    with concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=mp, initializer=_worker_init,
-                                                initargs=(level,)) as pool:
+    pool = concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=mp, initializer=_worker_init,
+                                                  initargs=(level, os.getpid()))
+    try:
         futures = {pool.submit(task, job, ctx): job for job in set_jobs}
         for fut in concurrent.futures.as_completed(futures):
             job = futures[fut]
@@ -63,6 +70,30 @@ def run_processes(set_jobs: List, ctx, emit: Callable, *, task: Callable, failed
             except Exception as exc:  # pickling problems and the like
                 res = failed(job, exc)
             emit(res)
+    except BaseException:
+        _kill_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+
+
+def _kill_pool(pool) -> None:
+    """Kill the pool's workers now (SIGKILL) and let the pool go without waiting for
+    queued work; their sets' temporary files are left to the claims' cleanup."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for p in procs:
+        try:
+            p.kill()
+        except (OSError, ValueError):
+            pass
+    for p in procs:
+        try:
+            p.join(1.0)
+        except (OSError, ValueError, AssertionError):
+            pass
+    try:
+        pool.shutdown(wait=False, cancel_futures=True)
+    except Exception:  # a broken pool may complain; the workers are gone either way
+        pass
 
 
 def dask_client(scheduler):

@@ -8,8 +8,8 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
-from hdrcl import __version__
 from hdrcl.core.response import default_smoothness
+from hdrcl.version import __version__
 
 #: Name of the report written into the output folder.
 REPORT_NAME = "report.json"
@@ -48,6 +48,10 @@ class BatchOptions:
         Also write a tone-mapped JPEG per set.
     preview_size : int
         Long side of the preview in pixels.
+    tonemap : str
+        Operator of the previews (:data:`hdrcl.report.tonemap.OPERATORS`).
+    colorspace : {"rec709", "acescg"}
+        Colour space of the EXRs (:mod:`hdrcl.io.colorspace`).
     device : str, optional
         OpenCL device (see ``hdrcl devices``).
     report_dir : str, optional
@@ -56,6 +60,15 @@ class BatchOptions:
         by whoever merges the set, and an ``index.html`` contact sheet over the manifest,
         written by :func:`run_batch` at the end (:mod:`hdrcl.report`). Not part of any
         output's identity: the EXRs and previews are the same with or without it.
+    align, crop : bool
+        Align hand-held frames by translation before merging (the frames are then held
+        in memory); with ``crop``, crop to the area every frame covers.
+    neutral : str, optional
+        ``"x,y,w,h"``: white balance so that this patch (pixels) comes out grey.
+    fit_exposures : str
+        ``off`` (the metadata's exposures), ``auto`` (the exposure fitted from the pixels
+        where the metadata is clearly wrong) or ``on`` (fitted for every frame), with the
+        set's pooled response.
     """
 
     weight: str = "hat"
@@ -68,8 +81,14 @@ class BatchOptions:
     compression: str = "zip"
     preview: bool = True
     preview_size: int = 512
+    tonemap: str = "reinhard"
+    colorspace: str = "rec709"
     device: Optional[str] = None
     report_dir: Optional[str] = None
+    align: bool = False
+    crop: bool = False
+    neutral: Optional[str] = None
+    fit_exposures: str = "off"
 
     def output_params(self) -> dict:
         """Parameters that shape an EXR beyond its response (part of its digest)."""
@@ -77,6 +96,12 @@ class BatchOptions:
                "dtype": self.dtype, "compression": str(self.compression).strip().lower()}
         if self.deghost:  # only when on, so that digests of plain merges stay as they were
             out["deghost"] = True
+        if self.colorspace != "rec709":  # likewise
+            out["colorspace"] = self.colorspace
+        for key, value, default in (("align", self.align, False), ("crop", self.crop, False),
+                                    ("neutral", self.neutral, None), ("fit_exposures", self.fit_exposures, "off")):
+            if value != default:
+                out[key] = value
         return out
 
     def solve_params(self) -> dict:
@@ -194,6 +219,9 @@ class BatchReport:
     unreadable : list of str
         Files the scan could not read; counted as failures when the whole manifest was
         selected.
+    cancelled : int, optional
+        The signal (SIGTERM, SIGINT) that stopped the run; the report holds the sets
+        that finished before it.
     """
 
     results: List[SetResult] = field(default_factory=list)
@@ -205,6 +233,8 @@ class BatchReport:
     unreadable: List[str] = field(default_factory=list)
     reference: Tuple[Optional[float], Optional[float]] = (None, None)
     seconds: float = 0.0
+    cancelled: Optional[int] = None
+    sets_in_manifest: int = 0
 
     def count(self, status: str) -> int:
         return sum(1 for r in self.results if r.status == status)
@@ -215,8 +245,14 @@ class BatchReport:
 
     @property
     def exit_code(self) -> int:
-        """0 when every set is done or skipped, 1 when a set (or an input file) failed."""
-        return 1 if self.failed or self.unreadable else 0
+        """0 when every set is done or skipped; 1 when a set (or an input file) failed,
+        or when nothing could be merged (the folder holds no bracket set); 128 + the
+        signal when cancelled (143 SIGTERM, 130 SIGINT)."""
+        if self.cancelled:
+            return 128 + int(self.cancelled)
+        if self.failed or self.unreadable:
+            return 1
+        return 1 if self.sets_in_manifest == 0 else 0
 
     def to_dict(self) -> dict:
         counts = Counter(e["status"] for e in self.entries)
@@ -228,8 +264,18 @@ class BatchReport:
             "responses": [r.to_dict() for r in self.responses],
             "summary": {"sets": len(self.entries), "done": counts.get(STATUS_DONE, 0),
                         "skipped": counts.get(STATUS_SKIPPED, 0), "failed": counts.get(STATUS_FAILED, 0),
-                        "unreadable_files": len(self.unreadable)},
+                        "unreadable_files": len(self.unreadable),
+                        **({"cancelled": signal_name(self.cancelled)} if self.cancelled else {})},
         }
+
+
+def signal_name(signum: int) -> str:
+    import signal
+
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
 
 
 def _reference_text(ref) -> str:

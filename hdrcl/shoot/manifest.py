@@ -9,7 +9,6 @@ import os
 import tempfile
 from dataclasses import dataclass, field
 from typing import List, Optional
-
 from hdrcl.errors import InputError
 
 
@@ -46,6 +45,10 @@ class BracketSet:
     gaps : list
         End-to-start gap in seconds before each frame after the first (``None`` where a
         capture time is missing).
+    joins : list
+        Why each frame after the first joined the set (``"gap 1.2 s, same scene (match
+        0.98, +0.1 EV)"``, ``"gap 42.0 s bridged: exposure ladder, 1 EV steps, ascending,
+        same scene ..."``); empty in a hand-edited manifest.
     width, height : int, optional
         Image size in pixels.
     extra : dict
@@ -65,6 +68,7 @@ class BracketSet:
     iso: list = field(default_factory=list)
     ev: list = field(default_factory=list)
     gaps: list = field(default_factory=list)
+    joins: list = field(default_factory=list)
     width: Optional[int] = None
     height: Optional[int] = None
     extra: dict = field(default_factory=dict)
@@ -84,7 +88,7 @@ class BracketSet:
         return d
 
 
-_SET_OPTIONAL = ("start", "camera", "serial", "lens", "focal_length", "fnumber",
+_SET_OPTIONAL = ("start", "camera", "serial", "lens", "focal_length", "fnumber", "joins",
                  "iso", "ev", "gaps", "width", "height")
 
 
@@ -100,14 +104,25 @@ class Unmerged:
         Starts with the kind: ``"single frame"``, ``"all frames share one exposure"``,
         ``"aperture bracketing"``, ``"mixed cameras"``, ``"no exposure time"``,
         ``"corrupt: <message>"``; details follow in parentheses.
+    ended : str, optional
+        Why the group ended (as :attr:`BracketSet.reason`), from a scan.
+    joins : list
+        Why each frame after the first joined the group, from a scan.
     """
 
     files: List[str]
     reason: str
+    ended: Optional[str] = None
+    joins: list = field(default_factory=list)
 
     def to_dict(self, relative_to: Optional[str] = None) -> dict:
         """JSON-ready dictionary; file paths made relative to ``relative_to`` if given."""
-        return {"files": [_rel(f, relative_to) for f in self.files], "reason": self.reason}
+        d = {"files": [_rel(f, relative_to) for f in self.files], "reason": self.reason}
+        if self.ended is not None:
+            d["ended"] = self.ended
+        if self.joins:
+            d["joins"] = list(self.joins)
+        return d
 
 
 @dataclass
@@ -228,7 +243,7 @@ class Manifest:
             for name in _SET_OPTIONAL:
                 if s.get(name) is not None:
                     kwargs[name] = s[name]
-            for name in ("iso", "ev", "gaps"):
+            for name in ("iso", "ev", "gaps", "joins"):
                 if name in kwargs and not isinstance(kwargs[name], list):
                     fail(f"{where}.{name} is not a list")
             extra = {k: v for k, v in s.items()
@@ -261,7 +276,12 @@ class Manifest:
             reason = u.get("reason", "")
             if not isinstance(reason, str):
                 fail(f"{where}.reason is not a string")
-            unmerged.append(Unmerged(files=files, reason=reason))
+            ended, joins = u.get("ended"), u.get("joins") or []
+            if ended is not None and not isinstance(ended, str):
+                fail(f"{where}.ended is not a string")
+            if not isinstance(joins, list):
+                fail(f"{where}.joins is not a list")
+            unmerged.append(Unmerged(files=files, reason=reason, ended=ended, joins=list(joins)))
         return cls(sets=sets, unmerged=unmerged,
                    root=None if root is None else _resolve(root, base))
 

@@ -95,13 +95,15 @@ def output_stems(manifest) -> Dict[int, str]:
 
 # ------------------------------------------------------------------------ sources
 def load_source(source, *, recursive: bool = False, frames_per_set: Optional[int] = None,
-                gap: Optional[float] = None, exclude: Union[str, Sequence[str], None] = None):
+                gap: Optional[float] = None, exclude: Union[str, Sequence[str], None] = None, times_file=None,
+                content: bool = True):
     """The manifest of ``source``: a folder (scanned) or a manifest JSON file.
 
     Files named in a manifest are not checked here: a missing file fails its own set.
     ``exclude`` (the output folder, the quality report's; one or a list) drops
     unmerged entries under it, such as the previews of an earlier run inside the
-    scanned folder.
+    scanned folder. ``times_file`` gives exposures to frames without EXIF (and to the
+    sets of a manifest that list none); see :func:`hdrcl.shoot.scan.scan_directory`.
 
     Raises
     ------
@@ -117,7 +119,8 @@ def load_source(source, *, recursive: bool = False, frames_per_set: Optional[int
         return source
     path = os.fspath(source)
     if os.path.isdir(path):
-        manifest = scan_directory(path, recursive=recursive, frames_per_set=frames_per_set, gap=gap)
+        manifest = scan_directory(path, recursive=recursive, frames_per_set=frames_per_set, gap=gap,
+                                  times_file=times_file, content=content)
         if exclude:
             folders = [exclude] if isinstance(exclude, (str, os.PathLike)) else exclude
             exs = tuple(os.path.abspath(e) + os.sep for e in folders)
@@ -129,7 +132,15 @@ def load_source(source, *, recursive: bool = False, frames_per_set: Optional[int
     if recursive or frames_per_set is not None or gap is not None:
         raise UsageError("--recursive, --frames-per-set and --gap apply when scanning a folder, "
                          "not to a manifest (edit the manifest instead)")
-    return load_manifest(path, check_files=False)
+    manifest = load_manifest(path, check_files=False)
+    if times_file is not None:
+        from hdrcl.io.metadata import read_times_file
+
+        table = read_times_file(times_file)
+        for s in manifest.sets:
+            if not s.exposures and all(os.path.basename(f) in table for f in s.files):
+                s.exposures = [float(table[os.path.basename(f)].factor) for f in s.files]
+    return manifest
 
 
 def check_manifest(manifest) -> Dict[int, str]:
@@ -147,11 +158,14 @@ def check_manifest(manifest) -> Dict[int, str]:
     from hdrcl.io.frames import read_info
     from hdrcl.shoot.grouping import unmergeable_reason
 
+    from hdrcl.shoot.claims import check_regular
+
     problems = {}
     for s in manifest.sets:
         infos = []
         for f in s.files:
             try:
+                check_regular(f)  # a FIFO would block the header read
                 infos.append(read_info(f))
             except (InputError, OSError) as exc:
                 problems[s.index] = str(exc).splitlines()[0]
@@ -219,12 +233,14 @@ class _Plan:
 
 def _plan(manifest, out_dir: str, options: BatchOptions, ranges) -> _Plan:
     from hdrcl.io.frames import read_info
+    from hdrcl.shoot.claims import check_regular
 
     sets = sorted(manifest.sets, key=lambda s: s.index)
     stems = output_stems(manifest)
     firsts = {}
     for s in sets:
         try:
+            check_regular(s.files[0])  # a FIFO would block the header read
             firsts[s.index] = read_info(s.files[0])
         except (InputError, OSError) as exc:  # the set fails later with its own reason
             logger.debug("set %d: first frame unreadable: %s", s.index, exc)

@@ -12,7 +12,6 @@ from typing import Dict, List, Sequence
 
 import numpy as np
 
-from hdrcl import __version__
 from hdrcl.core.response import Response
 from hdrcl.errors import HdrclError, InputError
 from hdrcl.shoot.jobs import (
@@ -30,6 +29,7 @@ from hdrcl.shoot.state import (
     _json_digest,
     response_digest,
 )
+from hdrcl.version import __version__
 
 logger = logging.getLogger(__name__)
 
@@ -58,8 +58,12 @@ def _open_set(job: SetJob) -> _Opened:
     from hdrcl.io.frames import check_compatible
     from hdrcl.io.metadata import relative_exposures, resolve_exposures
 
+    from hdrcl.shoot.claims import check_regular
+
     if len(job.files) < 2:
         raise InputError(f"{job.files[0]}: a bracket set needs at least two exposures")
+    for f in job.files:
+        check_regular(f)  # a FIFO or /dev/zero fails its set at once
     if job.exposures and len(job.exposures) != len(job.files):
         raise InputError(f"set {job.index}: {len(job.exposures)} exposures for {len(job.files)} files")
     infos = read_infos(job.files)

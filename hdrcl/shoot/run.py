@@ -70,6 +70,7 @@ from dataclasses import replace
 from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 from hdrcl.errors import UsageError
+from hdrcl.shoot.claims import Cancelled, cancel_signals, remove_orphan_temps
 from hdrcl.shoot.jobs import (
     REPORT_NAME,
     STATUS_FAILED,
@@ -112,7 +113,8 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
         started[job.index] = _time.perf_counter()
         return _read_stage(job, ctx)
 
-    with ThreadPoolExecutor(1, thread_name_prefix="hdrcl-readahead") as reader:
+    reader = ThreadPoolExecutor(1, thread_name_prefix="hdrcl-readahead")
+    try:
         ahead = reader.submit(read, jobs[0])
         for i in range(len(jobs)):
             step = ahead.result()
@@ -122,6 +124,9 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
                 step = _merge_stage(step, ctx)
             step.seconds["total"] = _time.perf_counter() - started[step.index]
             emit(step)
+    finally:
+        # Cancelled: do not wait for the read-ahead of a set that will not be merged.
+        reader.shutdown(wait=False, cancel_futures=True)
 
 
 # --------------------------------------------------------------------------- run
@@ -142,6 +147,7 @@ def run_batch(
     frames_per_set: Optional[int] = None,
     gap: Optional[float] = None,
     progress: Optional[Callable[[Optional[SetResult], int, int], None]] = None,
+    times_file: Union[str, os.PathLike, None] = None,
 ) -> BatchReport:
     """Merge every bracket set of a shoot into ``out_dir``.
 
@@ -177,6 +183,15 @@ def run_batch(
     progress : callable, optional
         ``progress(result, completed, total)``; called once with ``result=None``
         before the first set, then after each set.
+    times_file : path, optional
+        Exposure list (HDRShop ``image_list.txt`` or ``file seconds`` lines) for frames
+        without EXIF; lists named ``image_list.txt`` or ``times.txt`` beside the frames
+        are found without it.
+
+    SIGTERM and SIGINT (in the main thread) stop the run within a couple of seconds:
+    worker processes are killed, temporary files of unfinished sets removed, and the
+    report written for the sets that finished; ``BatchReport.cancelled`` holds the
+    signal (exit code 143 or 130).
 
     Returns
     -------
@@ -202,77 +217,86 @@ def run_batch(
     from hdrcl.io.writers import _exr_compression  # validates the name before any work
 
     _exr_compression(options.compression)
-    ranges = parse_sets(sets) if isinstance(sets, str) else (list(sets) if sets is not None else None)
-    out_dir = os.path.abspath(os.fspath(out_dir))
-    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
-        raise UsageError(f"{out_dir}: output is not a folder")
-    report_dir = None
-    if options.report_dir is not None:
-        report_dir = os.path.abspath(os.fspath(options.report_dir))
-        if os.path.exists(report_dir) and not os.path.isdir(report_dir):
-            raise UsageError(f"{report_dir}: --report is not a folder")
-        options = replace(options, report_dir=report_dir)
-    manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap,
-                           exclude=[out_dir] + ([report_dir] if report_dir else []))
-    for folder, what in ((out_dir, "output"), (report_dir, "report")):
-        if folder is None:
-            continue
-        try:
-            os.makedirs(folder, exist_ok=True)
-        except OSError as exc:
-            raise UsageError(f"{folder}: cannot create the {what} folder ({exc.strerror or exc})") from None
+    # SIGTERM / Ctrl-C raise Cancelled in the main thread from here on (see the docstring).
+    with cancel_signals():
+        ranges = parse_sets(sets) if isinstance(sets, str) else (list(sets) if sets is not None else None)
+        out_dir = os.path.abspath(os.fspath(out_dir))
+        if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+            raise UsageError(f"{out_dir}: output is not a folder")
+        report_dir = None
+        if options.report_dir is not None:
+            report_dir = os.path.abspath(os.fspath(options.report_dir))
+            if os.path.exists(report_dir) and not os.path.isdir(report_dir):
+                raise UsageError(f"{report_dir}: --report is not a folder")
+            options = replace(options, report_dir=report_dir)
+        manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap,
+                               exclude=[out_dir] + ([report_dir] if report_dir else []), times_file=times_file)
+        for folder, what in ((out_dir, "output"), (report_dir, "report")):
+            if folder is None:
+                continue
+            try:
+                os.makedirs(folder, exist_ok=True)
+            except OSError as exc:
+                raise UsageError(f"{folder}: cannot create the {what} folder ({exc.strerror or exc})") from None
 
-    plan = _plan(manifest, out_dir, options, ranges)
-    logger.info("%d set(s) in the manifest, %d selected; reference %s", len(plan.jobs), len(plan.selected),
-                _reference_text(plan.reference))
-    responses = _prepare_responses(plan, out_dir, options, response)
-    unreadable = [f for u in manifest.unmerged if u.reason.startswith("corrupt") for f in u.files] \
-        if ranges is None else []
-    rep = BatchReport(unmerged=[{"files": [os.path.abspath(f) for f in u.files], "reason": u.reason}
-                                for u in manifest.unmerged],
-                      responses=[responses[g] for g in sorted(responses)], unreadable=unreadable,
-                      reference=plan.reference)
-    if calibrate_only:
+        plan = _plan(manifest, out_dir, options, ranges)
+        logger.info("%d set(s) in the manifest, %d selected; reference %s", len(plan.jobs), len(plan.selected),
+                    _reference_text(plan.reference))
+        responses = _prepare_responses(plan, out_dir, options, response)
+        unreadable = [f for u in manifest.unmerged if u.reason.startswith("corrupt") for f in u.files] \
+            if ranges is None else []
+        rep = BatchReport(unmerged=[{"files": [os.path.abspath(f) for f in u.files], "reason": u.reason}
+                                    for u in manifest.unmerged],
+                          responses=[responses[g] for g in sorted(responses)], unreadable=unreadable,
+                          reference=plan.reference, sets_in_manifest=len(plan.jobs))
+        if calibrate_only:
+            rep.seconds = _time.perf_counter() - t_start
+            return rep
+
+        _remove_stale_temps(out_dir, [os.path.splitext(os.path.basename(j.output))[0] for j in plan.selected])
+        ctx = _Context(options=options, responses=responses, force=force)
+        total = len(plan.selected)
+        results: List[SetResult] = []
+
+        def emit(res: SetResult):
+            results.append(res)
+            # A progress callback reports failures itself; without one, the log does.
+            lvl = logging.WARNING if res.status == STATUS_FAILED and progress is None else logging.INFO
+            logger.log(lvl, "set %d: %s%s", res.index, res.status, f": {res.error}" if res.error else "")
+            if progress is not None:
+                progress(res, len(results), total)
+
+        if progress is not None:
+            progress(None, 0, total)
+        stems = [os.path.splitext(os.path.basename(j.output))[0] for j in plan.selected]
+        try:
+            if scheduler is not None:
+                from hdrcl.shoot.executors import run_dask
+
+                run_dask(plan.selected, ctx, scheduler, emit, task=process_set, failed=_failed, retries=retries)
+            elif jobs > 1 and total > 1:
+                from hdrcl.shoot.executors import run_processes
+
+                run_processes(plan.selected, ctx, emit, task=process_set, failed=_failed, jobs=min(jobs, total))
+            else:
+                _run_pipelined(plan.selected, ctx, emit)
+        except Cancelled as exc:
+            rep.cancelled = exc.signum
+            logger.warning("%s: %d of %d set(s) finished; stopping", exc, len(results), total)
+            # The workers are dead and their claims released: their temporary files go.
+            remove_orphan_temps(out_dir, stems)
+
+        rep.results = sorted(results, key=lambda r: r.index)
+        report_path = os.path.abspath(os.fspath(report)) if report is not None else os.path.join(out_dir, REPORT_NAME)
+        if not os.path.isdir(os.path.dirname(report_path)):
+            raise UsageError(f"{report_path}: report folder does not exist")
+        with _report_lock(os.path.dirname(report_path)):
+            rep.entries = _merge_entries(report_path, rep.results, plan)
+            _atomic_json(report_path, rep.to_dict())
+            if report_dir is not None:
+                # Under the report's lock: of chunks finishing together, the last one to
+                # write the contact sheet sees every other's sets.
+                rep.quality_report = _contact_sheet(plan, rep.entries, report_dir, rep.unmerged)
+        rep.path = report_path
         rep.seconds = _time.perf_counter() - t_start
         return rep
-
-    _remove_stale_temps(out_dir, [os.path.splitext(os.path.basename(j.output))[0] for j in plan.selected])
-    ctx = _Context(options=options, responses=responses, force=force)
-    total = len(plan.selected)
-    results: List[SetResult] = []
-
-    def emit(res: SetResult):
-        results.append(res)
-        # A progress callback reports failures itself; without one, the log does.
-        lvl = logging.WARNING if res.status == STATUS_FAILED and progress is None else logging.INFO
-        logger.log(lvl, "set %d: %s%s", res.index, res.status, f": {res.error}" if res.error else "")
-        if progress is not None:
-            progress(res, len(results), total)
-
-    if progress is not None:
-        progress(None, 0, total)
-    if scheduler is not None:
-        from hdrcl.shoot.executors import run_dask
-
-        run_dask(plan.selected, ctx, scheduler, emit, task=process_set, failed=_failed, retries=retries)
-    elif jobs > 1 and total > 1:
-        from hdrcl.shoot.executors import run_processes
-
-        run_processes(plan.selected, ctx, emit, task=process_set, failed=_failed, jobs=min(jobs, total))
-    else:
-        _run_pipelined(plan.selected, ctx, emit)
-
-    rep.results = sorted(results, key=lambda r: r.index)
-    report_path = os.path.abspath(os.fspath(report)) if report is not None else os.path.join(out_dir, REPORT_NAME)
-    if not os.path.isdir(os.path.dirname(report_path)):
-        raise UsageError(f"{report_path}: report folder does not exist")
-    with _report_lock(os.path.dirname(report_path)):
-        rep.entries = _merge_entries(report_path, rep.results, plan)
-        _atomic_json(report_path, rep.to_dict())
-        if report_dir is not None:
-            # Under the report's lock: of chunks finishing together, the last one to
-            # write the contact sheet sees every other's sets.
-            rep.quality_report = _contact_sheet(plan, rep.entries, report_dir)
-    rep.path = report_path
-    rep.seconds = _time.perf_counter() - t_start
-    return rep

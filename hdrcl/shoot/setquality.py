@@ -98,7 +98,8 @@ def _quality_for(res: SetResult, job: SetJob, bracket, resp: Response, times, ra
         with _FUSE_LOCK:  # leave-one-out fuses on the process's OpenCL device
             fig = measure(bracket, resp, radiance, weight=opts.weight, times=times, device=opts.device)
         stem = _report_stem(job)
-        entry = write_set_report(opts.report_dir, stem, fig, resp, radiance, fig.coverage, warnings=res.warnings)
+        entry = write_set_report(opts.report_dir, stem, fig, resp, radiance, fig.coverage, warnings=res.warnings,
+                                 bracket=bracket)
         payload = entry.to_dict()
         payload[DIGEST_KEY] = res.digest
         _atomic_json(os.path.join(opts.report_dir, file_stem(stem) + ".json"), payload)
@@ -158,13 +159,13 @@ def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context) -> None:
     _quality_for(res, job, bracket, resp, opened.times, small, opts)
 
 
-def _contact_sheet(plan: "_Plan", entries: List[dict], folder: str) -> str:
+def _contact_sheet(plan: "_Plan", entries: List[dict], folder: str, unmerged: Optional[List[dict]] = None) -> str:
     """``index.html`` over every set of the manifest, in index order.
 
     ``entries`` are the report's (this run's and earlier runs' into the same folder).
     A set's figures and pictures come from the report folder when they describe its
     current output; failed sets show their reason; sets no run has handled yet are
-    "pending".
+    "pending"; ``unmerged`` (the manifest's groups that are no set) close the page.
     """
     from hdrcl.report.pages import ReportEntry, load_set_report, write_contact_sheet
 
@@ -189,4 +190,4 @@ def _contact_sheet(plan: "_Plan", entries: List[dict], folder: str) -> str:
         elif status is not None:
             card.status = status
         cards.append(card)
-    return write_contact_sheet(folder, cards)
+    return write_contact_sheet(folder, cards, unmerged=unmerged)

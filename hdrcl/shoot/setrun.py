@@ -6,8 +6,8 @@ from __future__ import annotations
 import logging
 import os
 import time as _time
-from dataclasses import dataclass
-from typing import Dict, Optional
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional
 
 from hdrcl.errors import HdrclError
 from hdrcl.shoot.jobs import (
@@ -36,6 +36,7 @@ from hdrcl.shoot.state import (
     _preview_metadata,
     _up_to_date,
     set_digest,
+    verify_exr,
 )
 
 logger = logging.getLogger(__name__)
@@ -52,6 +53,7 @@ class _Opening:
     digest: str
     opened: _Opened
     seconds: Dict[str, float]
+    notes: List[str] = field(default_factory=list)
 
 
 def _failed(job: SetJob, exc: BaseException, seconds=None, digest=None) -> SetResult:
@@ -78,7 +80,7 @@ def _rebuild_preview(job: SetJob, digest: str, options: BatchOptions) -> None:
         counts = _counts_of(old) if old.get(DIGEST_KEY) == digest else {}
     except HdrclError:
         counts = {}
-    write_ldr(job.preview, encode(downscale(rad, options.preview_size)),
+    write_ldr(job.preview, encode(downscale(rad, options.preview_size), options.tonemap),
               metadata=_preview_metadata(digest, options, counts))
 
 
@@ -98,6 +100,11 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
         seconds["hash"] = _time.perf_counter() - t0
         if not ctx.force:
             exr_ok, preview_ok, meta, pmeta = _up_to_date(job, digest, ctx.options)
+            damaged = exr_ok and not verify_exr(job.output)
+            if damaged:  # the header is right, the pixels are not (truncated, damaged)
+                logger.warning("%s: damaged output (its pixels cannot be read): merging the set again",
+                               job.output)
+                exr_ok = False
             if exr_ok:
                 res = SetResult(index=job.index, files=list(job.files), status=STATUS_SKIPPED, output=job.output,
                                 preview=job.preview, seconds=seconds, digest=digest, response=job.group,
@@ -117,7 +124,10 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
         t1 = _time.perf_counter()
         opened = _open_set(job)
         seconds["open"] = _time.perf_counter() - t1
-        return _Opening(job, digest, opened, seconds)
+        step = _Opening(job, digest, opened, seconds)
+        if not ctx.force and damaged:
+            step.notes.append("the earlier output was damaged (truncated or unreadable): rebuilt")
+        return step
     except Exception as exc:
         if strict and not isinstance(exc, HdrclError):
             raise
@@ -136,18 +146,52 @@ class _Tee:
 
 
 def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResult:
+    """Claim the set, then merge it unless another process just did.
+
+    The claim (:mod:`hdrcl.shoot.claims`) makes this process the set's only writer
+    until it returns; a set another batch on the same folder merged while this one
+    waited for the claim is skipped.
+    """
+    from hdrcl.shoot.claims import claim_set
+
+    job = step.job
+    try:
+        claim = claim_set(os.path.dirname(job.output), os.path.splitext(os.path.basename(job.output))[0])
+    except OSError as exc:
+        return _failed(job, HdrclError(f"{job.output}: cannot claim the set ({exc.strerror or exc})"),
+                       step.seconds, step.digest)
+    try:
+        if not ctx.force:
+            exr_ok, preview_ok, meta, pmeta = _up_to_date(job, step.digest, ctx.options)
+            if exr_ok and preview_ok and verify_exr(job.output):
+                return SetResult(index=job.index, files=list(job.files), status=STATUS_SKIPPED, output=job.output,
+                                 preview=job.preview, seconds=step.seconds, digest=step.digest,
+                                 response=job.group, counts=_counts_of(pmeta),
+                                 ev_offset=_float_or_none(meta.get("evOffset")),
+                                 warnings=["merged meanwhile by another process on this folder"])
+        return _merge_claimed(step, ctx, strict)
+    finally:
+        claim.release()
+
+
+def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetResult:
     """Decode, fuse and write the set strip by strip; preview; commit the EXR.
 
     Memory stays bounded by the strip height whatever the image size: decoding the
     next strip, fusing the current one on the device and encoding the previous one
-    overlap (:func:`hdrcl.core.pipeline.stream_merge`).
+    overlap (:func:`hdrcl.core.pipeline.stream_merge`). With ``--align`` the frames are
+    held in memory; ``--fit-exposures`` and ``--neutral`` are applied as ``merge`` does
+    (:mod:`hdrcl.shoot.setopts`).
     """
     from hdrcl.cl.backend import get_processor
     from hdrcl.core.merge import MergeResult, _provenance
     from hdrcl.core.pipeline import stream_merge
     from hdrcl.io.reader import BracketReader
+    from hdrcl.io.outmeta import camera_from_infos
     from hdrcl.io.writers import RadianceWriter, write_ldr
+    from hdrcl.core.radiometry import ScaledSink
     from hdrcl.report.preview import AreaAverage, encode
+    from hdrcl.shoot.setopts import aligned_source, fitted_times, white_balance
 
     job, opened, opts = step.job, step.opened, ctx.options
     seconds = step.seconds
@@ -159,29 +203,43 @@ def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResu
         t0 = _time.perf_counter()
         with _FUSE_LOCK, BracketReader(job.files, opened.infos) as reader:
             nch = reader.nch
+            times, fit_notes = fitted_times(job, opened, opts)
+            source, shifts = reader, None
+            if opts.align:
+                source, shifts, _box = aligned_source(job, opened, opts, times)
+                h, w = source.height, source.width
+            factors, units = white_balance(job, opened, source, times, resp, opts, nch, h, w)
             backend = "numpy" if get_processor("fusion", opts.device) is None else "opencl"
-            about = MergeResult(radiance=None, response=resp, counts={}, times=opened.times, paths=list(job.files),
+            about = MergeResult(radiance=None, response=resp, counts={}, times=times, paths=list(job.files),
                                 backend=backend, shape=(h, w, nch))
             meta = _provenance(about, os.path.basename(entry.file) if entry.file else entry.group)
+            meta.update(units)
             meta.update({DIGEST_KEY: step.digest, "evOffset": round(opened.ev_offset, 6),
                          "exposureRef": _reference_text(job.reference)})
+            if shifts is not None:
+                meta["alignShifts"] = [list(map(int, sh)) for sh in shifts]
             small = AreaAverage(h, w, nch, opts.preview_size) if job.preview is not None else None
             # The quality report keeps the frames (or their sampling grid) as they stream
             # past, and a reduced radiance map: the preview's, or its own without one.
             kept = _KeptFrames(reader, _quality_stride(len(job.files), h, w, nch, reader.dtype)) \
-                if opts.report_dir else None
+                if opts.report_dir and source is reader else None
             thumb = small if small is not None or not opts.report_dir else AreaAverage(h, w, nch, REPORT_IMAGE_SIZE)
             writer = RadianceWriter(job.output, w, h, nch, dtype=opts.dtype, compression=opts.compression,
-                                    metadata=meta, timestamp=opened.stamp)
+                                    metadata=meta, timestamp=opened.stamp, colorspace=opts.colorspace,
+                                    camera=camera_from_infos(opened.infos, reference=job.reference))
             try:
-                has_valid = opts.ignore_color is not None or any(i.nchannels in (2, 4) for i in opened.infos)
-                counts, _ = stream_merge(reader if kept is None else kept, opened.times, resp, _Tee(writer, thumb),
+                has_valid = (opts.ignore_color is not None or any(i.nchannels in (2, 4) for i in opened.infos)
+                             or source is not reader)
+                sink = _Tee(writer, thumb)
+                if factors is not None:
+                    sink = ScaledSink(sink, factors)
+                counts, _ = stream_merge(source if kept is None else kept, times, resp, sink,
                                          weight=opts.weight, ignore_color=opts.ignore_color, has_valid=has_valid,
                                          device=opts.device, deghost=opts.deghost)
                 t1 = _time.perf_counter()
                 # Preview first: the EXR, moved into place last, marks the set complete.
                 if small is not None:
-                    write_ldr(job.preview, encode(small.result()),
+                    write_ldr(job.preview, encode(small.result(), opts.tonemap),
                               metadata=_preview_metadata(step.digest, opts, counts))
                 t2 = _time.perf_counter()
                 warnings = writer.close()
@@ -189,7 +247,9 @@ def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResu
                 writer.abort()
                 raise
         seconds.update({"merge": t1 - t0, "preview": t2 - t1, "write": _time.perf_counter() - t2})
-        notes = list(opened.notes) + list(resp.warnings) + list(warnings)
+        notes = list(step.notes) + list(opened.notes) + fit_notes + list(resp.warnings) + list(warnings)
+        if opts.report_dir and kept is None:
+            notes.append("quality report not measured: aligned sets are not measured in a batch")
         if counts.get("no_data"):
             notes.append(f"{counts['no_data']} pixel-channels are invalid in every frame and were set to 0")
         keys = ("clipped_high", "clipped_low", "no_data") + (("ghost", "ghost_unresolved") if opts.deghost else ())
@@ -200,9 +260,9 @@ def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResu
         if kept is not None:
             # After the EXR is committed: the report never holds back or spoils an output.
             t3 = _time.perf_counter()
-            bracket = kept.bracket(job.files, opened.infos, opened.times, opts.ignore_color)
+            bracket = kept.bracket(job.files, opened.infos, times, opts.ignore_color)
             del kept
-            _quality_for(res, job, bracket, resp, opened.times, thumb.result(), opts)
+            _quality_for(res, job, bracket, resp, times, thumb.result(), opts)
             seconds["quality"] = _time.perf_counter() - t3
         return res
     except Exception as exc:

@@ -10,13 +10,16 @@ import logging
 import os
 import re
 import secrets
+import stat
 import time as _time
 from typing import Dict, List, Sequence, Tuple
 
-from hdrcl import __version__
+
 from hdrcl.errors import HdrclError, InputError
+from hdrcl.shoot.claims import check_regular
 from hdrcl.shoot.jobs import BatchOptions, SetJob, SetResult
 from hdrcl.shoot.plan import _Plan
+from hdrcl.version import __version__
 
 logger = logging.getLogger(__name__)
 
@@ -36,8 +39,15 @@ STALE_TEMP_SECONDS = 3600.0
 # --------------------------------------------------------------------- hashing
 def _file_digest(path: str) -> str:
     h = hashlib.sha256()
+    check_regular(path)
     try:
-        with open(path, "rb") as fh:
+        # O_NONBLOCK: a file swapped for a FIFO after the check still cannot block.
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            check_regular(path)
+            raise InputError(f"{path}: not a regular file")
+        with os.fdopen(fd, "rb") as fh:
             for block in iter(lambda: fh.read(1 << 20), b""):
                 h.update(block)
     except FileNotFoundError:
@@ -117,14 +127,26 @@ def _up_to_date(job: SetJob, digest: str, options: BatchOptions) -> Tuple[bool, 
         pmeta = read_metadata(job.preview)
     except HdrclError:
         return True, False, meta, {}
-    ok = pmeta.get(DIGEST_KEY) == digest and int(pmeta.get("previewSize", -1)) == int(options.preview_size)
+    ok = (pmeta.get(DIGEST_KEY) == digest and int(pmeta.get("previewSize", -1)) == int(options.preview_size)
+          and pmeta.get("tonemap", "reinhard") == options.tonemap)
     return True, ok, meta, pmeta if ok else {}
+
+
+def verify_exr(path: str) -> bool:
+    """Whether every pixel of ``path`` can be read (strip by strip, bounded memory).
+
+    A header that carries the right digest says nothing about the rest of the file: a
+    truncated or damaged EXR fails here and its set is rebuilt.
+    """
+    from hdrcl.io.probe import pixels_readable
+
+    return pixels_readable(path)
 
 
 def _preview_metadata(digest: str, options: BatchOptions, counts: dict) -> dict:
     # The counts are known only after the EXR's header is written: the preview keeps
     # them for the report of later runs that skip the set.
-    return {DIGEST_KEY: digest, "previewSize": int(options.preview_size), "tonemap": "reinhard",
+    return {DIGEST_KEY: digest, "previewSize": int(options.preview_size), "tonemap": options.tonemap,
             "clippedHigh": int(counts.get("clipped_high", 0)), "clippedLow": int(counts.get("clipped_low", 0)),
             "noData": int(counts.get("no_data", 0))}
 
@@ -137,21 +159,12 @@ def _counts_of(meta: dict) -> Dict[str, int]:
 
 
 # ------------------------------------------------------------------------ report
-@contextlib.contextmanager
 def _report_lock(out_dir: str):
-    """Serialise read-modify-write of the report between chunks sharing a folder."""
-    try:
-        import fcntl
-    except ImportError:  # Windows: chunks there should use --report-json per chunk
-        yield
-        return
-    path = os.path.join(out_dir, ".report.lock")
-    with open(path, "a+") as fh:
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+    """Serialise read-modify-write of the report between chunks sharing a folder: an
+    ``flock`` on the folder itself, so no lock file can be a symbolic link."""
+    from hdrcl.shoot.claims import folder_lock
+
+    return folder_lock(out_dir)
 
 
 def _merge_entries(path: str, results: List[SetResult], plan: _Plan) -> List[dict]:
@@ -177,11 +190,14 @@ def _merge_entries(path: str, results: List[SetResult], plan: _Plan) -> List[dic
 def _remove_stale_temps(out_dir: str, stems: Sequence[str]) -> None:
     """Delete temporary files that killed runs left behind.
 
-    Those of the sets this run writes go at once (no other process writes them);
-    others only when older than :data:`STALE_TEMP_SECONDS`, as another chunk may be
-    writing them right now.
+    A set's files are removed only when nobody holds its claim (their writer is gone,
+    :mod:`hdrcl.shoot.claims`); other temporary files (JSON) only when older than
+    :data:`STALE_TEMP_SECONDS`, as another chunk may be writing them right now.
     """
-    mine = set(stems)
+    from hdrcl.shoot.claims import remove_orphan_temps
+
+    remove_orphan_temps(out_dir, stems)
+    mine = set()
     now = _time.time()
     pat = re.compile(r"^\.(?P<stem>.+)\.tmp-[0-9a-f]{8}\.(exr|jpg)$|^\..+\.json\.[^.]+\.tmp$")
     try:

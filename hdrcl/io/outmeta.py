@@ -1,0 +1,168 @@
+"""Standard metadata of radiance files: EXR attributes, Radiance header lines.
+
+Besides hdrcl's own ``hdrcl:*`` attributes, a radiance file carries what other tools
+read by standard names:
+
+=====================  ==========================  =========================================
+``camera`` key         EXR attribute (OIIO name)   meaning
+=====================  ==========================  =========================================
+(always)               ``Software``                ``hdrcl <version>``
+``owner``              ``owner`` (``Copyright``)   the frames' copyright, or ``--owner``
+(``timestamp``)        ``capDate`` (``DateTime``)  capture time of the first frame
+``make``, ``model``    ``cameraMake``, ...Model    camera (OpenEXR 3.2 standard names)
+``lens``               ``lensModel``
+``focal_length``       ``nominalFocalLength``      mm
+``fnumber``, ``iso``   ``aperture``, ``isoSpeed``  the reference exposure: a value of 1 in
+``exposure_time``      ``expTime`` (1 s)           the map is what a frame of ``expTime``
+                                                   at this f-number and ISO records as 1
+=====================  ==========================  =========================================
+
+The reference f-number and ISO are the first frame's (the merge expresses every frame's
+exposure at its settings, :func:`hdrcl.io.metadata.relative_exposures`); they are left out
+when the map has absolute units. Radiance (``.hdr``) files get the standard header lines
+``SOFTWARE=``, ``EXPOSURE=1`` (the values are the map's, unscaled), ``PRIMARIES=`` and
+``CAPDATE=``, which OpenImageIO's RGBE writer does not write, so they are inserted into
+the header after writing. TIFF keeps ``Software``, ``Make``, ``Model``, ``Copyright``
+and ``DateTime`` as TIFF tags.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+from typing import Mapping, Optional, Sequence
+
+from hdrcl.io.colorspace import chromaticities
+from hdrcl.io.colorspace import check as check_space
+from hdrcl.errors import ProcessingError
+
+__all__ = ["software", "standard_attributes", "hdr_header_lines", "patch_hdr_header", "hdr_colorspace",
+           "inapplicable_options", "camera_from_infos"]
+
+#: Longest Radiance header we read back (bytes).
+_HDR_HEADER_MAX = 1 << 16
+
+
+def software() -> str:
+    from hdrcl.version import __version__
+
+    return f"hdrcl {__version__}"
+
+
+def _clean(text) -> str:
+    """One line of text (header values cannot hold newlines)."""
+    return " ".join(str(text).split())
+
+
+def standard_attributes(ext: str, camera: Optional[Mapping]) -> list:
+    """``(name, value)`` OIIO attributes for a radiance file of extension ``ext``."""
+    cam = dict(camera or {})
+    out = [("Software", software())]
+    if cam.get("owner"):
+        out.append(("Copyright", _clean(cam["owner"])))
+    if ext in (".tif", ".tiff"):
+        out += [(name, _clean(cam[key])) for key, name in (("make", "Make"), ("model", "Model")) if cam.get(key)]
+        return out
+    if ext != ".exr":
+        return out
+    for key, name in (("make", "cameraMake"), ("model", "cameraModel"), ("lens", "lensModel")):
+        if cam.get(key):
+            out.append((name, _clean(cam[key])))
+    for key, name in (("focal_length", "nominalFocalLength"), ("fnumber", "FNumber"), ("iso", "isoSpeed"),
+                      ("exposure_time", "ExposureTime")):
+        value = cam.get(key)
+        if value is not None and float(value) > 0:
+            out.append((name, float(value)))
+    return out
+
+
+def hdr_header_lines(camera: Optional[Mapping], colorspace: str, timestamp: Optional[str]) -> list:
+    """The Radiance header lines hdrcl adds after ``FORMAT=`` (without newlines)."""
+    prim = " ".join(f"{v:.4f}" for v in chromaticities(check_space(colorspace)))
+    lines = [f"SOFTWARE={software()}", "EXPOSURE=1.000000e+00", f"PRIMARIES= {prim}"]
+    if timestamp:
+        lines.append(f"CAPDATE= {_clean(timestamp)}")
+    owner = (camera or {}).get("owner")
+    if owner:
+        lines.append(f"# owner: {_clean(owner)}")
+    return lines
+
+
+def patch_hdr_header(path: str, lines: Sequence[str]) -> None:
+    """Insert ``lines`` into the header of the Radiance file ``path`` (in place, through
+    a copy beside it), before the blank line that ends the header."""
+    with open(path, "rb") as f:
+        head = f.read(_HDR_HEADER_MAX)
+    end = head.find(b"\n\n")
+    if not head.startswith(b"#?") or end < 0:
+        raise ProcessingError(f"{path}: not a Radiance header")
+    extra = "".join(f"{line}\n" for line in lines).encode("utf-8")
+    tmp = path + ".hdrhead"
+    try:
+        with open(path, "rb") as src, open(tmp, "wb") as dst:
+            dst.write(head[:end + 1] + extra)
+            src.seek(end + 1)
+            shutil.copyfileobj(src, dst, 1 << 22)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+
+
+def hdr_colorspace(path: str) -> Optional[str]:
+    """``acescg`` or ``rec709`` from a Radiance file's ``PRIMARIES=`` line, or None."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(_HDR_HEADER_MAX)
+    except OSError:
+        return None
+    end = head.find(b"\n\n")
+    for raw in head[:end if end >= 0 else len(head)].splitlines():
+        if raw.startswith(b"PRIMARIES="):
+            try:
+                values = [float(v) for v in raw[len(b"PRIMARIES="):].split()]
+            except ValueError:
+                return None
+            for name in ("acescg", "rec709"):
+                ref = chromaticities(name)
+                if len(values) == 8 and max(abs(a - b) for a, b in zip(values, ref)) < 2e-3:
+                    return name
+    return None
+
+
+def inapplicable_options(path, dtype: Optional[str] = None, compression: Optional[str] = None) -> list:
+    """Warnings for options given explicitly that the output type ignores (None: not given)."""
+    target = os.fspath(path)
+    ext = os.path.splitext(target)[1].lower()
+    what = {".hdr": "Radiance RGBE (8-bit mantissas, shared exponent)", ".pfm": "32-bit float",
+            ".tif": "32-bit float", ".tiff": "32-bit float"}.get(ext)
+    out = []
+    if dtype is not None and ext != ".exr" and what:
+        out.append(f"{target}: --dtype {dtype} applies to EXR only; {ext} is written as {what}")
+    if compression is not None and ext in (".hdr", ".pfm"):
+        out.append(f"{target}: --compression {compression} applies to EXR and TIFF only; "
+                   f"{ext} has {'run-length encoding' if ext == '.hdr' else 'no compression'}")
+    return out
+
+
+def camera_from_infos(infos: Sequence, *, owner: Optional[str] = None, units: str = "relative",
+                      reference: Optional[tuple] = None) -> dict:
+    """The ``camera`` mapping of :func:`standard_attributes` from the frames' headers.
+
+    Make, model, lens, focal length and owner come from the first frame that has them;
+    the reference exposure (1 s at the first frame's f-number and ISO, or at
+    ``reference = (f-number, ISO)`` where the caller set another, as ``hdrcl batch``
+    does for a shoot) only when the map is in relative units.
+    """
+    cam: dict = {}
+    for key in ("make", "model", "lens", "focal_length"):
+        cam[key] = next((getattr(i, key) for i in infos if getattr(i, key, None)), None)
+    if owner is None:
+        owner = next((i.extra.get("Copyright") for i in infos if (getattr(i, "extra", None) or {}).get("Copyright")),
+                     None)
+    cam["owner"] = owner
+    if units == "relative" and infos:
+        n, iso = reference if reference is not None else (getattr(infos[0], "fnumber", None),
+                                                          getattr(infos[0], "iso", None))
+        cam.update({"exposure_time": 1.0, "fnumber": n, "iso": iso})
+    return {k: v for k, v in cam.items() if v not in (None, "")}

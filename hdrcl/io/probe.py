@@ -1,0 +1,105 @@
+"""Cheap looks at image files: a reduced-resolution version of a photograph (for
+comparing scenes), and whether every pixel of a file can be read (for trusting an
+output a rerun would skip).
+"""
+from __future__ import annotations
+
+import logging
+import os
+from typing import Optional, Tuple
+
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["reduced_pixels", "pixels_readable"]
+
+
+def reduced_pixels(path, min_size: Tuple[int, int] = (24, 32)) -> Optional[np.ndarray]:
+    """A small version of the photograph at ``path`` (at least ``min_size`` = (rows,
+    columns) where the image is that large), decoded as cheaply as possible, or None.
+
+    In order: the embedded EXIF thumbnail (cameras write 160x120); a JPEG decoded at
+    1/2, 1/4 or 1/8 scale by libjpeg's DCT scaling (when OpenCV is installed); the
+    smallest MIP level of a tiled file that is large enough; a full decode. Camera RAW
+    files give None (their previews are not read here). The values are the file's own
+    (uint8, uint16 or float); the caller reduces them further.
+    """
+    import OpenImageIO as oiio
+
+    from hdrcl.io.raw import is_raw
+
+    path = os.fspath(path)
+    if is_raw(path):
+        return None
+    rows, cols = min_size
+    inp = oiio.ImageInput.open(path)
+    if inp is None:
+        oiio.geterror()
+        return None
+    try:
+        try:
+            th = inp.get_thumbnail(0)
+        except Exception:  # an OpenImageIO without thumbnails
+            th = None
+        if th is not None and th.spec().width >= cols and th.spec().height >= rows:
+            return np.asarray(th.get_pixels(oiio.FLOAT))
+        full = inp.spec()
+        if os.path.splitext(path)[1].lower() in (".jpg", ".jpeg") and full.width >= 4 * cols \
+                and full.height >= 4 * rows:
+            a = _jpeg_reduced(path, full.width, cols)
+            if a is not None:
+                return a
+        level, n, spec = 0, 0, full
+        while inp.seek_subimage(0, n + 1):  # MIP levels: the smallest one still large enough
+            s = inp.spec()
+            if s.width < cols or s.height < rows:
+                break
+            n += 1
+            level, spec = n, s
+        inp.geterror()  # the failed seek past the last level
+        a = inp.read_image(0, level, 0, min(spec.nchannels, 3), oiio.FLOAT)
+        return None if a is None else np.asarray(a)
+    finally:
+        inp.close()
+
+
+def _jpeg_reduced(path: str, width: int, cols: int) -> Optional[np.ndarray]:
+    try:
+        import cv2
+    except ImportError:
+        return None
+    if width >= 16 * cols:
+        flag = cv2.IMREAD_REDUCED_GRAYSCALE_8
+    elif width >= 8 * cols:
+        flag = cv2.IMREAD_REDUCED_GRAYSCALE_4
+    else:
+        flag = cv2.IMREAD_REDUCED_GRAYSCALE_2
+    return cv2.imread(path, flag | cv2.IMREAD_IGNORE_ORIENTATION)
+
+
+def pixels_readable(path, rows: int = 256) -> bool:
+    """Whether every pixel of ``path`` decodes (strip by strip, bounded memory) and is
+    finite. A truncated or damaged file whose header is intact fails here."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(os.fspath(path))
+    if inp is None:
+        oiio.geterror()
+        return False
+    try:
+        spec = inp.spec()
+        for y in range(spec.y, spec.y + spec.height, rows):
+            y1 = min(y + rows, spec.y + spec.height)
+            a = inp.read_scanlines(0, 0, y, y1, 0, 0, spec.nchannels, oiio.FLOAT)
+            if a is None or inp.has_error:
+                inp.geterror()
+                return False
+            if not np.all(np.isfinite(a)):
+                return False
+        return True
+    except Exception as exc:  # OpenImageIO raises on some damage
+        logger.debug("%s: unreadable pixels: %s", path, exc)
+        return False
+    finally:
+        inp.close()

@@ -1,0 +1,283 @@
+"""The contact sheet's HTML (``index.html``) and the figures in words.
+
+One card per set: name and status, camera settings, the tone-mapped preview, the input
+frames as shot, the figures, the response and histogram charts and the coverage map,
+the exposures, the warnings; failed sets with their error; then the frames a batch did
+not merge, with the reason. Every text is HTML-escaped and every link relative.
+"""
+from __future__ import annotations
+
+import html
+import urllib.parse
+from typing import List, Optional, Sequence
+
+import numpy as np
+
+from hdrcl.report.plots import coverage_legend
+from hdrcl.report.quality import QualityFigures
+
+STATUS_DONE, STATUS_SKIPPED, STATUS_FAILED = "done", "skipped", "failed"
+
+
+def _fmt_time(t: Optional[float]) -> str:
+    if t is None:
+        return "–"
+    from hdrcl.io.metadata import format_time
+
+    return format_time(float(t))
+
+
+def _fmt_fitted(fitted: Optional[float], nominal: Optional[float]) -> str:
+    if fitted is None:
+        return "–"
+    if not nominal:
+        return _fmt_time(fitted)
+    return f"{_fmt_time(fitted)} ({np.log2(float(fitted) / float(nominal)):+.2f} EV)"
+
+
+def format_ev(value: float, side: str) -> str:
+    """``extra_ev_high`` / ``extra_ev_low`` in words: "at least -2.3 EV from the shortest
+    frame" (they are bounds, see :func:`hdrcl.report.quality.measure`)."""
+    if value == 0:
+        return "none needed"
+    frame = "shortest" if side == "high" else "longest"
+    return f"at least {value:+.1f} EV from the {frame} frame"
+
+
+def format_figures(figures: QualityFigures) -> List[tuple]:
+    """``(label, text)`` rows of a set's figures, as the contact sheet shows them."""
+    f = figures
+    if f.loo_rmse is None or not np.isfinite(f.loo_rmse):
+        loo = "not measured" if f.frames >= 3 else "not measured (fewer than 3 frames)"
+    else:
+        per = ", ".join("–" if not np.isfinite(r.rmse) else f"{r.rmse:.2f}" for r in f.loo)
+        grid = "every pixel" if f.loo_stride == 1 else f"every {f.loo_stride}th pixel"
+        n = len(f.loo)
+        which = "the one interior frame" if n == 1 else f"median over {n} interior frames: {per}"
+        loo = f"{f.loo_rmse:.2f} levels ({which}; {grid})"
+    if f.dynamic_range_stops is None:
+        dr = "–"
+    else:
+        p0, p1 = f.dynamic_range_percentiles
+        dr = (f"{'at least ' if f.dynamic_range_is_lower_bound else ''}{f.dynamic_range_stops:.1f} stops "
+              f"(luminance P{p0:g} to P{p1:g})")
+    return [
+        ("Leave-one-out RMSE", loo),
+        ("Dynamic range", dr),
+        ("Clipped high", f"{100 * f.clipped_high_fraction:.2f} % of pixels"),
+        ("Clipped low", f"{100 * f.clipped_low_fraction:.2f} % of pixels"),
+        ("Extra exposure for highlights", format_ev(f.extra_ev_high, "high")),
+        ("Extra exposure for shadows", format_ev(f.extra_ev_low, "low")),
+        ("Frames", f"{f.frames} × {f.shape[1]}×{f.shape[0]}, {f.bits}-bit, {f.weight} weights"),
+    ]
+
+
+_CSS = """
+body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,Helvetica,Arial,sans-serif;margin:0;background:#f4f4f2;
+color:#222;font-size:15px;line-height:1.4}
+header{padding:16px 24px;background:#fff;border-bottom:1px solid #ddd}
+h1{font-size:1.5em;margin:0 0 4px}
+.summary{margin:2px 0;color:#555}
+#image-check{margin:2px 0;color:#a00}
+#image-check:empty{display:none}
+main{display:grid;grid-template-columns:repeat(auto-fill,minmax(540px,1fr));gap:16px;padding:16px 24px}
+article{background:#fff;border:1px solid #ddd;border-radius:6px;padding:12px 16px}
+article.failed{border-color:#d33;background:#fff6f6}
+h2{font-size:1.2em;margin:0 0 6px;word-break:break-all}
+h3{font-size:1em;margin:12px 0 4px;color:#444}
+.status{font-size:.75em;padding:1px 7px;border-radius:3px;background:#e6f2e6;margin-left:8px;vertical-align:middle;
+font-weight:600}
+article.failed .status{background:#f8d0d0}
+.camera{margin:0 0 8px;color:#333}
+.thumb{display:block;max-width:100%;max-height:460px;width:auto;height:auto;margin:0 auto 8px;background:#000}
+.frames{display:flex;flex-wrap:wrap;gap:6px}
+.frames figure{margin:0;flex:0 0 auto;width:96px}
+.frames img{width:96px;height:auto;display:block;border:1px solid #ddd;background:#000}
+.frames figcaption{font-size:.8em;color:#444;text-align:center;white-space:nowrap;overflow:hidden;
+text-overflow:ellipsis}
+table{border-collapse:collapse;width:100%}
+th,td{text-align:left;vertical-align:top;padding:3px 8px 3px 0}
+th{font-weight:600;white-space:nowrap;color:#444}
+.plots{display:flex;flex-direction:column;gap:10px;margin-top:10px}
+.plots figure{margin:0}
+.plots img{width:100%;height:auto;border:1px solid #eee}
+.plots img.map{width:auto;max-width:100%;max-height:320px}
+figcaption{font-size:.85em;color:#555}
+.legend{display:flex;flex-wrap:wrap;gap:4px 10px;font-size:.85em;color:#333;margin-top:4px}
+.legend span::before{content:"";display:inline-block;width:14px;height:10px;margin-right:4px;
+background:var(--c);border:1px solid #999;vertical-align:baseline}
+.error{color:#a00;white-space:pre-wrap}
+.warnings{color:#8a5a00;padding-left:18px}
+details{margin-top:8px}
+section.unmerged{padding:0 24px 24px}
+section.unmerged article{margin-bottom:10px}
+.problem{color:#a00;font-size:.8em}
+img.broken{outline:3px solid #d33}
+""".strip()
+
+
+# Counts the images that really decoded once the page has loaded and keeps the count in
+# data-loaded / data-total (the browser test reads them back); says something only when
+# an image is missing (a moved or incomplete report folder).
+_SCRIPT = """
+window.addEventListener("load", function () {
+  var imgs = document.images, n = 0;
+  for (var i = 0; i < imgs.length; i++) {
+    if (imgs[i].complete && imgs[i].naturalWidth > 0) { n++; } else { imgs[i].classList.add("broken"); }
+  }
+  var el = document.getElementById("image-check");
+  el.setAttribute("data-loaded", String(n));
+  el.setAttribute("data-total", String(imgs.length));
+  if (n < imgs.length) {
+    el.textContent = (imgs.length - n) + " of " + imgs.length + " pictures are missing from this folder";
+  }
+});
+""".strip()
+
+
+def _e(text) -> str:
+    return html.escape(str(text), quote=True)
+
+
+def _href(filename: str) -> str:
+    return _e(urllib.parse.quote(filename))
+
+
+def _img(filename: str, alt: str, cls: str = "") -> str:
+    c = f' class="{cls}"' if cls else ""
+    return f'<a href="{_href(filename)}"><img{c} src="{_href(filename)}" alt="{_e(alt)}"></a>'
+
+
+def _camera_line(camera: dict) -> Optional[str]:
+    parts = [camera.get(k) for k in ("camera", "lens", "focal_length", "iso", "fnumber", "captured")]
+    parts = [str(p) for p in parts if p]
+    return " · ".join(parts) if parts else None
+
+
+def _inputs(entry) -> List[str]:
+    rows = [r for r in (entry.inputs or []) if isinstance(r, dict)]
+    if not rows:
+        return []
+    vary_f = len({r.get("fnumber") for r in rows}) > 1
+    vary_iso = len({r.get("iso") for r in rows}) > 1
+    out = [f"<h3>Input frames ({len(rows)}, shortest exposure first)</h3>", '<div class="frames">']
+    for r in rows:
+        cap = [_fmt_time(r.get("time"))]
+        if vary_f and r.get("fnumber"):
+            cap.append(f"f/{float(r['fnumber']):g}")
+        if vary_iso and r.get("iso"):
+            cap.append(f"ISO {float(r['iso']):g}")
+        thumb = (_img(r["thumb"], f"{r.get('file', '')}: input frame") if r.get("thumb")
+                 else "<div>(no thumbnail)</div>")
+        out.append(f'<figure title="{_e(r.get("file", ""))}">{thumb}<figcaption>{_e(" ".join(cap))}'
+                   f"</figcaption></figure>")
+    out.append("</div>")
+    return out
+
+
+def _plots(entry) -> List[str]:
+    files, f = entry.files or {}, entry.figures
+    plots = []
+    if "response" in files:
+        plots.append(f'<figure>{_img(files["response"], entry.name + ": response curves")}'
+                     "<figcaption>Recovered response g(z) per channel.</figcaption></figure>")
+    if "histogram" in files:
+        plots.append(f'<figure>{_img(files["histogram"], entry.name + ": luminance histogram")}'
+                     "<figcaption>Luminance of the radiance map; the dashed lines are the clip points of the "
+                     "bracket (below: the longest frame reads 0; above: the shortest frame clips)."
+                     "</figcaption></figure>")
+    if "coverage" in files:
+        frames = f.frames if f is not None else 0
+        no_data = f is not None and f.valid_pixels < f.shape[0] * f.shape[1]
+        legend = "".join(f'<span style="--c:{c}">{_e(label)}</span>'
+                         for label, c in coverage_legend(frames, no_data=no_data))
+        plots.append(f'<figure>{_img(files["coverage"], entry.name + ": coverage map", "map")}'
+                     f'<figcaption>Frames measuring each pixel (its least-measured channel).</figcaption>'
+                     f'<div class="legend">{legend}</div></figure>')
+    return ['<div class="plots">' + "".join(plots) + "</div>"] if plots else []
+
+
+def _card(entry, index: int) -> str:
+    status = entry.status or STATUS_DONE
+    out = [f'<article class="set {_e(status)}" id="set-{index}" data-set="{_e(entry.name)}" '
+           f'data-status="{_e(status)}">',
+           f'<h2>{_e(entry.name)}<span class="status">{_e(status)}</span></h2>']
+    cam = _camera_line(entry.camera or {})
+    if cam:
+        out.append(f'<p class="camera">{_e(cam)}</p>')
+    files = entry.files or {}
+    if "preview" in files:
+        out.append(_img(files["preview"], f"{entry.name}: tone-mapped preview (Reinhard 2002)", "thumb"))
+    if entry.error:
+        out.append(f'<p class="error">{_e(entry.error)}</p>')
+    out += _inputs(entry)
+    f = entry.figures
+    if f is not None:
+        out.append('<h3>Figures</h3><table class="figures">')
+        for label, text in format_figures(f):
+            out.append(f"<tr><th>{_e(label)}</th><td>{_e(text)}</td></tr>")
+        out.append("</table>")
+    out += _plots(entry)
+    if f is not None and f.exposures:
+        out.append("<details><summary>Exposures (relative seconds)</summary><table>"
+                   "<tr><th>frame</th><th>nominal</th><th>fitted</th><th>used</th></tr>")
+        for k, ex in enumerate(f.exposures):
+            cells = (ex.get("file", k), _fmt_time(ex.get("nominal")),
+                     _fmt_fitted(ex.get("fitted"), ex.get("nominal")), _fmt_time(ex.get("used")))
+            out.append("<tr>" + "".join(f"<td>{_e(v)}</td>" for v in cells) + "</tr>")
+        out.append("</table></details>")
+    if entry.warnings:
+        out.append('<h3>Warnings</h3><ul class="warnings">'
+                   + "".join(f"<li>{_e(w)}</li>" for w in entry.warnings) + "</ul>")
+    if "json" in files:
+        out.append(f'<p><a href="{_href(files["json"])}">figures (JSON)</a></p>')
+    out.append("</article>")
+    return "\n".join(out)
+
+
+def _unmerged_section(groups: Sequence[dict]) -> str:
+    if not groups:
+        return ""
+    nfiles = sum(len(g["files"]) for g in groups)
+    out = [f'<section class="unmerged"><h2>Not merged: {nfiles} file{"s" if nfiles != 1 else ""} in '
+           f'{len(groups)} group{"s" if len(groups) != 1 else ""}</h2>']
+    for k, g in enumerate(groups):
+        out.append(f'<article class="unmerged-group" id="unmerged-{k}" data-reason="{_e(g["reason"])}">'
+                   f'<p><b>Reason:</b> {_e(g["reason"])}</p><div class="frames">')
+        for f in g["files"]:
+            pic = _img(f["thumb"], f"{f['file']}: not merged") if f.get("thumb") else ""
+            prob = f'<div class="problem">{_e(f["problem"])}</div>' if f.get("problem") else ""
+            out.append(f'<figure title="{_e(f["file"])}">{pic}<figcaption>{_e(f["file"])}</figcaption>{prob}'
+                       "</figure>")
+        out.append("</div></article>")
+    out.append("</section>")
+    return "\n".join(out)
+
+
+def contact_sheet_html(entries: Sequence, title: str = "hdrcl quality report",
+                       unmerged: Sequence[dict] = ()) -> str:
+    """The contact sheet page for ``entries`` and the ``unmerged`` groups of
+    :func:`hdrcl.report.inputs.write_unmerged` (see
+    :func:`hdrcl.report.pages.write_contact_sheet`)."""
+    from hdrcl.version import __version__
+
+    entries = list(entries)
+    failed = sum(1 for e in entries if e.status == STATUS_FAILED)
+    merged = sum(1 for e in entries if e.status == STATUS_DONE)
+    skipped = sum(1 for e in entries if e.status == STATUS_SKIPPED)
+    other = len(entries) - failed - merged - skipped
+    summary = (f"{len(entries)} set{'s' if len(entries) != 1 else ''}: {merged} merged, "
+               + (f"{skipped} skipped (up to date), " if skipped else "") + f"{failed} failed"
+               + (f", {other} pending" if other else ""))
+    nfiles = sum(len(g["files"]) for g in unmerged)
+    if nfiles:
+        summary += f"; {nfiles} file{'s' if nfiles != 1 else ''} not merged"
+    cards = "\n".join(_card(e, i) for i, e in enumerate(entries))
+    return (
+        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+        "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
+        f"<title>{_e(title)}</title>\n<style>\n{_CSS}\n</style>\n</head>\n<body>\n"
+        f"<header><h1>{_e(title)}</h1><p class=\"summary\">{_e(summary)} · hdrcl {_e(__version__)}</p>"
+        f"<p id=\"image-check\" data-loaded=\"\" data-total=\"\"></p></header>\n"
+        f"<main>\n{cards}\n</main>\n{_unmerged_section(list(unmerged))}\n"
+        f"<script>\n{_SCRIPT}\n</script>\n</body>\n</html>\n")

@@ -1,0 +1,282 @@
+"""Safe to cancel, kill and requeue: set claims, folder locks, workers tied to the batch.
+
+**Claims.** Before a process merges a set it claims it: it opens (never through a
+symbolic link) ``OUT_DIR/.<stem>.claim`` and takes an exclusive ``flock`` on it, waiting
+while another process holds it. The kernel drops the lock when its holder dies, however
+it dies, so a claim never outlives its owner. Whoever holds a set's claim is the only
+writer of that set's files: it removes the set's temporary files left by a dead owner
+(``.<stem>.tmp-*``), checks again whether the output became current while it waited
+(another batch on the same folder just wrote it) and only then merges. Two batches on
+one folder therefore never delete each other's files and never merge a set twice.
+
+**Folder lock.** The report's read-modify-write is serialised by an ``flock`` on the
+folder itself (a directory cannot be replaced by a symbolic link to somewhere else under
+an open descriptor), so no lock file can be redirected.
+
+**Workers die with the batch.** Each worker process asks the kernel to kill it when its
+parent dies (Linux ``prctl(PR_SET_PDEATHSIG, SIGKILL)``) and also runs a watchdog thread
+that kills it when its parent process id changes (every platform, also covers the race
+before ``prctl``). On SIGTERM or SIGINT the batch kills its workers at once
+(:func:`kill_workers`), removes the temporary files of the sets they held, writes the
+report of what finished and exits 143 or 130.
+"""
+from __future__ import annotations
+
+import contextlib
+import errno
+import glob
+import logging
+import os
+import signal
+import stat
+import threading
+import time
+from typing import Iterator, Optional
+
+from hdrcl.errors import InputError
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["Cancelled", "check_regular", "SetClaim", "claim_set", "folder_lock", "tie_to_parent", "cancel_signals",
+           "remove_orphan_temps"]
+
+#: How often (seconds) a worker's watchdog checks that its parent is alive.
+WATCHDOG_PERIOD = 0.25
+
+
+class Cancelled(BaseException):
+    """The batch received SIGTERM or SIGINT (a BaseException: no set swallows it)."""
+
+    def __init__(self, signum: int):
+        super().__init__(f"cancelled by {signal.Signals(signum).name}")
+        self.signum = signum
+
+    @property
+    def exit_code(self) -> int:
+        """128 + the signal number: 143 for SIGTERM, 130 for SIGINT."""
+        return 128 + int(self.signum)
+
+
+# ------------------------------------------------------------------------- claims
+
+
+def _open_nofollow(path: str, flags: int) -> int:
+    return os.open(path, flags | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0), 0o666)
+
+
+class SetClaim:
+    """An exclusive, kernel-held claim on one set's outputs (see the module docstring)."""
+
+    def __init__(self, out_dir: str, stem: str):
+        self.path = os.path.join(out_dir, f".{stem}.claim")
+        self.stem = stem
+        self.out_dir = out_dir
+        self.fd: Optional[int] = None
+
+    def acquire(self, wait: bool = True) -> bool:
+        """Take the claim; with ``wait`` block until its holder is done.
+
+        Returns False (only without ``wait``) when another live process holds it.
+        Where there is no ``flock`` (Windows) claims are not taken: one batch per
+        output folder there.
+        """
+        try:
+            import fcntl
+        except ImportError:
+            return True
+
+        while True:
+            try:
+                fd = _open_nofollow(self.path, os.O_RDWR | os.O_CREAT)
+            except OSError as exc:
+                if exc.errno == errno.ELOOP:
+                    os.unlink(self.path)  # a symbolic link in our folder is never ours: drop it
+                    continue
+                raise
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+            except BlockingIOError:
+                os.close(fd)
+                return False
+            except BaseException:
+                os.close(fd)
+                raise
+            # The holder before us may have removed the file after we opened it: the
+            # lock must be on the file that is at the path now.
+            try:
+                same = os.stat(self.path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                self.fd = fd
+                with contextlib.suppress(OSError):
+                    os.ftruncate(fd, 0)
+                    os.write(fd, f"{os.getpid()}\n".encode())
+                return True
+            os.close(fd)
+
+    def remove_temps(self) -> int:
+        """Delete this set's temporary files (only its claim holder may)."""
+        n = 0
+        for p in glob.glob(os.path.join(glob.escape(self.out_dir), f".{glob.escape(self.stem)}.tmp-*")):
+            with contextlib.suppress(OSError):
+                os.remove(p)
+                n += 1
+                logger.debug("removed temporary file of a dead run: %s", p)
+        return n
+
+    def release(self) -> None:
+        """Remove the claim file and drop the lock (in that order: see :meth:`acquire`)."""
+        if self.fd is None:
+            return
+        with contextlib.suppress(OSError):
+            os.unlink(self.path)
+        os.close(self.fd)  # closing drops the flock
+        self.fd = None
+
+    def __enter__(self):
+        if self.fd is None:
+            self.acquire()
+        return self
+
+    def __exit__(self, *exc):
+        self.release()
+
+
+def claim_set(out_dir: str, stem: str) -> SetClaim:
+    """Claim a set (blocking) and remove the temporary files a dead owner left."""
+    c = SetClaim(out_dir, stem)
+    c.acquire()
+    c.remove_temps()
+    return c
+
+
+def remove_orphan_temps(out_dir: str, stems) -> None:
+    """Remove temporary files and claim files of sets nobody holds a claim on (their
+    writer is gone); those of sets a live process works on stay."""
+    for stem in stems:
+        c = SetClaim(out_dir, stem)
+        if not (os.path.lexists(c.path)
+                or glob.glob(os.path.join(glob.escape(out_dir), f".{glob.escape(stem)}.tmp-*"))):
+            continue
+        try:
+            got = c.acquire(wait=False)
+        except OSError:
+            continue
+        if got:
+            try:
+                c.remove_temps()
+            finally:
+                c.release()
+
+
+@contextlib.contextmanager
+def folder_lock(folder: str) -> Iterator[None]:
+    """Exclusive ``flock`` on the folder itself (no lock file, nothing to redirect)."""
+    try:
+        import fcntl
+    except ImportError:  # Windows: chunks there should use --report-json per chunk
+        yield
+        return
+    fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0))
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+def check_regular(path: str) -> None:
+    """Raise InputError at once unless ``path`` is a regular file.
+
+    A FIFO would block the first read for ever and ``/dev/zero`` never ends: such an
+    entry fails its own set before anything reads it.
+    """
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{path}: is a folder, not an image")
+    if not stat.S_ISREG(st.st_mode):
+        kind = ("a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device" if stat.S_ISCHR(st.st_mode)
+                or stat.S_ISBLK(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode) else "special")
+        raise InputError(f"{path}: not a regular file ({kind})")
+
+
+# ------------------------------------------------------------------------ workers
+
+
+def _pdeathsig() -> bool:
+    """Linux: the kernel sends SIGKILL to this process when its parent dies."""
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        PR_SET_PDEATHSIG = 1
+        return libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+def tie_to_parent(parent_pid: int) -> None:
+    """Make this (worker) process die when ``parent_pid`` dies, whatever kills it.
+
+    ``prctl(PR_SET_PDEATHSIG)`` where available, and a daemon watchdog thread that
+    checks ``os.getppid()`` every :data:`WATCHDOG_PERIOD` seconds everywhere (it also
+    catches a parent that died before ``prctl`` was called). Ctrl-C in a terminal
+    reaches the whole process group: workers ignore SIGINT and leave it to the batch.
+    """
+    with contextlib.suppress(ValueError, OSError):
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _pdeathsig()
+
+    kill = getattr(signal, "SIGKILL", signal.SIGTERM)  # Windows has no SIGKILL
+
+    def watch():
+        while True:
+            if os.getppid() != parent_pid:
+                os.kill(os.getpid(), kill)
+            time.sleep(WATCHDOG_PERIOD)
+
+    if os.getppid() != parent_pid:
+        os.kill(os.getpid(), kill)
+    threading.Thread(target=watch, name="hdrcl-parent-watchdog", daemon=True).start()
+
+
+@contextlib.contextmanager
+def cancel_signals() -> Iterator[None]:
+    """Turn SIGTERM and SIGINT into :class:`Cancelled` in the main thread.
+
+    Elsewhere (a thread, an embedding application that already handles them) the
+    handlers are left alone.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        # Further signals while cleaning up are ignored: one cancel is enough.
+        for s in (signal.SIGTERM, signal.SIGINT):
+            with contextlib.suppress(ValueError, OSError):
+                signal.signal(s, signal.SIG_IGN)
+        raise Cancelled(signum)
+
+    old = {}
+    for s in (signal.SIGTERM, signal.SIGINT):
+        try:
+            old[s] = signal.signal(s, handler)
+        except (ValueError, OSError):
+            pass
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            with contextlib.suppress(ValueError, OSError):
+                signal.signal(s, h)

@@ -1,0 +1,74 @@
+"""The options ``batch`` shares with ``merge``, applied to one set of a batch:
+exposures fitted from the pixels, hand-held frames aligned (and cropped), white balance
+on a neutral patch. Each is off by default, and then costs nothing.
+"""
+from __future__ import annotations
+
+import logging
+import os
+from typing import List, Optional, Tuple
+
+import numpy as np
+
+from hdrcl.shoot.jobs import BatchOptions, SetJob
+
+logger = logging.getLogger(__name__)
+
+
+def fitted_times(job: SetJob, opened, opts: BatchOptions) -> Tuple[np.ndarray, List[str]]:
+    """The exposures to merge with under ``opts.fit_exposures`` and notes on them.
+
+    The fit runs on the set's sampling grid with the metadata's exposures as the prior
+    (:func:`hdrcl.core.exposure_fit.fit_exposures`); ``auto`` takes the fitted value only
+    for frames whose metadata the pixels clearly contradict.
+    """
+    times = np.asarray(opened.times, np.float64)
+    if opts.fit_exposures == "off" or len(job.files) < 3:
+        return times, []
+    from hdrcl.core.exposure_fit import fit_exposures
+    from hdrcl.shoot.pooling import _calibration_grid
+
+    br = _calibration_grid(job, opened, opts.ignore_color)
+    fit = fit_exposures(br.frames, times, valid=br.valid_all, weight=opts.weight, seed=opts.seed)
+    notes = []
+    for k, (stops, flagged) in enumerate(zip(fit.stops, fit.flagged)):
+        if flagged:
+            notes.append(f"{os.path.basename(job.files[k])}: the pixels put its exposure {stops:+.2f} stops off "
+                         "its metadata; the fitted exposure is used")
+    used = fit.fitted if opts.fit_exposures == "on" else np.where(fit.flagged, fit.fitted, fit.nominal)
+    return np.asarray(used, np.float64), notes
+
+
+def aligned_source(job: SetJob, opened, opts: BatchOptions, times):
+    """The set's frames in memory, shifted onto the middle exposure (and cropped).
+
+    Returns ``(source, shifts, box)``: an :class:`hdrcl.core.pipeline.ArraySource`,
+    each frame's ``(dy, dx)`` and the crop box ``(y0, y1, x0, x1)`` or None.
+    """
+    from hdrcl.core.bracket import _with_ignore
+    from hdrcl.core.merge import _align
+    from hdrcl.core.pipeline import ArraySource
+    from hdrcl.io.reader import BracketReader
+
+    with BracketReader(job.files, opened.infos) as reader:
+        frames, valid = reader.read_all()
+    valid = _with_ignore(frames, valid, opts.ignore_color)
+    frames, valid, shifts, box = _align(frames, valid, times, opts.device)
+    crop = None
+    if opts.crop:
+        y0, y1, x0, x1 = crop = box
+        frames = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in frames]
+        valid = [None if v is None else np.ascontiguousarray(v[y0:y1, x0:x1]) for v in valid]
+    return ArraySource(frames, valid), shifts, crop
+
+
+def white_balance(job: SetJob, opened, source, times, resp, opts: BatchOptions, nch: int, h: int,
+                  w: int) -> Tuple[Optional[np.ndarray], dict]:
+    """Per-channel factors that make ``opts.neutral`` grey (None without it), and the
+    metadata that records them."""
+    if opts.neutral is None:
+        return None, {}
+    from hdrcl.core.scale import _radiometric_factors
+
+    return _radiometric_factors(list(job.files), opened.infos, source, times, resp, opts.weight, opts.ignore_color,
+                                opts.device, nch, opts.neutral, None, False, h, w)

@@ -1,0 +1,355 @@
+"""Where one bracket set ends and the next begins, in one camera's stream of frames.
+
+Two passes, every decision kept with its reason:
+
+1. **Runs.** Consecutive frames stay together unless something ends the set: a change
+   of lens, focal length, image size, exposure mode or aperture (in a time ladder); an
+   exposure (or exposure bias) that repeats one already in the set; a ladder that
+   restarts (a monotonic hand ladder walking back, an auto-bracket pattern broken); the
+   *scene* changing (:mod:`hdrcl.shoot.scene`); or a gap longer than the default limit
+   (:data:`DEFAULT_GAP`, plus the exposure time after long exposures).
+2. **Bridges.** A run that ended only by a long gap is joined with the next when the
+   two together still form one exposure ladder (:func:`hdrcl.shoot.ladder.ladder_of`:
+   evenly spaced in ``t``, ``t * ISO`` or the exposure bias, in an order people shoot)
+   and the scene matches across the gap: hand-made ladders with 5-60 s between frames.
+   Without a thumbnail the scene cannot vouch, and gaps up to :data:`BRIDGE_UNSEEN`
+   seconds are bridged; with a matching scene, up to :data:`BRIDGE_SEEN` seconds (plus
+   the exposure time).
+
+With a ``--gap`` override the limit is exact and nothing is bridged.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Callable, List, Optional
+
+from hdrcl.io.metadata import FrameInfo
+from hdrcl.shoot.compare import (DEFAULT_GAP, LONG_EXPOSURE, _BIAS_TOL, _MODE_NAMES, _STOP_TOL, _fmt_bias, _fmt_f,
+                                 _gap, _norm, _same_bias, _same_settings, _same_stops, _varies)
+from hdrcl.shoot.ladder import exposure_value, ladder_of
+
+logger = logging.getLogger(__name__)
+
+#: Longest gap (s) bridged when the frames' scene matches.
+BRIDGE_SEEN = 120.0
+#: Longest gap (s) bridged when the scene cannot be compared (no thumbnail).
+BRIDGE_UNSEEN = 60.0
+#: Auto-bracket frames closer than this (s) are one burst: the scene does not split them.
+BURST_GAP = 0.5
+
+# compare(a, b) -> hdrcl.shoot.scene.Verdict, or None: no content signal.
+Compare = Optional[Callable[[FrameInfo, FrameInfo], object]]
+
+
+@dataclass
+class _Group:
+    frames: List[FrameInfo]
+    reason: str
+    gaps: list
+    joins: list = field(default_factory=list)  # why each frame after the first joined
+
+
+def _gap_limit(prev: FrameInfo, override: Optional[float]) -> float:
+    if override is not None:
+        return override
+    limit = DEFAULT_GAP
+    if (prev.exposure_time or 0.0) >= LONG_EXPOSURE:
+        limit += prev.exposure_time
+    return limit
+
+
+def _hard_reason(cur: List[FrameInfo], f: FrameInfo) -> Optional[str]:
+    """What ends the set whatever the gap: settings, repeats, a broken ladder."""
+    return _camera_reason(cur[-1], f) or _pattern_reason(cur, f)
+
+
+def _camera_reason(prev: FrameInfo, f: FrameInfo) -> Optional[str]:
+    """Lens, focal length or image size changed."""
+    if _norm(prev.lens) != _norm(f.lens):
+        return f"lens changed ({prev.lens or '?'} -> {f.lens or '?'})"
+    if (prev.focal_length is None) != (f.focal_length is None) or (
+            prev.focal_length is not None
+            and abs(prev.focal_length - f.focal_length) > 0.005 * prev.focal_length):
+        a, b = (f"{v:g}" if v is not None else "?" for v in (prev.focal_length, f.focal_length))
+        return f"focal length changed ({a} -> {b} mm)"
+    if (prev.width, prev.height) != (f.width, f.height):
+        return f"image size changed ({prev.width}x{prev.height} -> {f.width}x{f.height})"
+    return None
+
+
+def _pattern_reason(cur: List[FrameInfo], f: FrameInfo) -> Optional[str]:
+    """Exposure mode or aperture changed, an exposure repeats, the ladder restarts."""
+    prev = cur[-1]
+    if (prev.exposure_mode is not None and f.exposure_mode is not None
+            and prev.exposure_mode != f.exposure_mode):
+        return ("exposure mode changed ("
+                f"{_MODE_NAMES.get(prev.exposure_mode, prev.exposure_mode)} -> "
+                f"{_MODE_NAMES.get(f.exposure_mode, f.exposure_mode)})")
+    for k, g in enumerate(cur):
+        if _same_settings(g, f):
+            return ("exposure repeats first frame" if k == 0
+                    else f"exposure repeats frame {k + 1} of the set")
+    biases = [g.exposure_bias for g in cur]
+    if f.exposure_bias is not None and _varies(biases, _same_bias):
+        if any(_same_bias(b, f.exposure_bias) for b in biases):
+            return f"exposure bias repeats ({_fmt_bias(f.exposure_bias)} EV)"
+    times = [g.exposure_time for g in cur]
+    if (len(cur) >= 2 and f.fnumber is not None and None not in times
+            and _varies(times, _same_stops)
+            and not _varies([g.fnumber for g in cur], lambda a, b: _same_stops(a, b, 2.0))
+            and not _same_stops(prev.fnumber, f.fnumber, 2.0)):
+        return f"aperture changed ({_fmt_f(prev.fnumber)} -> {_fmt_f(f.fnumber)})"
+    if _ladder_turns(cur, f):
+        return "exposure ladder restarts"
+    if _bias_pattern_breaks(cur, f):
+        return ("bracket pattern restarts (" + (f"{_fmt_bias(f.exposure_bias)} EV" if f.exposure_bias is not None
+                                                 else "exposure") + " off the set's steps)")
+    return None
+
+
+def _ladder_turns(cur: List[FrameInfo], f: FrameInfo) -> bool:
+    """A hand-made monotonic ladder of 3+ frames that ``f`` walks back on.
+
+    Auto-bracketing orders such as ``0, -1, -2, +1, +2`` are not monotonic, so this only
+    applies when no frame is marked as auto bracketed and the bias does not vary.
+    """
+    if len(cur) < 3:
+        return False
+    frames = cur + [f]
+    if any(g.exposure_mode == 2 for g in frames):
+        return False
+    if _varies([g.exposure_bias for g in frames], lambda a, b: abs(a - b) < _BIAS_TOL):
+        return False
+    values = [exposure_value(g) for g in frames]
+    if any(v is None for v in values):
+        return False
+    steps = [b - a for a, b in zip(values, values[1:])]
+    ladder, last = steps[:-1], steps[-1]
+    if all(s > _STOP_TOL for s in ladder):
+        return last < -_STOP_TOL
+    if all(s < -_STOP_TOL for s in ladder):
+        return last > _STOP_TOL
+    return False
+
+
+def _bias_pattern_breaks(cur: List[FrameInfo], f: FrameInfo) -> bool:
+    """An auto bracket of 3+ frames (an exact pattern) that ``f`` does not extend.
+
+    ``0, -2, +2, -4, +4`` followed by ``-1``: the camera started the next bracket with
+    another step. Only when the set so far is a clean ladder in the exposure bias, or
+    (auto bracketing that records no bias) in the exposure itself: ``1/100, 1/200, 1/50``
+    followed by ``1/125`` is the next bracket, metered a third of a stop darker.
+    """
+    if len(cur) < 3:
+        return False
+    lad = ladder_of(cur)
+    if lad is None:
+        return False
+    if lad.axis != "bias" and not all(g.exposure_mode == 2 for g in cur + [f]):
+        return False
+    if lad.axis == "bias" and f.exposure_bias is None:
+        return False
+    return ladder_of(cur + [f]) is None
+
+
+def _content_reason(cur: List[FrameInfo], f: FrameInfo, compare: Compare):
+    """The scene verdict of ``f`` against the frame of ``cur`` nearest in exposure."""
+    if compare is None:
+        return None
+    ref = _nearest(cur, f)
+    return compare(ref, f)
+
+
+def _nearest(cur: List[FrameInfo], f: FrameInfo) -> FrameInfo:
+    v = exposure_value(f)
+    if v is None:
+        return cur[-1]
+    best = min(cur[::-1], key=lambda g: abs((exposure_value(g) or 1e9) - v))
+    return best
+
+
+def _fmt_gap(g: Optional[float]) -> str:
+    return "no capture time" if g is None else f"gap {g:.1f} s"
+
+
+def split_stream(frames: List[FrameInfo], gap: Optional[float], compare: Compare = None) -> List[_Group]:
+    """Split one camera's frames (capture order) into groups, with reasons."""
+    groups: List[_Group] = []
+    cur, cur_gaps, joins = [frames[0]], [], []
+    for f in frames[1:]:
+        g = _gap(cur[-1], f)
+        reason = _camera_reason(cur[-1], f)
+        if reason is None and g is not None and g > _gap_limit(cur[-1], gap):
+            reason = f"gap {g:.1f} s"
+        reason = reason or _pattern_reason(cur, f)
+        verdict = None
+        if reason is None:
+            verdict = _content_reason(cur, f, compare)
+            # Within an auto-bracket burst nobody re-aims: there a low match is the
+            # exposures, not the scene.
+            burst = g is not None and g < BURST_GAP and f.exposure_mode == 2
+            if verdict is not None and verdict.kind == "changed" and not burst:
+                reason = verdict.describe()
+        if reason is None:
+            note = _fmt_gap(g)
+            if verdict is not None and verdict.kind != "unknown":
+                note += f", {verdict.describe()}"
+            cur.append(f)
+            cur_gaps.append(g)
+            joins.append(note)
+        else:
+            logger.debug("split before %s: %s", f.path, reason)
+            groups.append(_Group(cur, reason, cur_gaps, joins))
+            cur, cur_gaps, joins = [f], [], []
+    groups.append(_Group(cur, "end of files", cur_gaps, joins))
+    groups = _coalesce_repeats(groups)
+    if gap is None:
+        groups = _bridge(groups, compare)
+    return groups
+
+
+def _bridge(groups: List[_Group], compare: Compare) -> List[_Group]:
+    """Join runs that only a long gap separated and that form one ladder (pass 2).
+
+    Runs linked by long gaps form a chain; of the ways to cut a chain into ladders the
+    one with the largest sum of squared set sizes wins, so a stray frame before a hand
+    ladder stays alone instead of taking the ladder's first frame with it.
+    """
+    out: List[_Group] = []
+    i = 0
+    while i < len(groups):
+        e = i
+        while e + 1 < len(groups) and groups[e].reason.startswith("gap "):
+            e += 1
+        out.extend(_bridge_chain(groups[i:e + 1], compare))
+        i = e + 1
+    return out
+
+
+def _joined(a: _Group, b: _Group, why: str) -> _Group:
+    return _Group(a.frames + b.frames, b.reason, a.gaps + [_gap(a.frames[-1], b.frames[0])] + b.gaps,
+                  a.joins + [why] + b.joins)
+
+
+def _bridge_chain(runs: List[_Group], compare: Compare) -> List[_Group]:
+    m = len(runs)
+    if m == 1:
+        return runs
+    valid = {}
+    for i in range(m):
+        acc = _Group(list(runs[i].frames), runs[i].reason, list(runs[i].gaps), list(runs[i].joins))
+        valid[(i, i)] = acc
+        for j in range(i + 1, m):
+            why = _bridge_reason(acc, runs[j], compare)
+            if why is None:
+                break  # a union that is no ladder never becomes one by growing
+            acc = _joined(acc, runs[j], why)
+            valid[(i, j)] = acc
+    best, choice = [0] * (m + 1), [0] * (m + 1)
+    for j in range(1, m + 1):
+        best[j] = -1
+        for i in range(j):
+            g = valid.get((i, j - 1))
+            if g is not None and best[i] + len(g.frames) ** 2 > best[j]:
+                best[j], choice[j] = best[i] + len(g.frames) ** 2, i
+    parts, j = [], m
+    while j > 0:
+        parts.append(valid[(choice[j], j - 1)])
+        j = choice[j]
+    parts.reverse()
+    for a, b in zip(parts, parts[1:]):
+        a.reason += _no_bridge_note(a, b, compare)
+    return parts
+
+
+def _bridge_parts(p: _Group, grp: _Group, compare: Compare):
+    g = _gap(p.frames[-1], grp.frames[0])
+    if g is None:
+        return None, None, None
+    verdict = None if compare is None else compare(_nearest(p.frames, grp.frames[0]), grp.frames[0])
+    # A scene that matches vouches for a hand-turned ladder whose steps are uneven.
+    lad = ladder_of(p.frames + grp.frames, even=verdict is None or verdict.kind != "same")
+    return g, lad, verdict
+
+
+def _bridge_reason(p: _Group, grp: _Group, compare: Compare) -> Optional[str]:
+    f = grp.frames[0]
+    if _hard_reason(p.frames, f) is not None:
+        return None
+    g, lad, verdict = _bridge_parts(p, grp, compare)
+    if g is None or lad is None:
+        return None
+    seen = verdict is not None and verdict.kind != "unknown"
+    if seen and verdict.kind != "same":
+        return None
+    limit = BRIDGE_SEEN + (p.frames[-1].exposure_time or 0.0) if seen else BRIDGE_UNSEEN
+    if g > limit:
+        return None
+    scene = verdict.describe() if seen else "scene not compared"
+    return f"gap {g:.1f} s bridged: {lad.describe()}, {scene}"
+
+
+def _no_bridge_note(p: _Group, grp: _Group, compare: Compare) -> str:
+    """Why a long gap was not bridged, for ``--explain`` (appended to the reason)."""
+    if _hard_reason(p.frames, grp.frames[0]) is not None:
+        return ""
+    g, lad, verdict = _bridge_parts(p, grp, compare)
+    if g is None:
+        return ""
+    if lad is None:
+        return ""
+    if verdict is not None and verdict.kind == "changed":
+        return f"; {verdict.describe()}"
+    if _bridge_reason(p, grp, compare) is not None:
+        return "; the next frames form a ladder of their own"
+    return "; too long to bridge"
+
+
+def _coalesce_repeats(groups: List[_Group]) -> List[_Group]:
+    """Join runs of single frames split only because they repeat one exposure.
+
+    A burst at one setting would otherwise show up as many "single frame" entries; it
+    is reported once as "all frames share one exposure".
+    """
+    out: List[_Group] = []
+    for grp in groups:
+        if out and len(grp.frames) == 1:
+            p = out[-1]
+            f = grp.frames[0]
+            if (p.reason.startswith("exposure repeats")
+                    and all(_same_settings(x, f) for x in p.frames)):
+                g = _gap(p.frames[-1], f)
+                p.gaps.append(g)
+                p.joins.append(f"{_fmt_gap(g)}, same exposure")
+                p.frames.append(f)
+                p.reason = grp.reason
+                continue
+        out.append(grp)
+    return out
+
+
+def chunk(frames: List[FrameInfo], n: int, gap: Optional[float]) -> List[_Group]:
+    """Fixed-size sets of ``n`` frames in capture order (``--frames-per-set``)."""
+    groups: List[_Group] = []
+    cur, cur_gaps, joins = [], [], []
+    for f in frames:
+        if cur:
+            g = _gap(cur[-1], f)
+            if gap is not None and g is not None and g > gap:
+                groups.append(_Group(cur, f"gap {g:.1f} s", cur_gaps, joins))
+                cur, cur_gaps, joins = [], [], []
+            else:
+                cur_gaps.append(g)
+                joins.append(f"{_fmt_gap(g)}, frames-per-set {n}")
+        cur.append(f)
+        if len(cur) == n:
+            groups.append(_Group(cur, f"frames-per-set {n}", cur_gaps, joins))
+            cur, cur_gaps, joins = [], [], []
+    if cur:
+        groups.append(_Group(cur, "end of files", cur_gaps, joins))
+    elif groups and groups[-1].reason.startswith("frames-per-set"):
+        groups[-1].reason = "end of files"
+    return groups
+
+
