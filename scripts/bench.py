@@ -71,14 +71,13 @@ def _log(msg: str) -> None:
 
 
 def _ensure_importable() -> None:
-    """Make ``import hdrcl`` work from a source checkout without PYTHONPATH (and in children)."""
+    """Make ``import hdrcl`` find the checkout this script belongs to (in this process and
+    in every child, workers included), so that the CLI processes (``python -m hdrcl``)
+    and the in-process workers measure the same code even where another checkout is
+    installed in the environment; other installs are used only without a checkout."""
     if os.environ.get("PYTHONPATH"):  # absolute, so children started in other folders see it too
         os.environ["PYTHONPATH"] = os.pathsep.join(os.path.abspath(p) if p else p
                                                    for p in os.environ["PYTHONPATH"].split(os.pathsep))
-    import importlib.util
-
-    if importlib.util.find_spec("hdrcl") is not None:
-        return
     root = os.path.dirname(os.path.dirname(SCRIPT))
     if os.path.isdir(os.path.join(root, "hdrcl")):
         sys.path.insert(0, root)
