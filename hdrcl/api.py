@@ -2,32 +2,40 @@
 
 This is the public facade: it re-exports the library's entry points from the layers
 below (:mod:`hdrcl.core`, :mod:`hdrcl.report`) and holds no engine of its own. The
-command line is a thin layer over these functions::
+command line is a thin layer over the same engine::
 
     import hdrcl
-    resp = hdrcl.calibrate(["a.jpg", "b.jpg", "c.jpg"], times=[1/250, 1/60, 1/15])
-    radiance = hdrcl.merge(["a.jpg", "b.jpg", "c.jpg"], times=[1/250, 1/60, 1/15], response=resp)
+    resp = hdrcl.calibrate(["a.jpg", "b.jpg", "c.jpg"], times=["1/250", "1/60", "1/15"])
+    radiance = hdrcl.merge(["a.jpg", "b.jpg", "c.jpg"], times="1/250,1/60,1/15", response=resp)
     photo = hdrcl.expose(radiance, resp, time=1/30)          # uint8 (H, W, 3)
     picture = hdrcl.tonemap(radiance, "reinhard-local")      # sRGB uint8 (H, W, 3)
+
+Errors are :class:`hdrcl.HdrclError` subclasses (``UsageError`` for bad arguments,
+``InputError`` for unreadable or inconsistent files) whose messages name the parameter
+(``times: 2 exposure time(s) given for 3 files``), not the command line's flag.
+Warnings are issued through :mod:`warnings` as :class:`hdrcl.HdrclWarning` (and logged
+on the ``hdrcl`` logger). ``times`` may be numbers, strings such as ``"1/30"``, or one
+comma-separated string, as on the command line.
 """
 from __future__ import annotations
 
+import functools
 import os
+import re
 from typing import Optional, Sequence, Union
 
 import numpy as np
 
-from hdrcl.core.bracket import (
-    Bracket,
-    PathOrArray,
-    load_bracket,
-    memory_budget,
-    read_infos,
-)
-from hdrcl.core.calibrate import calibrate, exposures_used
-from hdrcl.core.exposure import expose, expose_file
-from hdrcl.core.merge import MergeResult, merge_bracket, merge_files
+from hdrcl.core import bracket as _bracket
+from hdrcl.core import calibrate as _calibrate
+from hdrcl.core import exposure as _exposure
+from hdrcl.core import merge as _merge
+from hdrcl.core.bracket import Bracket, PathOrArray, memory_budget, read_infos
+from hdrcl.core.calibrate import exposures_used
+from hdrcl.core.merge import MergeResult
 from hdrcl.core.response import Response, _as_response
+from hdrcl.errors import HdrclError, UsageError
+from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.report.merge_report import write_quality_report
 from hdrcl.report.tonemap import tonemap, tonemap_file
 
@@ -37,26 +45,114 @@ __all__ = [
     "tonemap", "tonemap_file", "write_quality_report",
 ]
 
+_FLAG = re.compile(r"(?<![\w-])--([a-z][a-z0-9-]*)")
 
+
+def python_words(message: str) -> str:
+    """A library message with command-line flags (``--times-file``) named as the Python
+    parameters they correspond to (``times_file``)."""
+    return _FLAG.sub(lambda m: m.group(1).replace("-", "_"), message)
+
+
+def _public(fn):
+    """Wrap an engine function so that its errors name parameters, not CLI flags."""
+
+    @functools.wraps(fn)
+    def call(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except HdrclError as exc:
+            if exc.args and isinstance(exc.args[0], str):
+                exc.args = (python_words(exc.args[0]),) + exc.args[1:]
+            raise
+
+    return call
+
+
+load_bracket = _public(_bracket.load_bracket)
+calibrate = _public(_calibrate.calibrate)
+expose = _public(_exposure.expose)
+expose_file = _public(_exposure.expose_file)
+merge_bracket = _public(_merge.merge_bracket)
+merge_files = _public(_merge.merge_files)
+tonemap = _public(tonemap)
+tonemap_file = _public(tonemap_file)
+
+
+@_public
 def merge(
     images: Sequence[PathOrArray],
     times: Optional[Sequence[float]] = None,
     response: Union[Response, str, os.PathLike, None] = None,
     *,
     times_file=None,
-    weight: str = "hat",
+    weight: str = DEFAULT_WEIGHT,
     ignore_color=None,
     samples: Optional[int] = None,
     smoothness: Optional[float] = None,
+    seed: int = 0,
     device: Optional[str] = None,
     fit_exposures: str = "auto",
+    exposure_tolerance: Optional[float] = None,
+    deghost: bool = False,
+    align: bool = False,
+    crop: bool = False,
+    neutral=None,
+    reference_patch=None,
+    absolute: bool = False,
 ) -> np.ndarray:
     """Merge a bracket into a float32 radiance map ``(H, W, C)``.
 
     ``response`` may be a :class:`Response`, a path to a response JSON file, or None to
     calibrate from the set itself. Radiance is relative: a pixel that reads ``Zmid``
     in a 1 s exposure (at the first frame's aperture and ISO) has radiance about 1.
+    The options are those of :func:`merge_files` (and ``hdrcl merge``):
+
+    Parameters
+    ----------
+    align, crop : bool
+        Align hand-held frames by translation to the middle exposure; ``crop`` keeps
+        only the area every frame covers.
+    deghost : bool
+        Take pixels where the frames disagree from the middle exposure alone.
+    neutral : "x,y,w,h" or (x, y, w, h), optional
+        White balance: make this patch neutral grey.
+    reference_patch : "x,y,w,h=VALUE", optional
+        Absolute scale: this patch's mean luminance becomes VALUE cd/m^2.
+    absolute : bool
+        Approximate cd/m^2 from the first frame's f-number and ISO (image files only).
     """
-    br = load_bracket(images, times, times_file=times_file, ignore_color=ignore_color)
-    return merge_bracket(br, _as_response(response), weight=weight, samples=samples, smoothness=smoothness,
-                         device=device, fit_exposures=fit_exposures).radiance
+    from types import SimpleNamespace
+
+    from hdrcl.core.scale import _radiometric_factors
+
+    if crop and not align:
+        raise UsageError("crop needs align")
+    if absolute and all(isinstance(im, np.ndarray) for im in images):
+        raise UsageError("absolute needs the frames' f-number and ISO: give image files, not arrays")
+    if isinstance(neutral, (tuple, list)):
+        neutral = ",".join(str(int(v)) for v in neutral)
+    br = _bracket.load_bracket(images, times, times_file=times_file, ignore_color=ignore_color)
+    resp = _as_response(response)
+    if resp is not None and br.frames and resp.bits != 8 * br.frames[0].dtype.itemsize:
+        name = os.fspath(response) if isinstance(response, (str, os.PathLike)) else "response"
+        raise UsageError(f"{name}: a response for {resp.bits}-bit frames, but the frames are "
+                         f"{8 * br.frames[0].dtype.itemsize}-bit")
+    if align:
+        frames, valid, _shifts, box = _merge._align(br.frames, br.valid, br.times, device)
+        if crop:
+            y0, y1, x0, x1 = box
+            frames = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in frames]
+            valid = [None if v is None else np.ascontiguousarray(v[y0:y1, x0:x1]) for v in valid]
+        br = Bracket(frames=frames, times=br.times, valid=valid, paths=br.paths, infos=br.infos)
+    res = _merge.merge_bracket(br, resp, weight=weight, samples=samples, smoothness=smoothness, seed=seed,
+                               device=device, fit_exposures=fit_exposures,
+                               exposure_tolerance=exposure_tolerance, deghost=deghost)
+    radiance = res.radiance
+    h, w, nch = radiance.shape
+    factors, _units = _radiometric_factors(br.paths, br.infos, SimpleNamespace(frames=br.frames, valid=br.valid),
+                                           res.times, res.response, weight, None, device, nch, neutral,
+                                           reference_patch, absolute, h, w)
+    if factors is not None:
+        radiance = (radiance * np.asarray(factors, np.float32)).astype(np.float32)
+    return radiance

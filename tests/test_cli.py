@@ -92,9 +92,12 @@ def test_size_mismatch(bracket_files, tmp_path):
 
 
 def test_duplicate_exposures(bracket_files):
+    """Equal exposures merge (issue 9); fewer than two distinct ones are refused."""
     d = bracket_files["dir"]
     r = run("merge", *bracket_files["paths"][:3], "--times", "1,2,2", "-o", d / "out.exr")
-    assert r.exit_code == 3 and "same exposure" in r.output and "f2.png" in r.output
+    assert r.exit_code == 0, r.output
+    r = run("merge", *bracket_files["paths"][:3], "--times", "2,2,2", "-o", d / "out2.exr")
+    assert r.exit_code == 3 and "same exposure" in r.output and "f0.png" in r.output
 
 
 def test_missing_exposure_time(bracket_files):

@@ -8,6 +8,7 @@ from hdrcl.errors import InputError, UsageError
 from hdrcl.io.metadata import (
     Exposure,
     FrameInfo,
+    check_exposures,
     format_time,
     parse_times,
     read_times_file,
@@ -137,16 +138,35 @@ def test_resolve_errors(tmp_path):
         resolve_exposures(paths[:1], infos[:1])
 
 
-def test_resolve_duplicate_exposure():
+def test_equal_exposures_merge_and_fewer_than_two_distinct_are_refused(caplog):
+    """Issue 9: an auto-ISO ladder (1/30 s at ISO 100 = 1/60 s at ISO 200) is a normal
+    bracket; only a set with fewer than two distinct exposures is refused."""
+    import logging
+
     infos = [FrameInfo(path=p, width=4, height=3, nchannels=3, exposure_time=t, fnumber=n,
                        iso=s)
              for p, t, n, s in [("a.jpg", 1 / 30, 8.0, 100), ("c.jpg", 1 / 4, 8.0, 100),
                                 ("b.jpg", 1 / 60, 8.0, 200)]]
-    with pytest.raises(InputError) as err:
-        resolve_exposures([i.path for i in infos], infos)
-    assert str(err.value) == "b.jpg has the same exposure as a.jpg (1/30 s)"
-    with pytest.raises(InputError, match="c.jpg has the same exposure as a.jpg"):
+    caplog.set_level(logging.INFO, logger="hdrcl")
+    exposures = resolve_exposures([i.path for i in infos], infos)
+    assert len(exposures) == 3
+    assert any("a.jpg, b.jpg share one exposure (1/30 s)" in r.getMessage() for r in caplog.records)
+    assert check_exposures(["a", "c", "b"], relative_exposures(exposures)) == [[0, 2]]
+    with pytest.raises(InputError, match="a.jpg: all 2 frames have the same exposure"):
         resolve_exposures(["a.jpg", "c.jpg"], None, times=[0.5, 0.5])
+
+
+def test_absurd_times_and_the_same_file_twice_are_refused(tmp_path, caplog):
+    with pytest.raises(InputError, match="b.jpg: effective exposure 1e.300 s is outside"):
+        resolve_exposures(["a.jpg", "b.jpg"], None, times=[1.0, 1e300])
+    f = tmp_path / "a.png"
+    f.write_bytes(b"x")
+    g = tmp_path / "g.png"
+    g.write_bytes(b"x")
+    with pytest.raises(InputError, match="a.png: the same file is given 2 times with different exposures"):
+        resolve_exposures([f, g, f], None, times=[1.0, 2.0, 4.0])
+    resolve_exposures([f, g, f], None, times=[1.0, 2.0, 1.0])
+    assert any("the same file is given 2 times" in r.getMessage() for r in caplog.records)
 
 
 def test_format_time():

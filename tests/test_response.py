@@ -112,7 +112,7 @@ def test_bad_response_files(tmp_path):
     p.write_text(json.dumps({"format": "hdrcl-response", "version": 99}))
     with pytest.raises(InputError, match="newer"):
         Response.load(p)
-    with pytest.raises(InputError, match="not found"):
+    with pytest.raises(InputError, match="no such response file"):
         Response.load(tmp_path / "missing.json")
 
 

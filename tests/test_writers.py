@@ -69,16 +69,34 @@ def test_exr_compression_choice(tmp_path):
         write_radiance(tmp_path / "x.exr", _radiance(), dtype="double")
 
 
-def test_half_overflow_warning(tmp_path):
+def test_half_that_cannot_hold_the_values_is_written_as_float(tmp_path):
+    """Issue 9: half would turn 1e6 into inf and 1e-9 into 0; the values are kept."""
     img = _radiance()
     img.reshape(-1)[:100] = 1e6
+    img.reshape(-1)[100:110] = 1e-9
     path = tmp_path / "big.exr"
     warnings = write_radiance(path, img)
     assert len(warnings) == 1
-    assert "big.exr: 2.3% of values exceed the half-float range (65504)" in warnings[0]
-    assert "--dtype float" in warnings[0]
+    assert "big.exr: values beyond the half-float range" in warnings[0] and "written as float" in warnings[0]
+    back = read_radiance(path)[0]
+    np.testing.assert_array_equal(back, img)
     assert write_radiance(path, img, dtype="float") == []
     np.testing.assert_array_equal(read_radiance(path)[0], img)
+
+
+def test_streamed_half_never_writes_inf_or_zero(tmp_path):
+    """The last-resort guard of RadianceWriter: values half cannot hold are clamped to
+    its range (and counted), never written as inf or an underflowed 0."""
+    img = _radiance()
+    img.reshape(-1)[:100] = 1e6
+    img.reshape(-1)[100:110] = 1e-9
+    path = tmp_path / "s.exr"
+    with writers.RadianceWriter(path, 47, 31, 3) as w:
+        w.write_rows(0, 31, img.copy())
+    assert any("110 value(s)" in m and "clamped" in m for m in w.warnings)
+    back = read_radiance(path)[0]
+    assert np.isfinite(back).all() and (back > 0).all()
+    assert back.max() == 65504.0
 
 
 @pytest.mark.parametrize("channels", [1, 3])

@@ -2,16 +2,23 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 
 import click
 
-from hdrcl.cli.group import main
+from hdrcl.cli.group import main, say
 from hdrcl.cli.options import (
+    InputFile,
+    OutputFile,
+    OutputFolder,
+    check_inputs_not_outputs,
     colorspace_option,
+    deghost_option,
     device_option,
     exposure_options,
     fit_options,
+    ghost_options,
     output_options,
     seconds_callback,
     warn_inapplicable,
@@ -85,8 +92,9 @@ def devices(as_json):
 
 
 @main.command()
-@click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Response JSON to write.")
+@click.argument("images", nargs=-1, required=True, type=InputFile("image"))
+@click.option("-o", "--output", required=True, type=OutputFile((".json",), "response curve"),
+              help="Response JSON to write.")
 @exposure_options
 @solve_options
 @weight_option
@@ -96,33 +104,37 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
     """Recover the camera response curve from one bracket set."""
     from hdrcl.core.calibrate import calibrate as _calibrate
 
+    check_inputs_not_outputs(list(images) + [times_file], output)
     resp = _calibrate(list(images), times, times_file=times_file, samples=samples, smoothness=smoothness,
                       weight=weight, ignore_color=ignore_color, seed=seed, fit_exposures=fit_exposures,
                       exposure_tolerance=exposure_tolerance)
     resp.save(output)
     t = resp.tables()
-    click.echo(f"wrote {output}: {resp.bits}-bit response, channels {''.join(resp.channels)}, "
+    say(f"wrote {output}: {resp.bits}-bit response, channels {''.join(resp.channels)}, "
                f"{resp.samples} samples, lambda {resp.smoothness:g}")
     for c, name in enumerate(resp.channels):
         lo, hi = 10 * (resp.levels // 256), 245 * (resp.levels // 256)
-        click.echo(f"  {name}: g({lo}) = {t[c, lo]:+.3f}, g({hi}) = {t[c, hi]:+.3f}  "
+        say(f"  {name}: g({lo}) = {t[c, lo]:+.3f}, g({hi}) = {t[c, hi]:+.3f}  "
                    f"({(t[c, hi] - t[c, lo]) / 2.302585:.2f} decades of exposure)")
 
 
 @main.command()
-@click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.argument("images", nargs=-1, required=True, type=InputFile("image"))
+@click.option("-o", "--output", required=True,
+              type=OutputFile((".exr", ".hdr", ".tif", ".tiff", ".pfm"), "radiance map"),
               help="Radiance file: .exr, .hdr, .tif or .pfm.")
-@click.option("--response", "response", type=click.Path(dir_okay=False),
+@click.option("--response", "response", type=InputFile("response file"),
               help="Response JSON from 'hdrcl calibrate' [default: calibrate from these images].")
-@click.option("--save-response", type=click.Path(dir_okay=False), help="Also write the response used.")
+@click.option("--save-response", type=OutputFile((".json",), "response curve"),
+              help="Also write the response used.")
 @exposure_options
 @solve_options
 @weight_option
 @fit_options
-@click.option("--deghost", is_flag=True,
-              help="Take pixels where the frames disagree (moving objects) from the middle exposure alone.")
-@click.option("--ghost-mask", type=click.Path(dir_okay=False), help="With --deghost: write the ghost mask (PNG).")
+@deghost_option
+@click.option("--ghost-mask", type=OutputFile((".png", ".tif", ".tiff"), "ghost mask"),
+              help="With --deghost: write the ghost mask (PNG).")
+@ghost_options
 @click.option("--neutral", metavar="X,Y,W,H", help="White balance: make this patch (pixels) neutral grey.")
 @click.option("--reference-patch", metavar="X,Y,W,H=VALUE",
               help="Absolute scale: this patch's mean luminance is VALUE cd/m^2.")
@@ -131,7 +143,7 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
 @click.option("--align", is_flag=True,
               help="Align hand-held frames by translation (median threshold bitmaps) before merging.")
 @click.option("--crop", is_flag=True, help="With --align: crop to the area every frame covers.")
-@click.option("--report", "report", type=click.Path(file_okay=False),
+@click.option("--report", "report", type=OutputFolder("report folder"),
               help="Write a quality report here (sets accumulate in one folder): preview, input frames, "
                    "camera settings, response, histogram and coverage plots, figures, index.html.")
 @output_options
@@ -140,55 +152,57 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
               help="Owner / copyright recorded in the file [default: the frames' EXIF Copyright].")
 @device_option
 def merge(images, output, response, save_response, times, times_file, ignore_color, samples, smoothness,
-          seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, neutral, reference_patch, absolute,
-          align, crop, report, dtype, compression, colorspace, owner, device):
+          seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, ghost_threshold, ghost_reference,
+          neutral, reference_patch, absolute, align, crop, report, dtype, compression, colorspace, owner, device):
     """Merge one bracket set into a radiance map."""
     from hdrcl.core.merge import merge_files
-    from hdrcl.errors import UsageError
     from hdrcl.io.metadata import format_time
 
-    for target in (save_response,):  # fail before the merge, not after it
-        if target and not os.path.isdir(os.path.dirname(os.path.abspath(target))):
-            raise UsageError(f"{target}: output folder does not exist")
+    check_inputs_not_outputs(list(images) + [response, times_file], output, save_response, ghost_mask)
     warn_inapplicable(output, dtype=dtype, compression=compression)
     res = merge_files(list(images), output, times=times, times_file=times_file, response=response,
                       weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness, seed=seed,
                       dtype=dtype, compression=compression, device=device, fit_exposures=fit_exposures,
                       exposure_tolerance=exposure_tolerance, deghost=deghost, ghost_mask=ghost_mask,
+                      ghost_threshold=ghost_threshold, ghost_reference=ghost_reference,
                       neutral=neutral, reference_patch=reference_patch, absolute=absolute,
                       thumbnail=512 if report else 0, align=align, crop=crop, colorspace=colorspace.lower(),
-                      owner=owner)
-    if save_response:
-        res.response.save(save_response)
+                      owner=owner, save_response=save_response)
     h, w_, c = res.shape
     total = sum(res.seconds.values())
-    click.echo(f"wrote {output}: {w_}x{h}, {c} channel(s), {len(res.paths)} frames "
+    say(f"wrote {output}: {w_}x{h}, {c} channel(s), {len(res.paths)} frames "
                f"({format_time(min(res.times))} .. {format_time(max(res.times))}), "
                f"{'OpenCL' if res.backend == 'opencl' else 'NumPy'}, {total:.2f} s")
     cnt = res.counts
+    if response is None:
+        say(f"  response: spans {res.response.span_decades():.2f} decades between codes 10 and 245")
+    if res.storage_note:
+        say(f"  storage: {res.storage_note}")
     if res.shifts is not None:
-        click.echo("  aligned: " + ", ".join(f"{os.path.basename(p)} ({dy:+d}, {dx:+d})"
+        say("  aligned: " + ", ".join(f"{os.path.basename(p)} ({dy:+d}, {dx:+d})"
                                              for p, (dy, dx) in zip(res.paths, res.shifts)) + " (dy, dx px)")
     if deghost:
-        click.echo(f"  ghosts: {100.0 * cnt.get('ghost', 0) / max(h * w_, 1):.2f} % of pixels taken from the "
-                   f"middle exposure" + (f" ({cnt['ghost_unresolved']} pixel-channels unresolved)"
-                                         if cnt.get("ghost_unresolved") else ""))
+        unresolved = cnt.get("ghost_unresolved")
+        say(f"  ghosts: {100.0 * cnt.get('ghost', 0) / max(h * w_, 1):.2f} % of pixels taken from the "
+            f"{ghost_reference or 'middle'} exposure"
+            + (f" ({unresolved} pixel-channels unresolved)" if unresolved else ""))
     if cnt.get("clipped_high") or cnt.get("clipped_low"):
-        click.echo(f"  clipped in every frame: {cnt['clipped_high']} high, {cnt['clipped_low']} low (pixel-channels)")
+        say(f"  clipped in every frame: {cnt['clipped_high']} high, {cnt['clipped_low']} low (pixel-channels)")
     if report:
         from hdrcl.report.merge_report import write_quality_report
         from hdrcl.report.pages import format_figures
 
         fig, _entry = write_quality_report(res, report, ignore_color=ignore_color, weight=weight, device=device)
-        click.echo(f"quality report: {os.path.join(report, 'index.html')}")
+        say(f"quality report: {os.path.join(report, 'index.html')}")
         for label, text in format_figures(fig):
-            click.echo(f"  {label}: {text}")
+            say(f"  {label}: {text}")
 
 
 @main.command()
-@click.argument("radiance", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help=".jpg, .png or .tif")
-@click.option("--response", required=True, type=click.Path(dir_okay=False), help="Response JSON.")
+@click.argument("radiance", type=InputFile("radiance map"))
+@click.option("-o", "--output", required=True,
+              type=OutputFile((".jpg", ".jpeg", ".png", ".tif", ".tiff"), "photograph"), help=".jpg, .png or .tif")
+@click.option("--response", required=True, type=InputFile("response file"), help="Response JSON.")
 @click.option("--time", "time_", required=True, callback=seconds_callback, metavar="SECONDS",
               help="Exposure time of the virtual photograph, e.g. 1/30.")
 @click.option("--bits", type=click.Choice(["8", "16"]), default=None,
@@ -207,15 +221,16 @@ def expose(radiance, output, response, time_, bits, motion_blur, device):
             blur = tuple(float(v) for v in motion_blur.split(","))
         except ValueError:
             blur = ()
-        if len(blur) != 2:
+        if len(blur) != 2 or not all(math.isfinite(v) for v in blur):
             raise UsageError(f"--motion-blur: expected DX,DY in pixels, not '{motion_blur}'")
+    check_inputs_not_outputs([radiance, response], output)
     img = expose_file(radiance, output, response, time_, bits=int(bits) if bits else None, device=device,
                       motion_blur=blur)
-    click.echo(f"wrote {output}: {img.shape[1]}x{img.shape[0]}, {8 * img.dtype.itemsize}-bit")
+    say(f"wrote {output}: {img.shape[1]}x{img.shape[0]}, {8 * img.dtype.itemsize}-bit")
 
 
 @main.command()
-@click.argument("folder", type=click.Path(file_okay=False))
+@click.argument("folder", type=OutputFolder("demo folder"))
 @click.option("--size", default="768x512", show_default=True, metavar="WxH")
 @click.option("--frames", type=click.IntRange(min=2, max=32), default=7, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
@@ -240,17 +255,16 @@ def demo(folder, size, frames, seed, no_shoot, device):
     if w < 16 or h < 16:
         raise UsageError("--size: at least 16x16")
     rep = run_demo(folder, width=w, height=h, frames=frames, seed=seed, device=device, shoot=not no_shoot)
-    click.echo(f"synthetic bracket: {len(rep.frames)} frames in {os.path.join(folder, 'frames')} "
+    say(f"synthetic bracket: {len(rep.frames)} frames in {os.path.join(folder, 'frames')} "
                f"(scene spans {rep.dynamic_range:g} decades)")
-    click.echo(f"merged with {'OpenCL' if rep.backend == 'opencl' else 'NumPy'} -> {rep.radiance}")
-    click.echo(f"response curve error: {rep.curve_error:.4f} (max |g - g_true|, ln units, levels 10-245)")
-    click.echo(f"radiance error: {100 * rep.radiance_error:.2f} % (median, well-exposed pixels)")
-    click.echo(f"response: {rep.response}   preview: {rep.preview}")
+    say(f"merged with {'OpenCL' if rep.backend == 'opencl' else 'NumPy'} -> {rep.radiance}")
+    say(f"response curve error: {rep.curve_error:.4f} (max |g - g_true|, ln units, levels 10-245)")
+    say(f"radiance error: {100 * rep.radiance_error:.2f} % (median, well-exposed pixels)")
+    say(f"response: {rep.response}   preview: {rep.preview}")
     if rep.shoot:
         skipped = f", {rep.batch_skipped} skipped (up to date)" if rep.batch_skipped else ""
-        click.echo(f"sample shoot: {rep.shoot} -> batch: {rep.batch_done} set(s) merged{skipped}, "
-                   f"{rep.batch_failed} failed "
-                   f"into {rep.batch}")
-        click.echo(f"quality report: {rep.contact_sheet}")
-    click.echo("next: hdrcl expose {0} -o bright.jpg --response {1} --time {2:.4g}".format(
+        say(f"sample shoot: {rep.shoot} -> batch: {rep.batch_done} set(s) merged{skipped}, "
+            f"{rep.batch_failed} failed into {rep.batch}")
+        say(f"quality report: {rep.contact_sheet}")
+    say("next: hdrcl expose {0} -o bright.jpg --response {1} --time {2:.4g}".format(
         rep.radiance, rep.response, rep.times[-1]))

@@ -1,17 +1,26 @@
 """The ``hdrcl`` command group: logging set-up and the one-line error contract.
 
-Errors are one line on stderr (``hdrcl: error: ...``) with the exit code of their
-class: 1 processing failed, 2 usage, 3 unreadable input. ``--debug`` shows tracebacks.
+Every failure, click's own usage errors included, ends as one line on stderr,
+``hdrcl: error: SUBJECT: problem`` (SUBJECT is the file or the option at fault), with
+the exit code of its class: 1 processing failed, 2 usage, 3 unreadable or inconsistent
+input, 130 interrupted. ``--debug`` (before or after the command) shows tracebacks.
+``-q``/``-v``/``--debug`` are accepted before and after the command's name.
 """
 from __future__ import annotations
 
+import errno
 import logging
 import os
+import re
 import sys
+import warnings
 
 import click
 
-from hdrcl.errors import HdrclError
+from hdrcl.errors import HdrclError, HdrclWarning
+
+_GLOBAL_FLAGS = ("-q", "--quiet", "--debug")
+_state = {"verbose": 0, "quiet": False, "debug": False}
 
 
 class _OneLine(logging.Formatter):
@@ -20,7 +29,8 @@ class _OneLine(logging.Formatter):
         return f"hdrcl: {record.levelname.lower()}: {msg}"
 
 
-def _setup_logging(verbose: int, quiet: bool) -> None:
+def _setup_logging() -> None:
+    verbose, quiet = _state["verbose"], _state["quiet"]
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
     root = logging.getLogger("hdrcl")
     root.handlers[:] = []
@@ -29,55 +39,196 @@ def _setup_logging(verbose: int, quiet: bool) -> None:
     root.addHandler(h)
     root.setLevel(level)
     root.propagate = False
+    # The library also raises its warnings through the warnings module (for API users);
+    # on the command line the log line above is the one message.
+    warnings.simplefilter("ignore", HdrclWarning)
+
+
+def quiet() -> bool:
+    """True when ``-q`` was given (before or after the command)."""
+    return bool(_state["quiet"])
+
+
+def say(message: str = "", **kwargs) -> None:
+    """Print a summary line on stdout unless ``-q`` was given."""
+    if not _state["quiet"]:
+        click.echo(message, **kwargs)
+
+
+def _flag_callback(ctx, param, value):
+    if param.name == "verbose":
+        _state["verbose"] += int(value or 0)
+    elif value:
+        _state[param.name] = True
+    _setup_logging()
+    return value
+
+
+def common_options():
+    """``-v``, ``-q`` and ``--debug`` as parameters (of the group and of every command)."""
+    return [
+        click.Option(["-v", "--verbose"], count=True, expose_value=False, callback=_flag_callback,
+                     help="More messages (-vv for debugging detail)."),
+        click.Option(["-q", "--quiet"], is_flag=True, expose_value=False, callback=_flag_callback,
+                     help="Only errors: no summary lines."),
+        click.Option(["--debug"], is_flag=True, expose_value=False, callback=_flag_callback,
+                     help="Show tracebacks instead of one-line errors."),
+    ]
+
+
+class HdrclCommand(click.Command):
+    """A command that also takes ``-v``/``-q``/``--debug`` after its name."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.params.extend(common_options())
+
+
+_TEMP_NAME = re.compile(r"^\.(?P<stem>.+)\.tmp-[0-9a-f]{8}(?P<ext>\.[^.]*)?$|^\.(?P<name>.+)\.[A-Za-z0-9_]{8}\.tmp$")
+
+
+def public_name(path) -> str:
+    """The file a hidden temporary name (``.out.tmp-1a2b3c4d.exr``) stands for."""
+    path = os.fspath(path)
+    folder, base = os.path.split(path)
+    m = _TEMP_NAME.match(base)
+    if not m:
+        return path
+    real = m.group("name") or (m.group("stem") + (m.group("ext") or ""))
+    return os.path.join(folder, real)
+
+
+def _os_error_message(exc: OSError) -> str:
+    what = exc.strerror or str(exc)
+    if exc.filename is not None:
+        return f"{public_name(exc.filename)}: {what}"
+    if exc.errno == errno.ENOSPC:
+        return "no space left on the output device"
+    return what
+
+
+def _param_name(param) -> str:
+    if isinstance(param, click.Option):
+        return "/".join(param.opts)
+    return param.human_readable_name
+
+
+def _usage_message(exc: click.UsageError) -> str:
+    """click's usage errors as ``SUBJECT: problem`` (no 'Usage:' or 'Try' lines)."""
+    param = getattr(exc, "param", None)
+    if isinstance(exc, click.MissingParameter) and param is not None:
+        return f"{_param_name(param)}: missing (see '{_cmd(exc)} --help')"
+    if isinstance(exc, click.BadParameter) and param is not None:
+        return f"{_param_name(param)}: {' '.join(str(exc.message).split())}"
+    if isinstance(exc, click.NoSuchOption):
+        return f"{exc.option_name}: no such option of '{_cmd(exc)}' (see '{_cmd(exc)} --help')"
+    msg = " ".join(exc.format_message().split())
+    if isinstance(exc, click.BadOptionUsage):
+        if "requires an argument" in msg:
+            return f"{exc.option_name}: needs a value (see '{_cmd(exc)} --help')"
+        return f"{exc.option_name}: {msg[:1].lower() + msg[1:]}"
+    m = re.match(r"No such command '(.+?)'\.?\s*(.*)$", msg)
+    if m:
+        hint = m.group(2).rstrip("?").strip()
+        hint = f"; {hint[:1].lower() + hint[1:]}?" if hint else f" (see '{_cmd(exc)} --help')"
+        return f"{m.group(1)}: no such command{hint}"
+    return f"{_cmd(exc)}: {msg[:1].lower() + msg[1:] if msg else 'usage error'}"
+
+
+def _strip_quotes(s: str) -> str:
+    return s.replace("'", "").replace('"', "")
+
+
+def _cmd(exc) -> str:
+    ctx = getattr(exc, "ctx", None)
+    return ctx.command_path if ctx is not None else "hdrcl"
+
+
+def _first_line(text: str) -> str:
+    lines = [ln for ln in str(text).splitlines() if ln.strip()]
+    return lines[0].strip() if lines else ""
+
+
+def _fail(message: str, code: int):
+    click.echo(f"hdrcl: error: {_first_line(message)}", err=True)
+    sys.exit(code)
 
 
 class HdrclGroup(click.Group):
-    """Turns library errors into one-line messages and exit codes."""
+    """Runs a command and turns every failure into one line and an exit code."""
 
-    def invoke(self, ctx):
+    command_class = HdrclCommand
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        if args is None:
+            args = sys.argv[1:]
+        args = list(args)
+        head = args[:args.index("--")] if "--" in args else args
+        _state.update(verbose=0, quiet=False, debug="--debug" in head)
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
         try:
-            return super().invoke(ctx)
-        except HdrclError as exc:
-            if (ctx.obj or {}).get("debug"):
+            rv = super().main(args, prog_name or "hdrcl", complete_var, standalone_mode=False, **extra)
+        except Exception as exc:  # noqa: BLE001 - the one place that turns failures into lines
+            if _state["debug"] and not isinstance(exc, click.exceptions.Exit):
                 raise
-            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            click.echo(f"hdrcl: error: {msg}", err=True)
-            ctx.exit(exc.exit_code)
-        except (click.exceptions.Exit, click.exceptions.Abort, click.ClickException):
-            raise
+            self._report(exc)
+            return  # unreachable: _report exits
         except KeyboardInterrupt:
             click.echo("hdrcl: interrupted", err=True)
-            ctx.exit(130)
-        except Exception as exc:  # a bug or an environment problem: say so in one line
-            if (ctx.obj or {}).get("debug"):
-                raise
-            first = str(exc).splitlines()[0] if str(exc) else ""
-            click.echo(f"hdrcl: internal error: {type(exc).__name__}: {first} (run with --debug for details)", err=True)
-            ctx.exit(1)
+            sys.exit(130)
+        sys.exit(rv if isinstance(rv, int) else 0)
+
+    @staticmethod
+    def _report(exc: BaseException) -> None:
+        no_args = getattr(click.exceptions, "NoArgsIsHelpError", ())
+        if no_args and isinstance(exc, no_args):
+            exc.show()
+            sys.exit(exc.exit_code)
+        if isinstance(exc, HdrclError):
+            _fail(str(exc) or type(exc).__name__, exc.exit_code)
+        if isinstance(exc, click.UsageError):
+            _fail(_usage_message(exc), 2)
+        if isinstance(exc, click.exceptions.Abort):
+            click.echo("hdrcl: interrupted", err=True)
+            sys.exit(130)
+        if isinstance(exc, click.ClickException):
+            _fail(exc.format_message(), exc.exit_code)
+        if isinstance(exc, OSError):
+            if exc.errno == errno.EPIPE:  # stdout closed by a pager or head: not an error
+                sys.exit(1)
+            _fail(_os_error_message(exc), 1)
+        if isinstance(exc, MemoryError):
+            _fail("out of memory (try a smaller HDRCL_MEMORY_MB or fewer --jobs)", 1)
+        first = _first_line(str(exc))
+        click.echo(f"hdrcl: internal error: {type(exc).__name__}: {first} (run with --debug for details)",
+                   err=True)
+        sys.exit(1)
 
 
 @click.group(cls=HdrclGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="hdrcl", prog_name="hdrcl")
-@click.option("-v", "--verbose", count=True, help="More messages (-vv for debugging detail).")
-@click.option("-q", "--quiet", is_flag=True, help="Only errors.")
-@click.option("--debug", is_flag=True, help="Show tracebacks instead of one-line errors.")
 @click.option("--max-pixels", type=click.IntRange(min=1), default=None, metavar="N",
               help="Refuse frames of more than N pixels, checked before decoding "
                    "[default: HDRCL_MAX_PIXELS, else 1000000000].")
 @click.pass_context
-def main(ctx, verbose, quiet, debug, max_pixels):
+def main(ctx, max_pixels):
     """Merge bracketed photographs into HDR radiance maps (Debevec & Malik 1997).
 
     Fusion and virtual exposures run as OpenCL kernels (any OpenCL device; PoCL on
     CPU-only machines); the response curve is solved on the CPU.
 
     \b
-    Exit codes: 0 success, 1 processing failed, 2 usage error, 3 unreadable input.
+    Errors: one line on stderr, 'hdrcl: error: FILE: problem'.
+    Exit codes: 0 success, 1 processing failed, 2 usage error, 3 unreadable or
+    inconsistent input.
     Environment: PYOPENCL_CTX picks the device (or --device); HDRCL_OPENCL=0 uses the
     slower NumPy path; HDRCL_MAX_PIXELS bounds the pixels of one frame (--max-pixels).
     """
     ctx.ensure_object(dict)
-    ctx.obj["debug"] = debug
     if max_pixels is not None:  # the environment carries it to batch workers too
         os.environ["HDRCL_MAX_PIXELS"] = str(max_pixels)
-    _setup_logging(verbose, quiet)
+    _setup_logging()
+
+
+main.params.extend(common_options())

@@ -1,10 +1,114 @@
-"""Options shared by several commands (defined once, used everywhere)."""
+"""Options shared by several commands (defined once, used everywhere), and the
+parameter types that check files the way the error contract wants: one line naming the
+file, exit 3 for an input that cannot be read, exit 2 for an output that cannot be
+written (click's own path checks print three lines and always exit 2).
+"""
 from __future__ import annotations
+
+import os
 
 import click
 
 from hdrcl.core.response import DEFAULT_SMOOTHNESS
-from hdrcl.core.weights import WEIGHTS
+from hdrcl.core.weights import DEFAULT_WEIGHT, WEIGHTS
+
+
+class InputFile(click.ParamType):
+    """A file the command reads: missing, a folder or unreadable is an input error (3)."""
+
+    name = "file"
+
+    def __init__(self, what: str = "file"):
+        self.what = what
+
+    def convert(self, value, param, ctx):
+        from hdrcl.errors import InputError
+
+        path = os.fspath(value)
+        if not os.path.lexists(path):
+            raise InputError(f"{path}: no such file")
+        if os.path.isdir(path):
+            if self.what == "image":
+                raise InputError(f"{path}: is a folder, not an image; give its images with a glob "
+                                 f"({os.path.join(path, '*')}) or run 'hdrcl batch {path} -o OUT_DIR'")
+            raise InputError(f"{path}: is a folder, not a {self.what}")
+        if not os.path.exists(path):
+            raise InputError(f"{path}: broken symbolic link")
+        if not os.access(path, os.R_OK):
+            raise InputError(f"{path}: permission denied")
+        return path
+
+
+class InputPath(InputFile):
+    """A file or a folder the command reads (``scan``/``batch`` sources)."""
+
+    name = "path"
+
+    def convert(self, value, param, ctx):
+        from hdrcl.errors import InputError
+
+        path = os.fspath(value)
+        if os.path.isdir(path):
+            if not os.access(path, os.R_OK | os.X_OK):
+                raise InputError(f"{path}: permission denied")
+            return path
+        if not os.path.lexists(path):
+            raise InputError(f"{path}: no such file or folder")
+        return super().convert(value, param, ctx)
+
+
+def sets_callback(ctx, param, value):
+    """``--sets``: checked before any work; a leading minus is refused, not read as 0-N."""
+    if value is None:
+        return None
+    from hdrcl.errors import UsageError
+    from hdrcl.shoot.plan import parse_sets
+
+    for item in str(value).split(","):
+        if item.strip().startswith("-"):
+            raise UsageError(f"--sets: '{item.strip()}' reads as a negative index; indices start at 0 "
+                             f"(write 0{item.strip()} for the sets up to {item.strip()[1:] or 'N'})")
+    parse_sets(value)
+    return value
+
+
+class OutputFile(click.ParamType):
+    """A file the command writes, with the extensions it may have: usage error (2) when
+    it is a folder, its folder is missing or read-only, or the extension is wrong."""
+
+    name = "file"
+
+    def __init__(self, extensions=None, what: str = "output", check_folder: bool = True):
+        self.extensions, self.what, self.check_folder = extensions, what, check_folder
+
+    def convert(self, value, param, ctx):
+        from hdrcl.errors import UsageError
+        from hdrcl.io.atomic import check_output
+
+        path = os.fspath(value)
+        ext = os.path.splitext(path)[1].lower()
+        if self.extensions and ext not in self.extensions:
+            raise UsageError(f"{path}: a {self.what} is written as {', '.join(self.extensions)}, "
+                             f"not '{ext or 'no extension'}'")
+        if not self.check_folder:  # the command checks it (e.g. a folder it creates first)
+            if os.path.isdir(path):
+                raise UsageError(f"{path}: is a folder; give a file name for the {self.what}")
+            return path
+        return check_output(path, what=self.what)
+
+
+class OutputFolder(click.ParamType):
+    """A folder the command creates or writes into: usage error (2) when it cannot."""
+
+    name = "folder"
+
+    def __init__(self, what: str = "output folder"):
+        self.what = what
+
+    def convert(self, value, param, ctx):
+        from hdrcl.io.atomic import check_output_folder
+
+        return check_output_folder(os.fspath(value), what=self.what)
 
 
 def _times(ctx, param, value):
@@ -12,30 +116,34 @@ def _times(ctx, param, value):
         return None
     from hdrcl.io.metadata import parse_times
 
-    try:
-        return parse_times(value)
-    except Exception as exc:  # UsageError carries the message
-        raise click.BadParameter(str(exc)) from None
+    return parse_times(value, "--times")  # UsageError: one line, exit 2
 
 
 def _seconds(ctx, param, value):
     if value is None:
         return None
+    from hdrcl.errors import UsageError
     from hdrcl.io.metadata import parse_times
 
-    try:
-        vals = parse_times(value)
-    except Exception as exc:
-        raise click.BadParameter(str(exc)) from None
+    vals = parse_times(value, "--time")
     if len(vals) != 1:
-        raise click.BadParameter(f"one exposure time expected, got '{value}'")
+        raise UsageError(f"--time: one exposure time expected, not '{value}'")
     return vals[0]
+
+
+def check_inputs_not_outputs(inputs, *outputs) -> None:
+    """Refuse (usage error) an output that is one of the inputs: it would be destroyed."""
+    from hdrcl.io.atomic import check_output
+
+    for out in outputs:
+        if out is not None:
+            check_output(out, [p for p in inputs if p is not None])
 
 
 def exposure_options(f):
     f = click.option("--ignore-color", metavar="R,G,B",
                      help="Treat pixels of exactly this colour (8-bit units) as invalid, e.g. 0,0,255.")(f)
-    f = click.option("--times-file", type=click.Path(dir_okay=False),
+    f = click.option("--times-file", type=InputFile("times file"),
                      help="Exposure list: HDRShop columns (file, seconds, 1/shutter, f-stop, gain dB, ND) "
                           "or 'file seconds' lines.")(f)
     f = click.option("--times", callback=_times, metavar="T1,T2,...",
@@ -55,8 +163,9 @@ def solve_options(f):
 
 
 def weight_option(f):
-    return click.option("--weight", type=click.Choice(WEIGHTS), default="hat", show_default=True,
-                        help="Weighting of code values: the paper's hat, or a smoother gaussian.")(f)
+    return click.option("--weight", type=click.Choice(WEIGHTS), default=DEFAULT_WEIGHT, show_default=True,
+                        help="Weighting of code values: gaussian (measured best on real data), "
+                             "or the paper's hat.")(f)
 
 
 def device_option(f):
@@ -89,7 +198,7 @@ def grouping_options(f):
 
 def batch_merge_options(f):
     """The options of ``merge`` that ``batch`` applies to every set."""
-    f = click.option("--times-file", type=click.Path(dir_okay=False),
+    f = click.option("--times-file", type=InputFile("times file"),
                      help="Exposure list for frames without EXIF: HDRShop columns or 'file seconds' lines "
                           "[default: image_list.txt or times.txt beside the frames, when there is one].")(f)
     f = click.option("--fit-exposures", type=click.Choice(["auto", "on", "off"]), default="off",
@@ -136,8 +245,21 @@ def fit_options(f):
 def deghost_option(f):
     """``--deghost`` (the flag alone; ``merge`` adds ``--ghost-mask`` for its one output)."""
     return click.option("--deghost", is_flag=True,
-                        help="Take pixels where the frames disagree (moving objects) from the middle "
-                             "exposure alone.")(f)
+                        help="Take pixels where the frames disagree (moving objects) beyond the set's own "
+                             "learnt residuals from one exposure alone.")(f)
+
+
+def ghost_options(f):
+    """``--ghost-threshold`` and ``--ghost-reference`` (with ``--deghost``)."""
+    from hdrcl.core.deghost import THRESHOLD
+
+    f = click.option("--ghost-threshold", type=click.FloatRange(min=0, min_open=True), default=None,
+                     help="With --deghost: departure, in robust spreads of the set's own frame-to-frame "
+                          f"residuals, that makes a ghost [default: {THRESHOLD:g}].")(f)
+    f = click.option("--ghost-reference", metavar="middle|shortest|longest|N", default=None,
+                     help="With --deghost: the frame ghost pixels are taken from; N counts the images "
+                          "as given, from 0 [default: middle].")(f)
+    return f
 
 
 def colorspace_option(f):

@@ -1,21 +1,32 @@
 """Commands that turn a radiance map into a picture for people: tonemap."""
 from __future__ import annotations
 
+import math
+
 import click
 
-from hdrcl.cli.group import main
-from hdrcl.cli.options import device_option
+from hdrcl.cli.group import main, say
+from hdrcl.cli.options import InputFile, OutputFile, check_inputs_not_outputs, device_option
+
+
+def _finite(ctx, param, value):
+    if value is not None and not math.isfinite(value):
+        from hdrcl.errors import UsageError
+
+        raise UsageError(f"--{param.name}: expected a finite number of stops, not {value}")
+    return value
 
 
 @main.command()
-@click.argument("radiance", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.argument("radiance", type=InputFile("radiance map"))
+@click.option("-o", "--output", required=True,
+              type=OutputFile((".jpg", ".jpeg", ".png", ".tif", ".tiff"), "picture"),
               help="Picture to write: .jpg, .png or .tif (sRGB-encoded).")
 @click.option("--operator", type=click.Choice(["reinhard", "reinhard-local", "drago", "filmic"]),
               default="reinhard", show_default=True,
               help="Tone-mapping operator: Reinhard 2002 global or local (dodging and burning), "
                    "Drago 2003 adaptive logarithmic, or Hable's filmic curve.")
-@click.option("--exposure", type=float, default=0.0, show_default=True, metavar="EV",
+@click.option("--exposure", type=float, default=0.0, show_default=True, metavar="EV", callback=_finite,
               help="Brighten (+) or darken (-) the scene by this many stops before the operator.")
 @click.option("--bits", type=click.Choice(["8", "16"]), default="8", show_default=True,
               help="Output depth (JPEG holds 8 bits only).")
@@ -30,7 +41,8 @@ def tonemap(radiance, output, operator, exposure, bits, device):
 
     from hdrcl.report.tonemap import tonemap_file
 
+    check_inputs_not_outputs([radiance], output)
     t0 = time.perf_counter()
     img = tonemap_file(radiance, output, operator, exposure=exposure, bits=int(bits), device=device)
-    click.echo(f"wrote {output}: {img.shape[1]}x{img.shape[0]}, {8 * img.dtype.itemsize}-bit sRGB, "
+    say(f"wrote {output}: {img.shape[1]}x{img.shape[0]}, {8 * img.dtype.itemsize}-bit sRGB, "
                f"{operator}{f', {exposure:+g} EV' if exposure else ''}, {time.perf_counter() - t0:.2f} s")

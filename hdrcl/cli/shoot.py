@@ -13,8 +13,14 @@ import time
 
 import click
 
-from hdrcl.cli.group import main
+from hdrcl.cli.group import main, say
+from hdrcl.cli.group import quiet as is_quiet
 from hdrcl.cli.options import (
+    InputFile,
+    InputPath,
+    OutputFile,
+    OutputFolder,
+    sets_callback,
     colorspace_option,
     deghost_option,
     device_option,
@@ -30,16 +36,16 @@ from hdrcl.cli.options import (
 
 
 @main.command()
-@click.argument("source", type=click.Path())
+@click.argument("source", type=InputPath("manifest"))
 @grouping_options
-@click.option("-o", "--output", type=click.Path(dir_okay=False),
+@click.option("-o", "--output", type=OutputFile((".json",), "manifest"),
               help="Write the manifest (JSON, paths relative to its folder) for 'hdrcl batch'.")
 @click.option("--json", "as_json", is_flag=True, help="Print the grouping as one JSON object.")
 @click.option("--explain", is_flag=True,
               help="Show every frame with the reason it joined its set, and why each set ended.")
 @click.option("--content/--no-content", default=True, show_default=True,
               help="Compare the frames' content (small exposure-normalised thumbnails) as well as their headers.")
-@click.option("--times-file", type=click.Path(dir_okay=False),
+@click.option("--times-file", type=InputFile("times file"),
               help="Exposure list for frames without EXIF [default: image_list.txt or times.txt beside them].")
 @click.pass_context
 def scan(ctx, source, recursive, frames_per_set, gap, output, as_json, explain, content, times_file):
@@ -76,7 +82,7 @@ def scan(ctx, source, recursive, frames_per_set, gap, output, as_json, explain, 
         for i in sorted(problems):
             click.echo(f"set {i} cannot be merged: {problems[i]}")
     if output:
-        click.echo(f"wrote {output}: {len(manifest.sets)} set(s)", err=as_json)
+        say(f"wrote {output}: {len(manifest.sets)} set(s)", err=as_json)
     if problems:
         ctx.exit(1)
 
@@ -145,12 +151,12 @@ class _Progress:
 
 
 @main.command()
-@click.argument("source", type=click.Path())
-@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
+@click.argument("source", type=InputPath("manifest"))
+@click.option("-o", "--output", "out_dir", required=True, type=OutputFolder("output folder"),
               help="Output folder (created): one EXR and one JPEG preview per set, report.json.")
-@click.option("--response", type=click.Path(dir_okay=False),
+@click.option("--response", type=InputFile("response file"),
               help="Response JSON for every set [default: calibrate one per camera and ISO, pooled over the shoot].")
-@click.option("--sets", "sets", metavar="A-B[,C...]",
+@click.option("--sets", "sets", metavar="A-B[,C...]", callback=sets_callback,
               help="Only these manifest indices (ranges are clamped to the sets that exist), "
                    "e.g. a farm chunk #START#-#END#.")
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=1, show_default=True,
@@ -162,10 +168,10 @@ class _Progress:
 @click.option("--force", is_flag=True, help="Rebuild outputs that are already up to date.")
 @click.option("--calibrate-only", is_flag=True,
               help="Only solve (or load) and save the responses, e.g. once before submitting farm chunks.")
-@click.option("--report", "report_dir", type=click.Path(file_okay=False),
+@click.option("--report", "report_dir", type=OutputFolder("report folder"),
               help="Write a quality report into this folder: per set a response plot, a coverage map, a "
                    "preview and the figures; an HTML contact sheet (index.html) over the shoot.")
-@click.option("--report-json", "report_json", type=click.Path(dir_okay=False),
+@click.option("--report-json", "report_json", type=OutputFile((".json",), "JSON report", check_folder=False),
               help="Write the JSON report here [default: OUT_DIR/report.json].")
 @click.option("--json", "as_json", is_flag=True, help="Print the report JSON on stdout.")
 @click.option("--preview/--no-preview", default=True, show_default=True,
@@ -213,7 +219,11 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
         from hdrcl.core.radiometry import parse_patch
 
         parse_patch(neutral, "--neutral")
-    quiet = bool((ctx.find_root().params or {}).get("quiet"))
+    quiet = is_quiet()
+    if report_json and os.path.dirname(os.path.abspath(report_json)) != os.path.abspath(out_dir):
+        from hdrcl.io.atomic import check_output
+
+        check_output(report_json, what="JSON report")  # before any set is merged
     opts = BatchOptions(weight=weight, samples=samples, smoothness=smoothness, seed=seed,
                         ignore_color=ignore_color, deghost=deghost, dtype=dtype, compression=compression,
                         preview=preview, preview_size=preview_size, tonemap=tonemap, colorspace=colorspace.lower(),
@@ -241,8 +251,8 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
     elif calibrate_only:
         for r in rep.responses:
             state = f"error: {r.error}" if r.error else f"{r.source} {r.file}"
-            click.echo(f"{r.group}: {state}")
-    else:
+            say(f"{r.group}: {state}")
+    elif not quiet:
         _summary(rep)
     if calibrate_only:
         ctx.exit(1 if any(r.error for r in rep.responses) else 0)
@@ -281,7 +291,7 @@ def _summary(rep) -> None:
 
 
 @main.command("sample-shoot")
-@click.argument("folder", type=click.Path(file_okay=False))
+@click.argument("folder", type=OutputFolder("folder"))
 @click.option("--size", default="192x128", show_default=True, metavar="WxH", help="Size of each photograph.")
 @click.option("--seed", type=int, default=0, show_default=True)
 def sample_shoot(folder, size, seed):
@@ -298,5 +308,5 @@ def sample_shoot(folder, size, seed):
     except ValueError:
         raise UsageError(f"--size: expected WxH, not '{size}'") from None
     paths = write_sample_shoot(folder, width=w, height=h, seed=seed)
-    click.echo(f"wrote {len(paths)} photographs to {folder} (3 bracket sets and a stray frame)")
-    click.echo(f"next: hdrcl scan {folder}   or   hdrcl batch {folder} -o hdr/")
+    say(f"wrote {len(paths)} photographs to {folder} (3 bracket sets and a stray frame)")
+    say(f"next: hdrcl scan {folder}   or   hdrcl batch {folder} -o hdr/")

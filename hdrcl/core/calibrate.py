@@ -16,9 +16,9 @@ from hdrcl.core.bracket import (
     _parse_ignore_color,
     load_bracket,
 )
-from hdrcl.core.response import Response
+from hdrcl.core.response import SPAN_BODY, Response
 from hdrcl.core.solve import recover_response
-from hdrcl.errors import UsageError
+from hdrcl.core.weights import DEFAULT_WEIGHT
 
 logger = logging.getLogger(__name__)
 
@@ -30,7 +30,7 @@ def calibrate(
     times_file=None,
     samples: Optional[int] = None,
     smoothness: Optional[float] = None,
-    weight: str = "hat",
+    weight: str = DEFAULT_WEIGHT,
     ignore_color=None,
     seed: int = 0,
     fit_exposures: str = "auto",
@@ -39,11 +39,16 @@ def calibrate(
 ) -> Response:
     """Recover the camera response from a bracket set.
 
-    ``fit_exposures`` (``auto``, ``on``, ``off``): estimate each frame's relative
-    exposure from the pixels (:func:`hdrcl.core.exposure_fit.fit_exposures`) and report every
+    ``fit_exposures`` (``auto``, ``on``, ``off``): verify each frame's relative exposure
+    against the pixels (:func:`hdrcl.core.exposure_fit.verify_exposures`) and report every
     frame whose metadata disagrees by more than ``exposure_tolerance`` stops (default
-    0.5). ``auto`` uses the fitted value only for those frames, ``on`` for all, ``off``
-    never fits. The times used are recorded per frame in ``Response.exposures``
+    0.5), and frames that are in truth at the same exposure. The scale of the exposure
+    axis comes from the frames whose metadata agree, never from a free fit. ``auto``
+    changes a frame only when the pixels contradict it decisively and the change lowers
+    the fit error; ``on`` uses the pixel estimate for every frame; ``off`` never fits.
+    The curve's span in decades (codes 10..245) is logged, and an 8-bit curve spanning
+    more than 4 decades is warned about (``Response.warnings``). The times used are
+    recorded per frame in ``Response.exposures``
     (``nominal``, ``fitted``, ``used``) and a merge of the same set uses them.
     ``warn=False`` keeps the curve's problems out of the log (they stay in
     ``Response.warnings``): for re-solves the user did not ask for.
@@ -75,31 +80,13 @@ def calibrate(
         br = _grid_bracket(paths, infos, rel, _parse_ignore_color(ignore_color))
     else:
         br = load_bracket(images, times, times_file=times_file, ignore_color=ignore_color)
-    from hdrcl.core.exposure_fit import EXPOSURE_TOLERANCE_STOPS
-    from hdrcl.core.exposure_fit import fit_exposures as _fit
-    from hdrcl.io.metadata import format_time
+    from hdrcl.core.exposure_fit import verify_exposures
 
-    if fit_exposures not in ("auto", "on", "off"):
-        raise UsageError(f"--fit-exposures: '{fit_exposures}' is not one of auto, on, off")
-    tol = EXPOSURE_TOLERANCE_STOPS if exposure_tolerance is None else float(exposure_tolerance)
     names = br.paths or [f"image {k}" for k in range(len(br.frames))]
-    used = np.asarray(br.times, np.float64)
-    fitted = None
-    if fit_exposures != "off" and len(br.frames) >= 3:
-        # The fit always uses the paper's hat weights: their wide overlap between frames
-        # conditions the exposure estimates better than a narrow weighting does (on the
-        # Memorial set gaussian weights let the fit wander by up to 0.8 stops).
-        fit = _fit(br.frames, br.times, valid=br.valid_all, samples=min(samples or 400, 400),
-                   weight="hat", seed=seed, tolerance=tol, decimate=not br.grid)
-        fitted = fit.fitted
-        for k in np.flatnonzero(fit.flagged):
-            logger.warning("%s: metadata says %s but the pixels say %s (%+.2f stops)%s", os.path.basename(names[k]),
-                           format_time(fit.nominal[k]), format_time(fit.fitted[k]), fit.stops[k],
-                           "" if fit_exposures != "auto" else "; using the fitted exposure")
-        if fit_exposures == "on":
-            used = fit.fitted.copy()
-        elif fit.flagged.any():
-            used = np.where(fit.flagged, fit.fitted, used)
+    used, fit = verify_exposures(br.frames, br.times, names, mode=fit_exposures, valid=br.valid_all,
+                                 samples=samples, seed=seed, tolerance=exposure_tolerance, decimate=not br.grid,
+                                 warn=warn)
+    fitted = None if fit is None else fit.fitted
     resp = recover_response(br.frames, used, valid=br.valid_all, samples=samples,
                             smoothness=smoothness, weight=weight, seed=seed, decimate=not br.grid, warn=warn)
     resp.camera = br.camera
@@ -107,7 +94,23 @@ def calibrate(
         {"file": os.path.basename(n), "nominal": float(t), "fitted": None if fitted is None else float(f),
          "used": float(u)}
         for n, t, f, u in zip(names, br.times, fitted if fitted is not None else br.times, used)]
+    report_span(resp, warn)
     return resp
+
+
+def report_span(resp: Response, warn: bool = True) -> float:
+    """Log the curve's span in decades (codes 10..245) and warn (``warn``), into
+    ``resp.warnings`` too, when an 8-bit curve is stretched (:meth:`Response.span_problem`)."""
+    span = resp.span_decades()
+    logger.log(logging.INFO if warn else logging.DEBUG,
+               "response spans %.2f decades between codes 10 and 245 (%.2f between %d and %d)",
+               span, resp.span_decades(*SPAN_BODY), *SPAN_BODY)
+    problem = resp.span_problem()
+    if problem and problem not in resp.warnings:
+        if warn:
+            logger.warning("%s", problem)
+        resp.warnings.append(problem)
+    return span
 
 
 def exposures_used(response: Response, bracket_times) -> np.ndarray:

@@ -26,12 +26,20 @@ def render(radiance: np.ndarray, response: Response, time: float, bits: Optional
     bits : {8, 16}, optional
         Output depth; default the response's own.
     """
-    if not (time > 0 and np.isfinite(time)):
-        raise UsageError(f"exposure time must be a positive number of seconds, not {time}")
-    bits = response.bits if bits is None else int(bits)
+    from hdrcl.io.metadata import coerce_times
+
+    (time,) = coerce_times([time], "time")
+    bits = response.bits if bits is None else bits
+    if str(bits) in ("8", "16"):
+        bits = int(bits)
     if bits not in (8, 16):
-        raise UsageError(f"output depth must be 8 or 16 bits, not {bits}")
+        raise UsageError(f"bits: output depth must be 8 or 16, not {bits!r}")
     rad = np.asarray(radiance, np.float32)
+    if rad.ndim not in (2, 3) or rad.size == 0:
+        raise UsageError(f"radiance: expected an (H, W) or (H, W, C) array, not shape {rad.shape}")
+    bad = int(np.count_nonzero(~np.isfinite(rad)))
+    if bad:
+        raise UsageError(f"radiance: {bad} NaN or infinite value(s); a radiance map must be finite")
     squeeze = rad.ndim == 2
     if squeeze:
         rad = rad[..., None]
@@ -57,21 +65,17 @@ def expose(radiance: np.ndarray, response: Union[Response, str, os.PathLike], ti
 MAX_MOTION_BLUR = 1000
 
 
-def _check_blur(blur, shape) -> None:
-    """UsageError unless ``blur = (dx, dy)`` is finite and no longer than
-    :data:`MAX_MOTION_BLUR` nor the image's diagonal (``shape``; None: not known yet)."""
-    dx, dy = (float(v) for v in blur)
-    text = f"{blur[0]:g},{blur[1]:g}"
-    if not (np.isfinite(dx) and np.isfinite(dy)):
-        raise UsageError(f"--motion-blur: {text} is not a finite length in pixels")
+def _check_blur_length(blur, shape) -> None:
+    """UsageError unless no component of ``blur = (dx, dy)`` (finite: :func:`_check_blur`)
+    is longer than the image (``shape``) and the whole is at most :data:`MAX_MOTION_BLUR`
+    pixels long."""
+    dx, dy = blur
+    text = f"{dx:g},{dy:g}"
+    if max(abs(dx), abs(dy)) > max(shape[:2]):
+        raise UsageError(f"--motion-blur: {text} is longer than the image ({shape[1]}x{shape[0]})")
     length = float(np.hypot(dx, dy))
-    limit, what = float(MAX_MOTION_BLUR), f"{MAX_MOTION_BLUR} pixels"
-    if shape is not None:
-        diagonal = float(np.hypot(shape[0], shape[1]))
-        if diagonal < limit:
-            limit, what = diagonal, f"the image diagonal ({diagonal:.0f} pixels)"
-    if length > limit:
-        raise UsageError(f"--motion-blur: {text} is {length:.3g} pixels long; at most {what}")
+    if length > MAX_MOTION_BLUR:
+        raise UsageError(f"--motion-blur: {text} is {length:.0f} pixels long; at most {MAX_MOTION_BLUR}")
 
 
 def expose_file(
@@ -88,24 +92,28 @@ def expose_file(
 
     ``motion_blur=(dx, dy)`` first blurs the radiance along that vector
     (:func:`hdrcl.core.radiometry.motion_blur`), as a camera moving during the exposure would;
-    it must be finite and at most :data:`MAX_MOTION_BLUR` pixels and the image diagonal long
-    (UsageError otherwise).
+    it must be finite, no component longer than the image and the whole at most
+    :data:`MAX_MOTION_BLUR` pixels long (UsageError otherwise).
     """
     from hdrcl.io.radiance import read_radiance
     from hdrcl.io.writers import LDR_EXTENSIONS, write_ldr
 
+    from hdrcl.io.atomic import check_output
+
     output = os.fspath(output)
     ext = os.path.splitext(output)[1].lower()
+    check_output(output, [radiance_path] + ([response] if isinstance(response, (str, os.PathLike)) else []),
+                 what="photograph")
+    if motion_blur is not None:
+        motion_blur = _check_blur(motion_blur)
     if ext not in LDR_EXTENSIONS:
         raise UsageError(f"{output}: unsupported output type '{ext}'; use one of {', '.join(LDR_EXTENSIONS)}")
     if ext in (".jpg", ".jpeg") and bits == 16:
         raise UsageError(f"{output}: JPEG holds 8 bits; use .png or .tif for 16-bit output")
     resp = _as_response(response)
+    rad, _meta = read_radiance(radiance_path, require_float=True)
     if motion_blur is not None:
-        _check_blur(motion_blur, None)
-    rad, _meta = read_radiance(radiance_path)
-    if motion_blur is not None:
-        _check_blur(motion_blur, rad.shape)
+        _check_blur_length(motion_blur, rad.shape)
         from hdrcl.core.radiometry import motion_blur as _blur
 
         rad = _blur(rad, *motion_blur)
@@ -117,3 +125,13 @@ def expose_file(
     write_ldr(output, img, metadata={"exposure": float(time), "exposureText": format_time(time),
                                      "source": os.path.basename(os.fspath(radiance_path))})
     return img
+
+
+def _check_blur(motion_blur) -> tuple:
+    try:
+        dx, dy = (float(v) for v in motion_blur)
+    except (TypeError, ValueError):
+        raise UsageError(f"--motion-blur: expected DX,DY in pixels, not {motion_blur!r}") from None
+    if not (np.isfinite(dx) and np.isfinite(dy)):
+        raise UsageError(f"--motion-blur: expected finite DX,DY in pixels, not {dx:g},{dy:g}")
+    return dx, dy

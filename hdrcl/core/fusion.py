@@ -51,12 +51,16 @@ def fuse_frames(
     valid: Optional[Sequence[Optional[np.ndarray]]] = None,
     device: Optional[str] = None,
     deghost: bool = False,
+    ghost_threshold: Optional[float] = None,
+    ghost_reference=None,
 ) -> FusionResult:
     """Radiance map of ``frames`` with exposures ``times`` (any order) and ``response``.
 
-    ``deghost`` replaces pixels where the frames disagree by the middle exposure's own
-    estimate (:mod:`hdrcl.core.deghost`); ``counts`` then has ``ghost`` and
-    ``ghost_unresolved``, and ``ghost_mask`` the (H, W) mask.
+    ``deghost`` replaces pixels where the frames disagree beyond the set's own learnt
+    residuals (``ghost_threshold`` spreads) by the reference exposure's own estimate
+    (``ghost_reference``: middle, shortest, longest or an input index;
+    :mod:`hdrcl.core.deghost`); ``counts`` then has ``ghost`` and ``ghost_unresolved``, and
+    ``ghost_mask`` the (H, W) mask.
     """
     order = np.argsort(np.asarray(times, np.float64), kind="stable")
     frames = [frames[i] for i in order]
@@ -73,9 +77,22 @@ def fuse_frames(
     if deghost:
         from hdrcl.core import deghost as dg
 
-        ref = len(frames) // 2
-        mask = dg.detect(frames, log_t, tables, vals, res.radiance)
+        ref = dg.reference_index(times, ghost_reference)
+        model = dg.learn(frames, log_t, tables, wts, vals, ghost_threshold)
+        mask = dg.find(frames, log_t, tables, vals, res.radiance, model)
         res.counts["ghost_unresolved"] = dg.replace(res.radiance, frames, log_t, tables, mask, vals, ref)
         res.counts["ghost"] = int(np.count_nonzero(mask))
         res.ghost_mask = mask
     return res
+
+
+def radiance_bounds(response: Response, times: Sequence[float], nch: int) -> tuple:
+    """Smallest and largest radiance a fusion of frames at ``times`` can produce.
+
+    Every value is ``exp`` of a weighted mean of ``g(Z_j) - ln dt_j`` (or of the
+    clipping rule's single term), so it lies within ``exp(min g - max ln dt)`` and
+    ``exp(max g - min ln dt)``. Used to decide the storage before any strip is written.
+    """
+    tables = response.table_for(nch)
+    lt = np.log(np.asarray(times, np.float64))
+    return float(np.exp(tables.min() - lt.max())), float(np.exp(tables.max() - lt.min()))

@@ -22,6 +22,7 @@ from hdrcl.core.bracket import (
 from hdrcl.core.calibrate import calibrate, exposures_used
 from hdrcl.core.response import Response, _as_response
 from hdrcl.core.scale import _radiometric_factors
+from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.errors import UsageError
 
 logger = logging.getLogger(__name__)
@@ -45,6 +46,7 @@ class MergeResult:
     shifts: Optional[list] = None  # (dy, dx) per frame when aligned
     nominal: Optional[np.ndarray] = None  # the set's own exposures before any refinement
     crop: Optional[tuple] = None  # (y0, y1, x0, x1) of the input kept, with align + crop
+    storage_note: Optional[str] = None  # how an EXR was stored when half could not hold it
 
     def __post_init__(self):
         if not self.shape and self.radiance is not None:
@@ -55,7 +57,7 @@ def merge_bracket(
     bracket: Bracket,
     response: Optional[Response] = None,
     *,
-    weight: str = "hat",
+    weight: str = DEFAULT_WEIGHT,
     samples: Optional[int] = None,
     smoothness: Optional[float] = None,
     seed: int = 0,
@@ -63,9 +65,13 @@ def merge_bracket(
     fit_exposures: str = "auto",
     exposure_tolerance: Optional[float] = None,
     deghost: bool = False,
+    ghost_threshold: Optional[float] = None,
+    ghost_reference=None,
 ) -> MergeResult:
     """Fuse a loaded :class:`Bracket`, calibrating from it when no response is given
-    (then with the exposures that calibration refined, see :func:`calibrate`)."""
+    (then with the exposures that calibration refined, see :func:`calibrate`).
+    ``deghost``, ``ghost_threshold`` and ``ghost_reference`` as
+    :func:`hdrcl.core.fusion.fuse_frames`."""
     from hdrcl.core.fusion import fuse_frames
 
     t0 = _time.perf_counter()
@@ -75,7 +81,7 @@ def merge_bracket(
     t1 = _time.perf_counter()
     times = exposures_used(response, bracket.times)
     res = fuse_frames(bracket.frames, times, response, weight=weight, valid=bracket.valid, device=device,
-                      deghost=deghost)
+                      deghost=deghost, ghost_threshold=ghost_threshold, ghost_reference=ghost_reference)
     t2 = _time.perf_counter()
     warnings = list(response.warnings)
     if res.counts.get("no_data"):
@@ -117,7 +123,7 @@ def merge_files(
     times: Optional[Sequence[float]] = None,
     times_file=None,
     response: Union[Response, str, os.PathLike, None] = None,
-    weight: str = "hat",
+    weight: str = DEFAULT_WEIGHT,
     ignore_color=None,
     samples: Optional[int] = None,
     smoothness: Optional[float] = None,
@@ -131,6 +137,8 @@ def merge_files(
     exposure_tolerance: Optional[float] = None,
     deghost: bool = False,
     ghost_mask: Union[str, os.PathLike, None] = None,
+    ghost_threshold: Optional[float] = None,
+    ghost_reference=None,
     neutral=None,
     reference_patch=None,
     absolute: bool = False,
@@ -138,6 +146,7 @@ def merge_files(
     crop: bool = False,
     colorspace: str = "rec709",
     owner: Optional[str] = None,
+    save_response: Union[str, os.PathLike, None] = None,
 ) -> MergeResult:
     """Merge image files into a radiance file (EXR, HDR, TIFF or PFM by extension).
 
@@ -158,10 +167,22 @@ def merge_files(
         If > 0, ``result.thumbnail`` holds every k-th pixel of the radiance, with the
         long side about this many pixels (for previews).
     deghost : bool
-        Take pixels where the frames disagree (moving objects) from the middle exposure
-        alone (:mod:`hdrcl.core.deghost`); ``result.counts["ghost"]`` counts them.
+        Take pixels where the frames disagree (moving objects) beyond the set's own
+        learnt residuals from the reference exposure alone (:mod:`hdrcl.core.deghost`);
+        ``result.counts["ghost"]`` counts them.
     ghost_mask : path, optional
         With ``deghost``, also write the ghost mask as an 8-bit PNG/TIFF (255 = ghost).
+    ghost_threshold : float, optional
+        With ``deghost``: departure, in robust spreads of the set's residuals, that makes
+        a ghost (default :data:`hdrcl.core.deghost.THRESHOLD`).
+    ghost_reference : "middle", "shortest", "longest" or int, optional
+        With ``deghost``: the frame ghost pixels are taken from (an int is an index into
+        ``paths``); default the middle exposure.
+
+    A half-float EXR that could not hold the radiance (bounds from the response and the
+    exposures, before anything is written) is rescaled by a power of two recorded as
+    ``hdrcl:halfScale``, or, for ``absolute``/``reference_patch`` units or a range beyond
+    half floats, written as float; ``result.warnings`` says which.
     neutral : "x,y,w,h", optional
         White balance: scale the channels so this patch comes out neutral
         (:mod:`hdrcl.core.radiometry`).
@@ -184,12 +205,17 @@ def merge_files(
 
     The file carries the standard metadata of :mod:`hdrcl.io.outmeta` (software, camera,
     lens, the reference exposure, the first frame's capture time).
+    save_response : path, optional
+        Also write the response used (JSON). It is written to a temporary file before
+        the radiance, so a full disk or a read-only folder fails the merge before the
+        radiance file appears, and renamed into place after it.
     """
     from hdrcl.cl.backend import get_processor
     from hdrcl.core.pipeline import ArraySink, ArraySource, Thumbnail, strip_rows, stream_merge
     from hdrcl.io.colorspace import check as check_space
     from hdrcl.io.outmeta import camera_from_infos
     from hdrcl.io.reader import BracketReader
+    from hdrcl.io.atomic import check_output, stage_text
     from hdrcl.io.writers import RADIANCE_EXTENSIONS, RadianceWriter
 
     colorspace = check_space(colorspace)
@@ -200,23 +226,33 @@ def merge_files(
     for target in (output, ghost_mask):
         if target is not None and not os.path.isdir(os.path.dirname(os.path.abspath(os.fspath(target)))):
             raise UsageError(f"{os.fspath(target)}: output folder does not exist")
+    inputs = [p for p in paths if isinstance(p, (str, os.PathLike))]
+    for target, what in ((output, "radiance map"), (ghost_mask, "ghost mask"), (save_response, "response")):
+        if target is not None:
+            check_output(target, inputs + ([response] if isinstance(response, (str, os.PathLike)) else []),
+                         what=what)
     rgb = _parse_ignore_color(ignore_color)
     if crop and not align:
         raise UsageError("--crop needs --align")
     if ghost_mask is not None and not deghost:
         raise UsageError("--ghost-mask needs --deghost")
+    if not deghost and (ghost_threshold is not None or ghost_reference is not None):
+        raise UsageError("--ghost-threshold and --ghost-reference need --deghost")
     if colorspace != "rec709" and ext not in (".exr", ".hdr"):
         raise UsageError(f"{output}: --colorspace {colorspace} needs an .exr or .hdr output "
                          f"({ext} cannot say which primaries it holds)")
     source_name = os.fspath(response) if isinstance(response, (str, os.PathLike)) else (
         "given" if response is not None else "calibrated from these frames")
     resp = _as_response(response)
+    calibrated = resp is None
     t0 = _time.perf_counter()
     paths, infos, rel = _open_files(paths, times, times_file)
     warm = _warm_up(device, calibrating=resp is None)
     first = infos[0]
     nch = 3 if first.nchannels >= 3 else 1
     h, w = first.height, first.width
+    if resp is not None:
+        _check_response_fits(resp, source_name, paths[0], first.bits, nch)
     if resp is None and _all_raw(paths):
         from hdrcl.core.response import linear_response
 
@@ -271,11 +307,22 @@ def merge_files(
     thumb = Thumbnail(h, w, nch, thumbnail) if thumbnail else None
     keep = ArraySink(h, w, nch) if keep_radiance else None
     mask = np.zeros((h, w), bool) if ghost_mask is not None else None
+    # A second output is staged first: a full disk fails here, before the radiance exists.
+    staged = stage_text(save_response, resp.to_json()) if save_response is not None else None
     try:
         factors, units = _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, nch,
                                               neutral, reference_patch, absolute, h, w)
         meta = _provenance(result, source_name)
         meta.update(units)
+        dtype, half_scale = choose_storage(output, dtype, resp, rel, first, nch, factors, units, meta, result)
+        check = None
+        if not calibrated:  # a given response: check the exposures against the pixels
+            from hdrcl.core.exposure_fit import ExposureCheck
+            from hdrcl.core.fusion import fusion_tables
+
+            order = np.argsort(rel, kind="stable")
+            check = ExposureCheck(np.log(rel[order]), fusion_tables(resp, source.dtype, nch, weight)[0],
+                                  [paths[i] for i in order])
         meta["colorspace"] = colorspace
         if shifts is not None:
             meta["alignShifts"] = [list(map(int, sh)) for sh in shifts]
@@ -283,20 +330,29 @@ def merge_files(
         when = first.capture_time.strftime("%Y:%m:%d %H:%M:%S") if first.capture_time else None
         with RadianceWriter(output, w, h, nch, dtype=dtype, compression=compression, metadata=meta,
                             timestamp=when, colorspace=colorspace, camera=camera) as writer:
-            sink = writer if keep is None else _Tee(writer, keep)
+            sink = writer if half_scale == 1.0 else RescaledSink(writer, half_scale)
+            sink = sink if keep is None else _Tee(sink, keep)
             if factors is not None:
                 from hdrcl.core.radiometry import ScaledSink
 
                 sink = ScaledSink(sink, factors)
             counts, backend = stream_merge(source, rel, resp, sink, weight=weight, ignore_color=ignore,
                                            has_valid=has_valid, device=device, thumbnail=thumb,
-                                           deghost=deghost, ghost_mask=mask)
+                                           deghost=deghost, ghost_mask=mask,
+                                           ghost_reference=ghost_reference, ghost_threshold=ghost_threshold,
+                                           exposure_check=check)
+            if check is not None:
+                _report_exposure_check(check, result, exposure_tolerance)
         result.warnings += writer.warnings
         if mask is not None:
             from hdrcl.io.writers import write_ldr
 
             write_ldr(ghost_mask, (mask.astype(np.uint8) * 255)[..., None])
+        if staged is not None:
+            staged.commit()
     finally:
+        if staged is not None:
+            staged.discard()
         if hasattr(source, "close"):
             source.close()
     result.counts = counts
@@ -311,6 +367,66 @@ def merge_files(
         logger.info("%s: ghost pixels %.2f %%", output, 100.0 * counts.get("ghost", 0) / max(h * w, 1))
     result.seconds = {"open": t1 - t0, "calibrate": t2 - t1, "fuse_and_write": _time.perf_counter() - t2}
     return result
+
+
+def _check_response_fits(resp: Response, source: str, first: str, bits: int, nch: int) -> None:
+    """A response for other frames (16-bit curve, 8-bit photographs) is an input error
+    naming the response and a frame, found before any decoding."""
+    from hdrcl.errors import InputError
+
+    if resp.bits != bits:
+        raise InputError(f"{source}: a response for {resp.bits}-bit frames, but {first} is {bits}-bit")
+    if resp.nchannels not in (1, nch):
+        raise InputError(f"{source}: a response with {resp.nchannels} channel(s), but {first} has {nch}")
+
+
+def choose_storage(output, dtype, resp, times, first, nch, factors, units, meta, result):
+    """The EXR sample type and multiplier that keep every value (:mod:`hdrcl.io.halfrange`):
+    half as asked, half rescaled by a power of two (``hdrcl:halfScale``), or float
+    (physical units, or a range beyond half floats); said in ``result.warnings``."""
+    from hdrcl.core.fusion import radiance_bounds
+    from hdrcl.io import halfrange
+
+    if os.path.splitext(output)[1].lower() != ".exr":
+        return dtype, 1.0
+    lo, hi = radiance_bounds(resp, times, nch)
+    if factors is not None:
+        lo, hi = lo * float(np.min(factors)), hi * float(np.max(factors))
+    hp = halfrange.plan(lo, hi, dtype, keep_units=units.get("units", "relative") != "relative")
+    if hp.message:
+        # A decision, not a fault: the summary line ("storage:") and the report say it.
+        msg = f"{output}: {hp.message}"
+        logger.info("%s", msg)
+        result.warnings.append(msg)
+        result.storage_note = hp.message
+    if hp.scale != 1.0:
+        meta["halfScale"] = hp.scale
+    return hp.dtype, hp.scale
+
+
+def _report_exposure_check(check, result, tolerance):
+    """Warn about exposures the pixels contradict; refuse a set whose exposures run in
+    reverse order of its brightness (raised inside the writer: no output is left)."""
+    from hdrcl.core.exposure_fit import EXPOSURE_TOLERANCE_STOPS
+    from hdrcl.errors import InputError
+
+    msgs, backwards = check.problems(EXPOSURE_TOLERANCE_STOPS if tolerance is None else float(tolerance))
+    if backwards:
+        raise InputError(f"{check.names[-1]}: the exposure times run in reverse order of the frames' "
+                         "brightness with this response; check the times")
+    for m in msgs:
+        logger.warning("%s", m)
+        result.warnings.append(m)
+
+
+class RescaledSink:
+    """Passes strips on multiplied by ``scale`` (a copy: other sinks still see radiance)."""
+
+    def __init__(self, sink, scale: float):
+        self.sink, self.scale = sink, np.float32(scale)
+
+    def write_rows(self, y0, y1, data):
+        self.sink.write_rows(y0, y1, data * self.scale)
 
 
 def _align(frames, valid, times, device):

@@ -25,12 +25,6 @@ logger = logging.getLogger(__name__)
 NUMPY_STRIP_PIXELS = 1 << 18
 
 
-def _grow_rows() -> int:
-    from hdrcl.core.deghost import GROW
-
-    return GROW
-
-
 class ArraySource:
     """In-memory frames presented as strips (same protocol as BracketReader)."""
 
@@ -80,6 +74,27 @@ def strip_rows(width: int, device: Optional[str] = None) -> int:
     return max(1, NUMPY_STRIP_PIXELS // max(width, 1))
 
 
+def _learn_ghosts(source, order, log_t, tables, wts, ignore_color, threshold):
+    """The set's residual distribution (:func:`hdrcl.core.deghost.learn`) from the frames
+    of an in-memory source, or from a decimated grid of a streamed one (one extra
+    decoding pass)."""
+    from hdrcl.core import deghost as dg
+    from hdrcl.io.reader import ignore_color_mask
+
+    if hasattr(source, "frames"):
+        frames, valid = source.frames, source.valid
+    else:
+        from hdrcl.core.sampling import grid_stride
+
+        frames, valid = source.read_grid(grid_stride(source.height, source.width))
+    if ignore_color is not None:
+        valid = [(~ignore_color_mask(f, ignore_color)) if v is None else (v & ~ignore_color_mask(f, ignore_color))
+                 for f, v in zip(frames, valid)]
+    vs = [valid[i] for i in order]
+    return dg.learn([frames[i] for i in order], log_t, tables, wts,
+                    vs if any(v is not None for v in vs) else None, threshold)
+
+
 def stream_merge(
     source,
     times: Sequence[float],
@@ -93,6 +108,10 @@ def stream_merge(
     thumbnail: Optional[Thumbnail] = None,
     deghost: bool = False,
     ghost_mask: Optional[np.ndarray] = None,
+    ghost_model=None,
+    ghost_reference=None,
+    ghost_threshold: Optional[float] = None,
+    exposure_check=None,
 ):
     """Fuse every strip of ``source`` and hand it to ``sink.write_rows``.
 
@@ -113,9 +132,17 @@ def stream_merge(
         Whether any frame can have invalid pixels (alpha or ignore colour); computed
         from the first strip when None.
     deghost : bool
-        Replace pixels where the frames disagree (:mod:`hdrcl.core.deghost`) by the middle
-        exposure's own estimate; ``counts`` then also holds ``ghost`` and
-        ``ghost_unresolved`` (pixels). ``ghost_mask`` (H, W) bool receives the mask.
+        Replace pixels where the frames disagree beyond the set's learnt residuals
+        (:mod:`hdrcl.core.deghost`) by the reference exposure's own estimate; ``counts`` then
+        also holds ``ghost`` and ``ghost_unresolved`` (pixels). ``ghost_mask`` (H, W)
+        bool receives the mask.
+    ghost_model : hdrcl.deghost.GhostModel, optional
+        The set's residual distribution (frames in exposure order); learnt from
+        ``source.frames`` when None (in-memory sources), required otherwise.
+    ghost_reference, ghost_threshold
+        See :func:`hdrcl.core.deghost.reference_index` and :func:`hdrcl.core.deghost.learn`.
+    exposure_check : hdrcl.core.exposure_fit.ExposureCheck, optional
+        Given every strip (frames in exposure order) to measure the exposure ratios.
 
     Returns
     -------
@@ -142,30 +169,39 @@ def stream_merge(
         rows = strip_rows(source.width, device)
     counts = {"clipped_high": 0, "clipped_low": 0, "no_data": 0}
     ghosts = {"ghost": 0, "ghost_unresolved": 0}
-    ref = len(order) // 2  # middle exposure, in exposure order
+    if deghost:
+        from hdrcl.core import deghost as dg
+
+        ref = dg.reference_index(times, ghost_reference)
+        if ghost_model is None:
+            ghost_model = _learn_ghosts(source, order, log_t, tables, wts, ignore_color, ghost_threshold)
     # Output strips: one being fused, one held back (deghost: its mask's growth into the
     # next strip is not known yet), two being written or queued.
     buffers = deque(np.empty((rows, source.width, nch), np.float32) for _ in range(4))
     pending: deque = deque()
-    held = None  # deghost: (y0, y1, frames, valid, out, raw mask) awaiting the next strip
-    above = None  # deghost: last raw-mask rows of the strip before ``held``
+    held = None  # deghost: (y0, y1, frames, valid, out) awaiting the next strip's rows
+    tail = None  # deghost: last CONTEXT rows (frames, valid, unreplaced fused) of the strip before ``held``
 
     def emit(y0, y1, out):
         if thumbnail is not None:
             thumbnail.add(y0, y1, out)
         pending.append(writer.submit(sink.write_rows, y0, y1, out))
 
-    def finish_ghosts(item, below):
-        from hdrcl.core import deghost as dg
+    def rows_of(frames, vv, out, sl):
+        return ([f[sl].copy() for f in frames],
+                None if vv is None else [None if v is None else v[sl].copy() for v in vv],
+                out[sl].copy())
 
-        y0, y1, frames, vv, out, raw = item
-        mask = dg.grow(raw, above, below)
+    def finish_ghosts(item, below):
+        y0, y1, frames, vv, out = item
+        mask = dg.find(frames, log_t, tables, vv, out, ghost_model, above=tail, below=below)
+        new_tail = rows_of(frames, vv, out, slice(-dg.CONTEXT, None))
         ghosts["ghost_unresolved"] += dg.replace(out, frames, log_t, tables, mask, vv, ref)
         ghosts["ghost"] += int(np.count_nonzero(mask))
         if ghost_mask is not None:
             ghost_mask[y0:y1] = mask
         emit(y0, y1, out)
-        return raw[-max(1, _grow_rows()):]
+        return new_tail
 
     with concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="hdrcl-write") as writer:
         for y0, y1, frames, valid in source.strips(rows):
@@ -174,6 +210,8 @@ def stream_merge(
             if ignore_color is not None:
                 valid = [(~ignore_color_mask(f, ignore_color)) if v is None else (v & ~ignore_color_mask(f, ignore_color))
                          for f, v in zip(frames, valid)]
+            if exposure_check is not None:
+                exposure_check.add(frames, valid if has_valid else None)
             while len(pending) >= len(buffers) - 2:
                 pending.popleft().result()  # bounded memory; also re-raises write errors
             buf = buffers[0]
@@ -187,13 +225,10 @@ def stream_merge(
                 for k in counts:
                     counts[k] += c[k]
             if deghost:
-                from hdrcl.core import deghost as dg
-
                 vv = valid if has_valid else None
-                raw = dg.detect(frames, log_t, tables, vv, out, dilate=False)
                 if held is not None:
-                    above = finish_ghosts(held, raw[:_grow_rows()])
-                held = (y0, y1, frames, vv, out, raw)
+                    tail = finish_ghosts(held, rows_of(frames, vv, out, slice(0, dg.CONTEXT)))
+                held = (y0, y1, frames, vv, out)
             else:
                 emit(y0, y1, out)
         if held is not None:

@@ -4,14 +4,16 @@ format (:class:`Response`), and the linear response of RAW data.
 from __future__ import annotations
 
 import json
+import logging
 import os
-import tempfile
 from dataclasses import dataclass, field
 from typing import List, Optional
 
 import numpy as np
 
 from hdrcl.errors import InputError, UsageError
+
+logger = logging.getLogger(__name__)
 
 RESPONSE_FORMAT = "hdrcl-response"
 
@@ -31,6 +33,19 @@ BINS_16BIT = 1024
 #: the default sample count. Chosen on synthetic scenes (curve error) and the Memorial
 #: set (leave-one-out error); see scripts/memorial_loo.py.
 DEFAULT_SMOOTHNESS = {"hat": 40.0, "gaussian": 60.0}
+
+
+#: Codes (8-bit units) between which a curve's span is measured, and the span in
+#: decades beyond which an 8-bit curve is reported as stretched.
+SPAN_LOW, SPAN_HIGH = 10, 245
+SPAN_WARN_DECADES = 4.0
+#: The body of the curve (codes 25..230) and the decades beyond which it counts as
+#: stretched. A uniform stretch (wrong exposure times) widens the body as much as the
+#: ends; a steep toe or shoulder that few samples constrain (film scans: the Memorial
+#: set spans 6.5 decades over 10..245 but 2.2 over 25..230) widens only the ends. A
+#: camera JPEG's body spans about 1.9 decades.
+SPAN_BODY = (25, 230)
+SPAN_BODY_WARN_DECADES = 2.8
 
 
 def default_smoothness(weight: str = "hat") -> float:
@@ -130,6 +145,30 @@ class Response:
             f"the response has {t.shape[0]} channels but the images have {nchannels}"
         )
 
+    def span_decades(self, low: Optional[int] = None, high: Optional[int] = None) -> float:
+        """Decades of exposure between codes ``low`` and ``high`` (8-bit units, scaled
+        for 16-bit; default :data:`SPAN_LOW`, :data:`SPAN_HIGH`), the largest over the
+        channels. A camera JPEG spans about 2.5."""
+        low = SPAN_LOW if low is None else low
+        high = SPAN_HIGH if high is None else high
+        t = self.tables()
+        scale = (self.levels - 1) / 255.0
+        lo, hi = int(round(low * scale)), int(round(high * scale))
+        return float(np.max(t[:, hi] - t[:, lo]) / np.log(10.0))
+
+    def span_problem(self) -> Optional[str]:
+        """A warning when an 8-bit curve spans more than :data:`SPAN_WARN_DECADES`
+        between codes 10 and 245 *and* its body (:data:`SPAN_BODY`) more than
+        :data:`SPAN_BODY_WARN_DECADES`: the mark of exposure times that stretched it, not
+        of a steep, weakly constrained toe."""
+        span = self.span_decades()
+        if (self.bits == 8 and span > SPAN_WARN_DECADES
+                and self.span_decades(*SPAN_BODY) > SPAN_BODY_WARN_DECADES):
+            return (f"the response spans {span:.1f} decades between codes {SPAN_LOW} and {SPAN_HIGH} "
+                    f"(camera JPEGs span about 2.5): wrong exposure times stretch a curve so; "
+                    f"check them unless this is film")
+        return None
+
     def monotonic_problems(self, tolerance_levels: float = MONOTONIC_TOLERANCE_LEVELS) -> List[str]:
         """Describe every channel whose curve turns back by more than noise explains.
 
@@ -185,59 +224,88 @@ class Response:
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "response") -> "Response":
+        """Build a response from its JSON form, checked against
+        :data:`hdrcl.io.jsondoc.RESPONSE_SCHEMA`; :class:`InputError` names ``source``
+        and the bad field."""
+        from hdrcl.io.jsondoc import RESPONSE_SCHEMA, validate
+
         if not isinstance(d, dict) or d.get("format") != RESPONSE_FORMAT:
             raise InputError(f"{source}: not an hdrcl response file (no \"format\": \"{RESPONSE_FORMAT}\")")
-        if int(d.get("version", 0)) > RESPONSE_VERSION:
+        version = d.get("version", 1)
+        if isinstance(version, int) and not isinstance(version, bool) and version > RESPONSE_VERSION:
             raise InputError(
-                f"{source}: response file version {d.get('version')} is newer than this hdrcl "
+                f"{source}: response file version {version} is newer than this hdrcl "
                 f"understands ({RESPONSE_VERSION}); upgrade hdrcl"
             )
-        try:
-            channels = tuple(d["channels"])
-            knots = np.asarray(d["knots"], np.float64)
-            g = np.asarray([d["g"][c] for c in channels], np.float64)
-            bits = int(d["bits"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{source}: malformed response file ({exc!s})") from None
-        if bits not in (8, 16) or g.shape != (len(channels), knots.size) or knots.size < 3:
-            raise InputError(f"{source}: malformed response file (bits {bits}, curve shape {g.shape})")
-        if not np.all(np.isfinite(g)):
-            raise InputError(f"{source}: response curve holds non-finite values")
-        return cls(
+        validate(d, RESPONSE_SCHEMA, source)
+        channels = tuple(d["channels"])
+        if len(set(channels)) != len(channels):
+            raise InputError(f"{source}: channels: a channel is listed twice")
+        missing = [c for c in channels if c not in d["g"]]
+        if missing:
+            raise InputError(f"{source}: g: no curve for channel {missing[0]}")
+        bits = int(d["bits"])
+        knots = np.asarray(d["knots"], np.float64)
+        g = np.asarray([d["g"][c] for c in channels], np.float64)
+        levels = 1 << bits
+        if "levels" in d and int(d["levels"]) != levels:
+            raise InputError(f"{source}: levels: {d['levels']} does not match bits {bits}")
+        if knots.size > levels or np.any(np.diff(knots) <= 0) or knots[0] < 0 or knots[-1] > levels - 1:
+            raise InputError(f"{source}: knots: expected increasing code values within 0..{levels - 1}")
+        for c, name in enumerate(channels):
+            if len(d["g"][name]) != knots.size:
+                raise InputError(f"{source}: g.{name}: {len(d['g'][name])} values for {knots.size} knots")
+        if not np.all(np.isfinite(g)) or np.any(np.abs(g) > 1e6):
+            raise InputError(f"{source}: g: the curve holds non-finite or absurd values")
+        resp = cls(
             bits=bits, g=g, knots=knots, channels=channels,
             smoothness=float(d.get("smoothness", 0.0)), weight=str(d.get("weight", "hat")),
-            samples=int(d.get("samples", 0)), seed=int(d.get("seed", 0)), camera=dict(d.get("camera", {})),
-            exposures=list(d.get("exposures", [])), warnings=list(d.get("warnings", [])),
+            samples=int(d.get("samples", 0)), seed=int(d.get("seed", 0)), camera=dict(d.get("camera") or {}),
+            exposures=list(d.get("exposures") or []), warnings=list(d.get("warnings") or []),
         )
+        resp.check_given(source)
+        return resp
+
+    def check_given(self, source: str = "response") -> None:
+        """Refuse a curve that does not increase; warn about local decreases.
+
+        A response given to a merge (``--response``) is inverted: a flat or decreasing
+        curve (between codes :data:`SPAN_LOW` and :data:`SPAN_HIGH`) would give
+        meaningless radiance, so it raises InputError; a curve with a few decreasing
+        steps is used with a warning naming ``source``.
+        """
+        t = self.tables()
+        scale = (self.levels - 1) / 255.0
+        lo, hi = int(round(SPAN_LOW * scale)), int(round(SPAN_HIGH * scale))
+        for c, name in enumerate(self.channels):
+            if not t[c, hi] - t[c, lo] > 0.01:
+                raise InputError(
+                    f"{source}: channel {name} of the response does not increase between codes "
+                    f"{SPAN_LOW} and {SPAN_HIGH} (g goes from {t[c, lo]:.3g} to {t[c, hi]:.3g}); "
+                    "it cannot be inverted"
+                )
+        for msg in self.monotonic_problems():
+            logger.warning("%s: %s", source, msg)
+
+    def to_json(self) -> str:
+        """The response file's text (see :meth:`to_dict`)."""
+        return json.dumps(self.to_dict(), indent=1) + "\n"
 
     def save(self, path) -> None:
-        """Write the response as JSON, atomically (temporary file, then rename)."""
-        path = os.fspath(path)
-        folder = os.path.dirname(os.path.abspath(path))
-        if not os.path.isdir(folder):
-            raise UsageError(f"{path}: output folder does not exist")
-        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=folder)
-        try:
-            with os.fdopen(fd, "w") as fh:
-                json.dump(self.to_dict(), fh, indent=1)
-                fh.write("\n")
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        """Write the response as JSON, atomically (temporary file, then rename), with
+        the permissions the umask allows."""
+        from hdrcl.io.atomic import write_text
+
+        write_text(path, self.to_json())
 
     @classmethod
     def load(cls, path) -> "Response":
+        """Read a response file; :class:`InputError` names the file and the problem
+        (a UTF-8 byte-order mark is accepted)."""
+        from hdrcl.io.jsondoc import read_json
+
         path = os.fspath(path)
-        try:
-            with open(path) as fh:
-                d = json.load(fh)
-        except FileNotFoundError:
-            raise InputError(f"{path}: response file not found") from None
-        except (OSError, ValueError) as exc:
-            raise InputError(f"{path}: cannot read response file ({exc!s})") from None
-        return cls.from_dict(d, source=path)
+        return cls.from_dict(read_json(path, "response file"), source=path)
 
 
 def _as_response(response) -> Optional[Response]:

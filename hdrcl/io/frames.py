@@ -23,10 +23,14 @@ Notes on OpenImageIO behaviour relied on here (checked against OIIO 3.2):
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import datetime as _dt
 import logging
 import os
 import re
+import sys
+import tempfile
+import threading
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
@@ -89,6 +93,79 @@ _TRUNCATED = re.compile(r"premature end|end of file|truncat|short read|unexpecte
                         re.IGNORECASE)
 
 
+#: Lines C decoders print on the process's stderr; hdrcl reports the problem itself.
+_DECODER_NOISE = re.compile(r"^(libpng (error|warning)|libtiff|TIFFRead|TIFFFetch|Corrupt JPEG data|"
+                            r"Premature end of JPEG|Invalid SOS|Warning: unknown JFIF)", re.IGNORECASE)
+_capture_lock = threading.Lock()
+_capture = {"depth": 0, "saved": -1, "file": None}
+
+
+@contextlib.contextmanager
+def decoder_stderr():
+    """Hold back what C decoders write on file descriptor 2 while pixels are decoded.
+
+    libpng prints ``libpng error: ...`` itself before OpenImageIO reports the same
+    problem, which hdrcl then turns into its own one-line message; that stray line
+    would break the one-line contract. While any decode runs, fd 2 goes to a temporary
+    file; afterwards decoder lines are logged at debug level and anything else (another
+    thread's output) is written back to stderr. Nested and concurrent uses share one
+    redirection.
+    """
+    with _capture_lock:
+        if _capture["depth"] == 0:
+            _redirect_stderr()
+        _capture["depth"] += 1
+    try:
+        yield
+    finally:
+        with _capture_lock:
+            _capture["depth"] -= 1
+            if _capture["depth"] == 0 and _capture["file"] is not None:
+                _release_stderr()
+
+
+def _redirect_stderr() -> None:
+    try:
+        sys.stderr.flush()
+    except (AttributeError, ValueError, OSError):
+        pass
+    try:
+        tmp = tempfile.TemporaryFile()
+    except OSError:
+        return
+    try:
+        saved = os.dup(2)
+    except OSError:  # no fd 2 at all: nothing to hold back
+        tmp.close()
+        return
+    os.dup2(tmp.fileno(), 2)
+    _capture.update(saved=saved, file=tmp)
+
+
+def _release_stderr() -> None:
+    tmp, saved = _capture["file"], _capture["saved"]
+    _capture.update(saved=-1, file=None)
+    try:
+        sys.stderr.flush()
+    except (AttributeError, ValueError, OSError):
+        pass
+    os.dup2(saved, 2)
+    os.close(saved)
+    try:
+        tmp.seek(0)
+        text = tmp.read().decode("utf-8", "replace")
+    finally:
+        tmp.close()
+    keep = []
+    for line in text.splitlines():
+        if _DECODER_NOISE.match(line.strip()):
+            logger.debug("decoder said: %s", line.strip())
+        else:
+            keep.append(line)
+    if keep:
+        os.write(2, ("\n".join(keep) + "\n").encode("utf-8", "replace"))
+
+
 def _config():
     """Configuration hints used for every input: keep alpha unassociated (raw values)."""
     oiio = _oiio()
@@ -107,7 +184,8 @@ def _open_input(path):
     oiio = _oiio()
     name = _name(path)
     check_readable(name)
-    inp = oiio.ImageInput.open(name, _config())
+    with decoder_stderr():
+        inp = oiio.ImageInput.open(name, _config())
     if inp is None:
         detail = _clean_error(oiio.geterror(), name)
         raise InputError(f"{name}: cannot read image ({detail or 'unknown format'})")
@@ -315,7 +393,8 @@ def read_image(path) -> Image:
         check_pixel_limit(info)
         colour, alpha = _channel_layout(spec, name)
         fmt = "uint8" if info.bits == 8 else "uint16"
-        data = inp.read_image(0, 0, 0, spec.nchannels, fmt)
+        with decoder_stderr():
+            data = inp.read_image(0, 0, 0, spec.nchannels, fmt)
         problem = _read_error(inp, name)
         if problem is None and data is None:
             problem = f"{name}: cannot decode pixel data"

@@ -31,10 +31,11 @@ __all__ = [
     "relative_exposures",
     "resolve_exposures",
     "format_time",
+    "check_exposures",
 ]
 
 # Two exposures whose effective times differ by less than this fraction (0.0014 stops)
-# are the same exposure: they add no range and break the response solve.
+# are the same exposure: they add no range, but they are fused (less noise).
 SAME_EXPOSURE_RTOL = 1e-3
 
 
@@ -114,6 +115,12 @@ class Exposure:
         return f
 
 
+#: Largest gain (dB) and neutral density a times file may give; beyond them the
+#: exposure factor leaves the range of a float.
+MAX_GAIN_DB = 200.0
+MAX_ND = 30.0
+
+
 def _parse_seconds(text: str) -> Optional[float]:
     """``"1/30"``, ``"0.5"`` or ``"2"`` as seconds; None when not a positive finite time."""
     text = text.strip()
@@ -130,13 +137,15 @@ def _parse_seconds(text: str) -> Optional[float]:
     return value
 
 
-def parse_times(text: str) -> list:
+def parse_times(text: str, name: str = "--times") -> list:
     """Parse a comma-separated list of exposure times in seconds.
 
     Parameters
     ----------
     text : str
         For example ``"1/30,0.5,2"``: fractions, decimals or integers; spaces allowed.
+    name : str
+        The option or parameter the text came from, for messages (``--time``, ``times``).
 
     Returns
     -------
@@ -149,12 +158,51 @@ def parse_times(text: str) -> list:
     """
     items = [t.strip() for t in str(text).split(",")]
     if not any(items):
-        raise UsageError("--times: no exposure times given")
+        raise UsageError(f"{name}: no exposure times given")
     out = []
     for item in items:
         value = _parse_seconds(item)
         if value is None:
-            raise UsageError(f"--times: '{item}' is not a positive exposure time")
+            raise UsageError(f"{name}: '{_clip(item)}' is not a positive exposure time")
+        out.append(value)
+    return out
+
+
+def _clip(text: str, n: int = 40) -> str:
+    text = "".join(ch if ch.isprintable() else "?" for ch in str(text))
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def coerce_times(times, name: str = "--times") -> list:
+    """Exposure times as floats from what a caller may give: numbers, strings such as
+    ``"1/30"`` (one per frame), or one comma-separated string ``"1/30,1/60"``.
+
+    Raises
+    ------
+    UsageError
+        An entry is not a positive, finite number of seconds (the message names ``name``).
+    """
+    if isinstance(times, (str, bytes)):
+        return parse_times(times.decode() if isinstance(times, bytes) else times, name)
+    try:
+        items = list(times)
+    except TypeError:
+        raise UsageError(f"{name}: expected a list of exposure times, not {type(times).__name__}") from None
+    out = []
+    for t in items:
+        if isinstance(t, str):
+            value = _parse_seconds(t)
+        elif isinstance(t, bool):
+            value = None
+        else:
+            try:
+                value = float(t)
+            except (TypeError, ValueError):
+                value = None
+            if value is not None and (not math.isfinite(value) or value <= 0):
+                value = None
+        if value is None:
+            raise UsageError(f"{name}: '{_clip(t)}' is not a positive exposure time")
         out.append(value)
     return out
 
@@ -230,10 +278,14 @@ def read_times_file(path) -> dict:
                     raise bad
                 exposure.fnumber = extra[1]
             if len(extra) >= 3:
+                if abs(extra[2]) > MAX_GAIN_DB:
+                    raise InputError(f"{name} line {lineno}: gain {extra[2]:g} dB is out of range "
+                                     f"(at most {MAX_GAIN_DB:g} dB either way)")
                 exposure.gain_db = extra[2]
             if len(extra) >= 4:
-                if extra[3] < 0:
-                    raise bad
+                if extra[3] < 0 or extra[3] > MAX_ND:
+                    raise InputError(f"{name} line {lineno}: ND density {extra[3]:g} is out of range "
+                                     f"(0 to {MAX_ND:g})")
                 exposure.nd = extra[3]
         key = os.path.basename(fields[0])
         if key in result:
@@ -354,7 +406,8 @@ def resolve_exposures(
     ------
     InputError
         Fewer than two frames; a frame missing from the times file or without EXIF
-        exposure time; two frames with the same effective exposure.
+        exposure time; fewer than two distinct effective exposures, an absurd one, or
+        one file given twice with different exposures (:func:`check_exposures`).
     UsageError
         ``times`` does not have one entry per file.
     """
@@ -363,7 +416,7 @@ def resolve_exposures(
         first = names[0] if names else "no input files"
         raise InputError(f"{first}: a bracket set needs at least two exposures")
     if times is not None:
-        times = list(times)
+        times = coerce_times(times)
         if len(times) != len(names):
             raise UsageError(
                 f"--times: {len(times)} exposure time(s) given for {len(names)} files"
@@ -398,12 +451,83 @@ def resolve_exposures(
                 )
             exposures.append(Exposure(time=t, fnumber=info.fnumber, iso=info.iso))
     rel = relative_exposures(exposures)
-    seen = []
-    for i, r in enumerate(rel):
-        for j in seen:
-            if abs(r - rel[j]) <= SAME_EXPOSURE_RTOL * max(r, rel[j]):
-                raise InputError(
-                    f"{names[i]} has the same exposure as {names[j]} ({format_time(r)})"
-                )
-        seen.append(i)
+    for n, r in zip(names, rel):
+        if not (math.isfinite(r) and r > 0):
+            raise InputError(f"{n}: its exposure ({exposures[names.index(n)].time:g} s with the "
+                             "aperture, ISO, gain and ND given) is out of range")
+    check_exposures(names, rel)
     return exposures
+
+
+#: Relative exposures outside this range (seconds) are taken for a typing or metadata
+#: error: radiance computed from them leaves the float range (an all-zero map).
+TIME_RANGE = (1e-9, 1e7)
+
+
+def check_exposures(names: Sequence[str], rel: Sequence[float]) -> list:
+    """Check a set's effective exposures; return the groups of frames that share one.
+
+    Frames with the same effective exposure (an auto-ISO ladder: 4 s at ISO 2500 and
+    2 s at ISO 5000; a phone repeating an exposure) are merged like any other: they add
+    no range but average noise down. The set is refused only when fewer than two
+    distinct exposures remain, or an exposure is absurd.
+
+    Parameters
+    ----------
+    names : sequence of str
+        The frames, for messages.
+    rel : sequence of float
+        Effective exposure of each frame (seconds).
+
+    Returns
+    -------
+    list of list of int
+        Groups (two or more frames) at the same exposure, in frame order.
+
+    Raises
+    ------
+    InputError
+        Fewer than two distinct exposures; an exposure outside :data:`TIME_RANGE`.
+    """
+    rel = np.asarray(rel, np.float64)
+    for n, r in zip(names, rel):
+        if not (TIME_RANGE[0] <= r <= TIME_RANGE[1]):
+            raise InputError(
+                f"{n}: effective exposure {r:g} s is outside {TIME_RANGE[0]:g}..{TIME_RANGE[1]:g} s; "
+                "check the times, ND and gain values"
+            )
+    seen = {}
+    for i, n in enumerate(names):
+        key = os.path.realpath(n) if os.path.exists(n) else None
+        if key is not None:
+            seen.setdefault(key, []).append(i)
+    for idx in seen.values():
+        if len(idx) > 1:
+            if np.ptp(rel[idx]) > SAME_EXPOSURE_RTOL * rel[idx].max():
+                raise InputError(
+                    f"{names[idx[0]]}: the same file is given {len(idx)} times with different exposures "
+                    f"({', '.join(format_time(rel[j]) for j in idx)})"
+                )
+            logger.warning("%s: the same file is given %d times; the copies add no information",
+                           names[idx[0]], len(idx))
+    groups = []
+    assigned = [False] * len(rel)
+    for i in range(len(rel)):
+        if assigned[i]:
+            continue
+        group = [j for j in range(i, len(rel)) if not assigned[j]
+                 and abs(rel[j] - rel[i]) <= SAME_EXPOSURE_RTOL * max(rel[i], rel[j])]
+        for j in group:
+            assigned[j] = True
+        if len(group) > 1:
+            groups.append(group)
+    distinct = len(rel) - sum(len(g) - 1 for g in groups)
+    if distinct < 2:
+        raise InputError(
+            f"{names[0]}: all {len(rel)} frames have the same exposure ({format_time(rel[0])}); "
+            "a bracket needs at least two different exposures"
+        )
+    for g in groups:
+        logger.info("%s share one exposure (%s); they are fused together",
+                    ", ".join(os.path.basename(names[j]) for j in g), format_time(rel[g[0]]))
+    return groups

@@ -28,7 +28,7 @@ def _pick_channels(spec, path: str) -> list:
     )
 
 
-def read_radiance_colorspace(path) -> tuple:
+def read_radiance_colorspace(path, *, require_float: bool = False) -> tuple:
     """:func:`read_radiance`'s pixels and the file's colour space, ``rec709`` or ``acescg``.
 
     From ``oiio:ColorSpace`` (EXR), or a Radiance file's ``PRIMARIES=`` line (which
@@ -37,7 +37,7 @@ def read_radiance_colorspace(path) -> tuple:
     from hdrcl.io.colorspace import from_file_tag
 
     name = os.fspath(path)
-    pixels, _meta = read_radiance(name)
+    pixels, _meta = read_radiance(name, require_float=require_float)
     if os.path.splitext(name)[1].lower() == ".hdr":
         from hdrcl.io.outmeta import hdr_colorspace
 
@@ -50,18 +50,22 @@ def read_radiance_colorspace(path) -> tuple:
     return pixels, from_file_tag(tag)
 
 
-def read_radiance(path) -> tuple:
+def read_radiance(path, *, require_float: bool = False) -> tuple:
     """Read a radiance map written by :func:`write_radiance` (or any float image).
 
     Parameters
     ----------
     path : str or os.PathLike
         EXR, HDR, TIFF, PFM or another format OpenImageIO reads.
+    require_float : bool
+        Refuse files stored as integers (an ordinary 8- or 16-bit photograph is not a
+        radiance map) and files holding NaN or infinite values.
 
     Returns
     -------
     pixels : numpy.ndarray
-        ``(H, W, C)`` float32, C = 1 or 3 (alpha and other channels dropped).
+        ``(H, W, C)`` float32, C = 1 or 3 (alpha and other channels dropped); radiance,
+        i.e. divided by ``hdrcl:halfScale`` where the file was stored rescaled.
     metadata : dict
         The ``hdrcl:*`` attributes without the prefix (or the JSON kept in a TIFF's
         ImageDescription); empty when there are none.
@@ -76,7 +80,12 @@ def read_radiance(path) -> tuple:
     try:
         spec = inp.spec()
         channels = _pick_channels(spec, name)
-        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+        if require_float:
+            _check_float_format(spec, name)
+        from hdrcl.io.frames import decoder_stderr
+
+        with decoder_stderr():
+            data = inp.read_image(0, 0, 0, spec.nchannels, "float")
         problem = _read_error(inp, name)
         if problem is None and data is None:
             problem = f"{name}: cannot decode pixel data"
@@ -89,7 +98,25 @@ def read_radiance(path) -> tuple:
     if data.ndim == 2:
         data = data[:, :, None]
     pixels = np.ascontiguousarray(data[:, :, channels])
+    if require_float:
+        bad = int(np.count_nonzero(~np.isfinite(pixels)))
+        if bad:
+            raise InputError(f"{name}: not a usable radiance map ({bad} NaN or infinite sample(s))")
+    scale = metadata.get("halfScale")
+    if isinstance(scale, (int, float)) and scale > 0 and scale != 1:
+        # Stored as radiance x halfScale so that half floats could hold it (issue 9).
+        pixels = (pixels.astype(np.float64) / float(scale)).astype(np.float32)
     return pixels, metadata
+
+
+def _check_float_format(spec, name: str) -> None:
+    """Refuse an integer image where radiance is expected."""
+    import OpenImageIO as oiio
+
+    if spec.format.basetype not in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE):
+        bits = 8 * spec.format.size()
+        raise InputError(f"{name}: {'an' if bits == 8 else 'a'} {bits}-bit photograph, not a radiance map; give the .exr, .hdr, "
+                         ".pfm or float TIFF that 'hdrcl merge' wrote")
 
 
 def _spec_metadata(spec) -> dict:

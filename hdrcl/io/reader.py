@@ -18,6 +18,7 @@ from hdrcl.io.frames import (
     _read_error,
     check_compatible,
     check_pixel_limit,
+    decoder_stderr,
     read_info,
 )
 from hdrcl.io.metadata import FrameInfo
@@ -65,6 +66,7 @@ class BracketReader:
         self._layout: list = [None] * len(self.paths)
         self._raw_wb = None
         self._first = None  # (rows, _Prefetch) started by prefetch()
+        self._grid = None  # (stride, frames, valid) of the last read_grid
         if any(raws):
             from hdrcl.io.raw import camera_white_balance
 
@@ -117,7 +119,8 @@ class BracketReader:
         colour, alpha = self._layout[k]
         spec = inp.spec()
         fmt = "uint8" if self.dtype == np.uint8 else "uint16"
-        data = inp.read_scanlines(0, 0, y0, y1, 0, 0, spec.nchannels, fmt)
+        with decoder_stderr():
+            data = inp.read_scanlines(0, 0, y0, y1, 0, 0, spec.nchannels, fmt)
         problem = _read_error(inp, name)
         if problem is None and data is None:
             problem = f"{name}: cannot decode pixel data"
@@ -189,7 +192,9 @@ class BracketReader:
         return [g[0] for g in got], [g[1] for g in got]
 
     def read_grid(self, stride: int):
-        """Every ``stride``-th row and column of every frame, read in one streaming pass.
+        """Every ``stride``-th row and column of every frame, read in one streaming pass
+        (once: a second call with the same stride returns the same arrays, not to be
+        modified).
 
         Each frame is decoded top to bottom in strips of about :data:`GRID_STRIP_ROWS`
         rows on its own thread, which keeps only the grid's rows and columns of each
@@ -200,6 +205,12 @@ class BracketReader:
         import threading
 
         stride = max(1, int(stride))
+        if self._grid is not None and self._grid[0] == stride:  # read already (calibration)
+            return list(self._grid[1]), list(self._grid[2])
+        if self._first is not None:  # a strip decoding ahead would share the open files
+            self._first[1].wait()
+            self._first = None
+        self._rewind()
         hh = len(range(0, self.height, stride))
         ww = len(range(0, self.width, stride))
         frames = [np.empty((hh, ww, self.nch), self.dtype) for _ in self.paths]
@@ -231,7 +242,8 @@ class BracketReader:
             if exc is not None:
                 raise exc
         self._rewind()  # a later strips() pass starts from the top again
-        return frames, valid
+        self._grid = (stride, frames, valid)  # small; a second call (ghost model) reuses it
+        return list(frames), list(valid)
 
 
 class _Prefetch:

@@ -31,6 +31,7 @@ from typing import Mapping, Optional
 import numpy as np
 
 from hdrcl.errors import ProcessingError, UsageError
+from hdrcl.io import halfrange
 from hdrcl.io.atomic import atomic_output
 from hdrcl.io.frames import _clean_error
 
@@ -289,13 +290,11 @@ def write_radiance(path, image, *, dtype="half", compression="zip", metadata=Non
     if not finite.all():
         bad = img.size - int(np.count_nonzero(finite))
         warnings.append(f"{target}: {bad} value(s) are NaN or infinite")
-    if ext == ".exr" and dtype == "half":
-        over = int(np.count_nonzero(np.abs(img[finite]) > HALF_MAX))
-        if over:
-            warnings.append(
-                f"{target}: {100.0 * over / img.size:.2g}% of values exceed the half-float range "
-                f"({HALF_MAX:g}); use --dtype float or scale"
-            )
+    if ext == ".exr" and dtype == "half" and not halfrange.fits(img):
+        # Half would turn values into inf or 0 (or lose them in subnormals): keep them.
+        fmt = "float"
+        warnings.append(f"{target}: values beyond the half-float range "
+                        f"({halfrange.HALF_FLOOR:.2g}..{HALF_MAX:g}); written as float")
     if ext == ".hdr":
         if np.any(img[finite] < 0):
             warnings.append(f"{target}: negative values are written as 0 in RGBE")
@@ -471,13 +470,16 @@ class RadianceWriter:
             raise ProcessingError(f"{self.path}: cannot write ({detail or 'no writer for this format'})")
         self._out = out
 
-    def _check(self, data: np.ndarray) -> None:
+    def _check(self, data: np.ndarray) -> np.ndarray:
+        """Count problems; for half, clamp values it cannot hold (:func:`halfrange.clamp`)."""
         finite = np.isfinite(data)
         self._nonfinite += data.size - int(np.count_nonzero(finite))
         if self.ext == ".exr" and self.dtype == "half":
-            self._over_half += int(np.count_nonzero(np.abs(data[finite]) > HALF_MAX))
+            data, n = halfrange.clamp(data)
+            self._over_half += n
         if self.ext == ".hdr":
             self._negative += int(np.count_nonzero(data[finite] < 0))
+        return data
 
     def write_rows(self, y0: int, y1: int, data: np.ndarray) -> None:
         """Write rows ``y0 .. y1`` (in order) from a float32 ``(rows, W, C)`` array."""
@@ -487,8 +489,7 @@ class RadianceWriter:
             from hdrcl.io.colorspace import convert
 
             data = convert(data, "rec709", self.colorspace)
-        data = np.ascontiguousarray(data, dtype=np.float32)
-        self._check(data)
+        data = self._check(np.ascontiguousarray(data, dtype=np.float32))
         if self._whole is not None:
             self._whole[y0:y1] = data
         else:
@@ -527,8 +528,9 @@ class RadianceWriter:
             self.warnings.append(f"{self.path}: {self._nonfinite} value(s) are NaN or infinite")
         if self._over_half:
             self.warnings.append(
-                f"{self.path}: {100.0 * self._over_half / total:.2g}% of values exceed the half-float "
-                f"range ({HALF_MAX:g}); use --dtype float or scale")
+                f"{self.path}: {self._over_half} value(s) ({100.0 * self._over_half / total:.2g}%) were beyond "
+                f"the half-float range and were clamped to it (+-{HALF_MAX:g}, {halfrange.HALF_MIN:.3g}); "
+                "use --dtype float")
         if self._negative:
             self.warnings.append(f"{self.path}: negative values are written as 0 in RGBE")
         self._ctx.__exit__(None, None, None)  # rename onto the target

@@ -16,10 +16,11 @@ from hdrcl.core.bracket import (
     read_infos,
 )
 from hdrcl.core.merge import MergeResult
+from hdrcl.core.weights import DEFAULT_WEIGHT
 
 
 def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *, ignore_color=None,
-                         weight: str = "hat", device: Optional[str] = None, name: Optional[str] = None,
+                         weight: str = DEFAULT_WEIGHT, device: Optional[str] = None, name: Optional[str] = None,
                          loo: bool = True):
     """Quality figures of a file merge and their report in ``folder``.
 

@@ -23,6 +23,7 @@ from hdrcl.core.calibrate import calibrate, exposures_used
 from hdrcl.core.exposure import render
 from hdrcl.core.merge import merge_bracket
 from hdrcl.core.response import Response
+from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.errors import UsageError
 from hdrcl.report.preview import (
     _LUMA,  # Rec.709 luminance weights, as the preview's tone map
@@ -47,7 +48,7 @@ def leave_one_out(
     high: int = 245,
     smoothness: Optional[float] = None,
     samples: Optional[int] = None,
-    weight: str = "hat",
+    weight: str = DEFAULT_WEIGHT,
     device: Optional[str] = None,
     fit_exposures: str = "auto",
 ) -> LeaveOneOut:

@@ -293,7 +293,7 @@ def tonemap_file(radiance_path, output, operator: str = "reinhard", *, exposure:
     if ext in (".jpg", ".jpeg") and bits == 16:
         raise UsageError(f"{output}: JPEG holds 8 bits; use .png or .tif for 16-bit output")
     _check(operator, bits)
-    rad, space = read_radiance_colorspace(radiance_path)
+    rad, space = read_radiance_colorspace(radiance_path, require_float=True)  # no photo as radiance
     if space != "rec709":
         from hdrcl.io.colorspace import convert
 

@@ -40,7 +40,10 @@ def _worker_init(level: int, parent: int) -> None:
     from hdrcl.shoot.claims import tie_to_parent
 
     tie_to_parent(parent)
+    from hdrcl.errors import WarningsBridge
+
     log = logging.getLogger("hdrcl")
+    log.handlers[:] = [h for h in log.handlers if not isinstance(h, WarningsBridge)]  # print, don't warn
     if not log.handlers:
         h = logging.StreamHandler()
         h.setFormatter(logging.Formatter("hdrcl: %(levelname)s: %(message)s"))

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
 from hdrcl.core.response import default_smoothness
+from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.version import __version__
 
 #: Name of the report written into the output folder.
@@ -71,7 +72,7 @@ class BatchOptions:
         set's pooled response.
     """
 
-    weight: str = "hat"
+    weight: str = DEFAULT_WEIGHT
     samples: Optional[int] = None
     smoothness: Optional[float] = None  # None: the default for the weighting
     seed: int = 0

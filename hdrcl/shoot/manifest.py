@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from typing import List, Optional
 from hdrcl.errors import InputError
@@ -342,22 +341,13 @@ def load_manifest(path, *, check_files: bool = True) -> Manifest:
         The file cannot be read, is not JSON, or does not describe sets; the message
         names the file and the problem, e.g. ``"manifest.json: sets[2] has no 'files'"``.
     """
+    from hdrcl.io.jsondoc import MANIFEST_SCHEMA, read_json, validate
+
     name = os.fspath(path)
-    try:
-        with open(name, encoding="utf-8") as fh:
-            text = fh.read()
-    except FileNotFoundError:
-        raise InputError(f"{name}: no such manifest file") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"{name}: cannot read manifest ({e})") from None
-    try:
-        d = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise InputError(
-            f"{name}: not valid JSON (line {e.lineno}, column {e.colno}: {e.msg})"
-        ) from None
+    d = read_json(name, "manifest file")  # binary files, BOM, nesting bombs: one line
     base = os.path.dirname(os.path.abspath(name))
     manifest = Manifest.from_dict(d, base=base, source=name)
+    validate(d, MANIFEST_SCHEMA, name)  # the types from_dict does not look at, by field path
     if check_files:
         for s in manifest.sets:
             for f in s.files:
@@ -378,20 +368,8 @@ def save_manifest(manifest: Manifest, path) -> None:
     manifest : Manifest
     path : str or os.PathLike
     """
+    from hdrcl.io.atomic import write_text
+
     name = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(name))
-    text = manifest.to_json(indent=2, relative_to=folder) + "\n"
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix="." + os.path.basename(name) + ".",
-                               suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, name)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    write_text(name, manifest.to_json(indent=2, relative_to=folder) + "\n")  # umask, not 0600

@@ -184,7 +184,7 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
     (:mod:`hdrcl.shoot.setopts`).
     """
     from hdrcl.cl.backend import get_processor
-    from hdrcl.core.merge import MergeResult, _provenance
+    from hdrcl.core.merge import MergeResult, RescaledSink, _provenance, choose_storage
     from hdrcl.core.pipeline import stream_merge
     from hdrcl.io.reader import BracketReader
     from hdrcl.io.outmeta import camera_from_infos
@@ -224,13 +224,16 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
             kept = _KeptFrames(reader, _quality_stride(len(job.files), h, w, nch, reader.dtype)) \
                 if opts.report_dir and source is reader else None
             thumb = small if small is not None or not opts.report_dir else AreaAverage(h, w, nch, REPORT_IMAGE_SIZE)
-            writer = RadianceWriter(job.output, w, h, nch, dtype=opts.dtype, compression=opts.compression,
+            # Half floats hold what this set can produce, rescaled, or the EXR is float.
+            dtype, half_scale = choose_storage(job.output, opts.dtype, resp, times, first, nch, factors, units,
+                                               meta, about)
+            writer = RadianceWriter(job.output, w, h, nch, dtype=dtype, compression=opts.compression,
                                     metadata=meta, timestamp=opened.stamp, colorspace=opts.colorspace,
                                     camera=camera_from_infos(opened.infos, reference=job.reference))
             try:
                 has_valid = (opts.ignore_color is not None or any(i.nchannels in (2, 4) for i in opened.infos)
                              or source is not reader)
-                sink = _Tee(writer, thumb)
+                sink = _Tee(writer if half_scale == 1.0 else RescaledSink(writer, half_scale), thumb)
                 if factors is not None:
                     sink = ScaledSink(sink, factors)
                 counts, _ = stream_merge(source if kept is None else kept, times, resp, sink,
@@ -247,7 +250,8 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
                 writer.abort()
                 raise
         seconds.update({"merge": t1 - t0, "preview": t2 - t1, "write": _time.perf_counter() - t2})
-        notes = list(step.notes) + list(opened.notes) + fit_notes + list(resp.warnings) + list(warnings)
+        notes = (list(step.notes) + list(opened.notes) + fit_notes + list(resp.warnings) + list(about.warnings)
+                 + list(warnings))
         if opts.report_dir and kept is None:
             notes.append("quality report not measured: aligned sets are not measured in a batch")
         if counts.get("no_data"):
