@@ -16,7 +16,6 @@ from hdrcl.errors import (
     InputError,
     ProcessingError,
     UsageError,
-    install_warnings_bridge,
 )
 from hdrcl.version import __version__
 
@@ -27,13 +26,10 @@ _API = ("calibrate", "merge", "expose", "merge_files", "expose_file", "load_brac
 __all__ = sorted(_API + ("HdrclError", "HdrclWarning", "InputError", "ProcessingError", "UsageError",
                          "__version__"))
 
-install_warnings_bridge()
-del install_warnings_bridge
-
 
 def __getattr__(name):
     if name in _API:
-        from hdrcl import api
+        from hdrcl import api  # installs the warnings bridge (first use of the API)
 
         value = getattr(api, name)
         globals()[name] = value  # later look-ups skip this function

@@ -34,7 +34,7 @@ from hdrcl.core.bracket import Bracket, PathOrArray, memory_budget, read_infos
 from hdrcl.core.calibrate import exposures_used
 from hdrcl.core.merge import MergeResult
 from hdrcl.core.response import Response, _as_response
-from hdrcl.errors import HdrclError, UsageError
+from hdrcl.errors import HdrclError, UsageError, auto_install_warnings_bridge
 from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.report.merge_report import write_quality_report
 from hdrcl.report.tonemap import tonemap, tonemap_file
@@ -44,6 +44,9 @@ __all__ = [
     "load_bracket", "memory_budget", "merge", "merge_bracket", "merge_files", "read_infos",
     "tonemap", "tonemap_file", "write_quality_report",
 ]
+
+# First use of the API: its warnings also go through the warnings module (HdrclWarning).
+auto_install_warnings_bridge()
 
 _FLAG = re.compile(r"(?<![\w-])--([a-z][a-z0-9-]*)")
 
@@ -139,11 +142,7 @@ def merge(
         raise UsageError(f"{name}: a response for {resp.bits}-bit frames, but the frames are "
                          f"{8 * br.frames[0].dtype.itemsize}-bit")
     if align:
-        frames, valid, _shifts, box = _merge._align(br.frames, br.valid, br.times, device)
-        if crop:
-            y0, y1, x0, x1 = box
-            frames = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in frames]
-            valid = [None if v is None else np.ascontiguousarray(v[y0:y1, x0:x1]) for v in valid]
+        frames, valid, _shifts, _box = _merge._align(br.frames, br.valid, br.times, device, crop)
         br = Bracket(frames=frames, times=br.times, valid=valid, paths=br.paths, infos=br.infos)
     res = _merge.merge_bracket(br, resp, weight=weight, samples=samples, smoothness=smoothness, seed=seed,
                                device=device, fit_exposures=fit_exposures,

@@ -67,7 +67,8 @@ def fx(tmp_path_factory):
     bad = {"version_abc": {"version": "abc"}, "version_null": {"version": None},
            "samples_abc": {"samples": "abc"}, "camera_list": {"camera": [1, 2]},
            "exposure_no_nominal": {"exposures": [{"file": "a.png"}]},
-           "knots_reversed": {"knots": resp["knots"][::-1]}}
+           "knots_reversed": {"knots": resp["knots"][::-1]}, "version_2_0": {"version": 2.0},
+           "version_1e300": {"version": 1e300}, "version_1_5": {"version": 1.5}}
     for name, change in bad.items():
         (d / f"{name}.json").write_text(json.dumps({**resp, **change}))
     (d / "deep.json").write_text('{"format": "hdrcl-response", "camera": ' + "[" * 100000 + "]" * 100000 + "}")
@@ -85,6 +86,8 @@ def fx(tmp_path_factory):
     f["jpeg"] = str(sorted(shoot.glob("*.jpg"))[0])
     (d / "ro").mkdir()
     f["ro"] = str(d / "ro")
+    os.mkfifo(d / "fifo")  # nobody ever writes it: a reader that opens it waits for ever
+    f["fifo"] = str(d / "fifo")
     return f
 
 
@@ -162,7 +165,10 @@ CASES = [
       for n, field in [("version_abc", r"version: expected an integer"), ("version_null", "version: expected"),
                        ("samples_abc", "samples: expected an integer"), ("camera_list", "camera: expected an object"),
                        ("exposure_no_nominal", r"exposures\[0\]: missing 'nominal'"),
-                       ("knots_reversed", "knots: expected increasing")]],
+                       ("knots_reversed", "knots: expected increasing"),
+                       ("version_2_0", r"response file version 2 is newer than this hdrcl"),
+                       ("version_1e300", r"response file version 1e\+300 is newer than this hdrcl"),
+                       ("version_1_5", r"version: expected an integer, not 1.5")]],
     ("response-deep", lambda x: _merge8(x, "--response", str(x["dir"] / "deep.json"), "-o", "{o}/a.exr"),
      3, r"deep.json: response file nested too deeply", ["a.exr"], None),
     ("manifest-deep", lambda x: ["batch", str(x["dir"] / "mdeep.json"), "-o", "{o}/batch"], 3,
@@ -195,6 +201,9 @@ CASES = [
      r"f1.png: an 8-bit photograph, not a radiance map", ["p.jpg"], None),
     ("tonemap-exposure-nan", lambda x: ["tonemap", x["rad"], "--exposure", "nan", "-o", "{o}/p.jpg"], 2,
      r"--exposure: expected a finite number", ["p.jpg"], None),
+    *[(f"tonemap-exposure-{v}", (lambda v: lambda x: ["tonemap", x["rad"], "--exposure", v, "-o", "{o}/p.jpg"])(v),
+       2, r"^hdrcl: error: --exposure: .* out of range \(at most 64 either way\)", ["p.jpg"], None)
+      for v in ("2000", "1e308", "-65")],
     ("sets-negative", lambda x: ["batch", x["shoot"] + "/manifest.json", "-o", "{o}/batch", "--sets=-1"], 2,
      r"--sets: '-1' reads as a negative index", ["batch"], None),
     ("response-16-on-8", lambda x: _merge8(x, "--response", x["r16"], "-o", "{o}/a.exr"), 3,
@@ -213,15 +222,48 @@ CASES = [
                                        "{o}/p.jpg"], 2, r"^hdrcl: error: --time: 'abc' is not", ["p.jpg"], None),
     ("response-bom", lambda x: _merge8(x, "--response", str(x["dir"] / "bom.json"), "-o", "{o}/a.exr"), 0, None, [],
      None),
+    # a FIFO or a device where a file is read: refused at once (a read would block for ever)
+    ("fifo-times-file", lambda x: ["merge", *x["f8"], "--times-file", x["fifo"], "-o", "{o}/a.exr"], 3,
+     r"fifo: not a regular file \(a FIFO\)", ["a.exr"], None),
+    ("fifo-response", lambda x: _merge8(x, "--response", x["fifo"], "-o", "{o}/a.exr"), 3,
+     r"fifo: not a regular file \(a FIFO\)", ["a.exr"], None),
+    ("fifo-image", lambda x: ["merge", x["f8"][0], x["fifo"], "--times", "1/60,1/15", "-o", "{o}/a.exr"], 3,
+     r"fifo: not a regular file \(a FIFO\)", ["a.exr"], None),
+    ("device-image", lambda x: ["merge", x["f8"][0], "/dev/zero", "--times", "1/60,1/15", "-o", "{o}/a.exr"], 3,
+     r"^hdrcl: error: /dev/zero: not a regular file \(a device\)$", ["a.exr"], None),
+    ("fifo-scan", lambda x: ["scan", x["fifo"]], 3, r"fifo: not a regular file \(a FIFO\)", [], None),
+    ("fifo-batch-manifest", lambda x: ["batch", x["fifo"], "-o", "{o}/batch"], 3,
+     r"fifo: not a regular file \(a FIFO\)", ["batch"], None),
+    ("fifo-batch-times-file", lambda x: ["batch", x["shoot"], "--times-file", x["fifo"], "-o", "{o}/batch"], 3,
+     r"fifo: not a regular file \(a FIFO\)", ["batch"], None),
+    ("fifo-scan-times-file", lambda x: ["scan", x["shoot"], "--times-file", x["fifo"]], 3,
+     r"fifo: not a regular file \(a FIFO\)", [], None),
 ]
 
 
+class _Hung(Exception):
+    """A command still running after :data:`HANG_SECONDS` (a read blocked on a FIFO)."""
+
+
+#: A case that takes longer than this hangs: it fails instead of blocking the test run.
+HANG_SECONDS = 60
+
+
 def _invoke(args, monkeypatch, fx, condition):
+    import signal
+
+    def hung(signum, frame):
+        raise _Hung(f"still running after {HANG_SECONDS} s")
+
     if condition:
         CONDITIONS[condition](monkeypatch, fx)
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(HANG_SECONDS)
     try:
         return CliRunner().invoke(main, args)
     finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
         monkeypatch.undo()
 
 
@@ -247,6 +289,17 @@ def test_error_contract(case, fx, tmp_path, monkeypatch, capfd):
     assert not [p for p in tmp_path.rglob(".*tmp*")], "temporary file left behind"
     after = {p.name: p.stat().st_mtime_ns for p in fx["dir"].iterdir() if p.is_file()}
     assert after == before, "an input file was changed"
+
+
+def test_flat_curve_warning_reads_sensibly(fx, tmp_path):
+    """Two copies of one frame make a curve with no rising step: no 'inf code levels'."""
+    a, b = tmp_path / "a.png", tmp_path / "b.png"
+    shutil.copy(fx["f8"][1], a)
+    shutil.copy(fx["f8"][1], b)
+    res = CliRunner().invoke(main, ["merge", str(a), str(b), "--times", "1,2", "-o", str(tmp_path / "a.exr")])
+    assert "not monotonic" in res.stderr or "does not rise" in res.stderr, (res.exit_code, res.stderr)
+    assert "inf code levels" not in res.stderr and "nan" not in res.stderr, res.stderr
+    assert "does not rise between codes 10 and 245" in res.stderr, res.stderr
 
 
 def test_output_equal_to_an_input_is_refused_before_it_is_destroyed(fx, tmp_path):
@@ -423,6 +476,9 @@ def test_api_takes_times_as_the_cli_does(fx):
     (lambda h, fx: h.expose(np.full((4, 4, 3), np.nan, np.float32), fx["r8"], 1 / 30),
      r"^radiance: 48 NaN or infinite value\(s\)"),
     (lambda h, fx: h.expose(np.ones((4, 4, 3), np.float32), fx["r8"], "soon"), r"^time: 'soon' is not"),
+    (lambda h, fx: h.tonemap(np.ones((4, 4, 3), np.float32), exposure=2000), r"^exposure: 2000 stops is out of"),
+    (lambda h, fx: h.tonemap(np.ones((4, 4, 3), np.float32), exposure=float("nan")), r"^exposure: nan is not a"),
+    (lambda h, fx: h.tonemap_file(fx["rad"], fx["dir"] / "never.jpg", exposure=-1e308), r"^exposure: -1e\+308"),
 ])
 def test_api_errors_name_parameters(fx, call, message):
     import hdrcl
@@ -486,3 +542,75 @@ def test_merge_has_the_options_of_merge_files(fx, tmp_path, cl_device):
                             crop=True, deghost=True, keep_radiance=True)
     assert aligned.shape == ref.radiance.shape
     np.testing.assert_allclose(aligned, ref.radiance, rtol=1e-5, atol=1e-7)
+
+
+# ------------------------------------------------------------------------------ signals
+
+
+@pytest.fixture(scope="module")
+def big_bracket(tmp_path_factory):
+    """Three 2400x3600 frames (a small synthetic bracket tiled): a merge takes seconds."""
+    from hdrcl.io.writers import write_ldr
+
+    d = tmp_path_factory.mktemp("big")
+    rad = s.radiance_field(200, 300, decades=3.0, seed=3)
+    paths = []
+    for k, frame in enumerate(s.bracket(rad, TIMES, s.Camera(a=1.1, bits=8), noise=0.3, seed=4)):
+        paths.append(str(d / f"big{k}.tif"))
+        write_ldr(paths[-1], np.tile(frame, (12, 12, 1)))
+    return paths
+
+
+@pytest.mark.parametrize("command", ["merge", "tonemap"])
+def test_sigterm_removes_the_temporary_file(big_bracket, tmp_path, command):
+    """SIGTERM while the output is being written: exit 143, one line, no temporary file."""
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    out.mkdir()
+    if command == "merge":
+        args = ["merge", *big_bracket, "--times", "1/60,1/15,1/4", "-o", str(out / "m.exr")]
+    else:
+        rad = tmp_path / "r.exr"
+        done = subprocess.run([sys.executable, "-m", "hdrcl", "merge", *big_bracket, "--times", "1/60,1/15,1/4",
+                               "-o", str(rad), "-q"], cwd=Path(__file__).resolve().parents[1], timeout=300)
+        assert done.returncode == 0
+        args = ["tonemap", str(rad), "--operator", "reinhard-local", "-o", str(out / "m.tif"), "--bits", "16"]
+    proc = subprocess.Popen([sys.executable, "-m", "hdrcl", *args], cwd=Path(__file__).resolve().parents[1],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not list(out.glob(".*tmp*")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert proc.poll() is None, "finished before its temporary file could be seen"
+        assert list(out.glob(".*tmp*")), "no temporary file appeared"
+        proc.send_signal(signal.SIGTERM)
+        _stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 143, (proc.returncode, stderr)
+    assert stderr.splitlines() == ["hdrcl: terminated"], stderr
+    assert list(out.iterdir()) == [], "output or temporary file left behind"
+
+
+def test_import_does_not_load_logging_and_the_bridge_comes_with_the_api(fx, tmp_path):
+    """``import hdrcl`` stays ~1 ms (no logging); the warnings bridge is installed on first
+    use of the API, and its warnings still arrive as HdrclWarning."""
+    t = tmp_path / "times.txt"
+    t.write_text("".join(f"f{k}.png {v!r} {3.0 / v!r} 8 0 0\n" for k, v in enumerate(TIMES)))
+    code = ("import sys, warnings, hdrcl\n"
+            "print('logging' in sys.modules)\n"
+            "with warnings.catch_warnings(record=True) as w:\n"
+            "    warnings.simplefilter('always')\n"
+            f"    hdrcl.load_bracket({fx['f8']!r}, times_file={str(t)!r})\n"
+            "print([str(x.message) for x in w if issubclass(x.category, hdrcl.HdrclWarning)])\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=Path(__file__).resolve().parents[1], timeout=120)
+    assert out.returncode == 0, out.stderr
+    loaded, warned = out.stdout.splitlines()
+    assert loaded == "False", "import hdrcl imported logging"
+    assert "columns disagree" in warned, (warned, out.stderr)
+    assert out.stderr == "", out.stderr  # no bare last-resort lines

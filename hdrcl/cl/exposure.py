@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 
 from hdrcl.cl.processing import OpenCLProcessor, round_up
 
@@ -17,24 +16,16 @@ class ExposureProcessor(OpenCLProcessor):
     source = "exposure"
 
     def expose(self, radiance: np.ndarray, tables: np.ndarray, log_time: float, out_bits: int = 8) -> np.ndarray:
-        h, w, c = radiance.shape
+        c = radiance.shape[2]
         levels = tables.shape[1]
         otype = np.uint8 if out_bits == 8 else np.uint16
         knl = self.ctx.kernel("exposure", "expose", ("-DOUT_T=" + ("uchar" if out_bits == 8 else "ushort"),))
         g_b = self.constant("gtab", np.asarray(tables, np.float32))
         outmax = (1 << out_bits) - 1
-        rows = self.strip_rows(w)
-        nmax = rows * w * c
-        in_b = self.buffer("radiance", nmax * 4, cl.mem_flags.READ_ONLY)
-        out_b = self.buffer("codes", nmax * np.dtype(otype).itemsize, cl.mem_flags.WRITE_ONLY)
-        out = np.empty((h, w, c), otype)
-        src = np.ascontiguousarray(radiance, dtype=np.float32)
-        q = self.queue
-        for r0 in range(0, h, rows):
-            r1 = min(h, r0 + rows)
-            n = (r1 - r0) * w * c
-            cl.enqueue_copy(q, in_b, src[r0:r1], is_blocking=False)
+
+        def run(q, in_b, out_b, npix):
+            n = npix * c
             knl(q, (round_up(n),), None, in_b, g_b, out_b, np.int32(n), np.int32(c), np.int32(levels),
                 np.float32(log_time), np.float32(outmax / (levels - 1)), np.float32(outmax))
-            cl.enqueue_copy(q, out[r0:r1], out_b, is_blocking=True)
-        return out
+
+        return self.map_strips(radiance, otype, run)

@@ -57,3 +57,25 @@ class OpenCLProcessor:
 
     def strip_rows(self, width: int) -> int:
         return max(1, self.strip_pixels // max(width, 1))
+
+    def map_strips(self, radiance: np.ndarray, otype, run) -> np.ndarray:
+        """Float32 ``radiance`` ``(H, W, C)`` through a per-pixel kernel, strip by strip.
+
+        ``run(queue, in_buf, out_buf, npix)`` enqueues the kernel for the ``npix`` pixels
+        of the strip now in ``in_buf`` (``C`` values each); the strip's ``otype`` results in
+        ``out_buf`` are copied back. Returns the ``(H, W, C)`` array of ``otype``.
+        """
+        h, w, c = radiance.shape
+        rows = self.strip_rows(w)
+        nmax = rows * w * c
+        in_b = self.buffer("radiance", nmax * 4, cl.mem_flags.READ_ONLY)
+        out_b = self.buffer("codes", nmax * np.dtype(otype).itemsize, cl.mem_flags.WRITE_ONLY)
+        out = np.empty((h, w, c), otype)
+        src = np.ascontiguousarray(radiance, dtype=np.float32)
+        q = self.queue
+        for r0 in range(0, h, rows):
+            r1 = min(h, r0 + rows)
+            cl.enqueue_copy(q, in_b, src[r0:r1], is_blocking=False)
+            run(q, in_b, out_b, (r1 - r0) * w)
+            cl.enqueue_copy(q, out[r0:r1], out_b, is_blocking=True)
+        return out

@@ -3,21 +3,25 @@
 Every failure, click's own usage errors included, ends as one line on stderr,
 ``hdrcl: error: SUBJECT: problem`` (SUBJECT is the file or the option at fault), with
 the exit code of its class: 1 processing failed, 2 usage, 3 unreadable or inconsistent
-input, 130 interrupted. ``--debug`` (before or after the command) shows tracebacks.
+input, 130 interrupted, 143 terminated (SIGTERM: the output being written, a hidden
+temporary file, is removed first). ``--debug`` (before or after the command) shows tracebacks.
 ``-q``/``-v``/``--debug`` are accepted before and after the command's name.
 """
 from __future__ import annotations
 
+import contextlib
 import errno
 import logging
 import os
 import re
+import signal
 import sys
+import threading
 import warnings
 
 import click
 
-from hdrcl.errors import HdrclError, HdrclWarning
+from hdrcl.errors import HdrclError, HdrclWarning, disable_warnings_bridge
 
 _GLOBAL_FLAGS = ("-q", "--quiet", "--debug")
 _state = {"verbose": 0, "quiet": False, "debug": False}
@@ -32,6 +36,7 @@ class _OneLine(logging.Formatter):
 def _setup_logging() -> None:
     verbose, quiet = _state["verbose"], _state["quiet"]
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    disable_warnings_bridge()  # the line below is the one message; the API bridge stays off
     root = logging.getLogger("hdrcl")
     root.handlers[:] = []
     h = logging.StreamHandler(sys.stderr)
@@ -154,6 +159,37 @@ def _fail(message: str, code: int):
     sys.exit(code)
 
 
+class Terminated(SystemExit):
+    """SIGTERM reached the command line (exit 143). A SystemExit, so ``except Exception``
+    blocks let it pass while ``atomic_output`` removes its temporary file on the way out."""
+
+    def __init__(self, signum: int = signal.SIGTERM):
+        super().__init__(128 + int(signum))
+
+
+def _terminate(signum, frame):
+    with contextlib.suppress(ValueError, OSError):  # one SIGTERM is enough: ignore more while cleaning up
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    raise Terminated(signum)
+
+
+@contextlib.contextmanager
+def _sigterm_exits():
+    """While a command runs (CLI process, main thread only): SIGTERM raises
+    :class:`Terminated`; the previous handler is restored afterwards. ``batch`` installs
+    its own handler (it cancels its workers) and puts this one back when done."""
+    old = None
+    if threading.current_thread() is threading.main_thread():
+        with contextlib.suppress(ValueError, OSError):
+            old = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        yield
+    finally:
+        if old is not None:
+            with contextlib.suppress(ValueError, OSError):
+                signal.signal(signal.SIGTERM, old)
+
+
 class HdrclGroup(click.Group):
     """Runs a command and turns every failure into one line and an exit code."""
 
@@ -168,7 +204,11 @@ class HdrclGroup(click.Group):
         if not standalone_mode:
             return super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
         try:
-            rv = super().main(args, prog_name or "hdrcl", complete_var, standalone_mode=False, **extra)
+            with _sigterm_exits():
+                rv = super().main(args, prog_name or "hdrcl", complete_var, standalone_mode=False, **extra)
+        except Terminated as exc:
+            click.echo("hdrcl: terminated", err=True)
+            sys.exit(exc.code)
         except Exception as exc:  # noqa: BLE001 - the one place that turns failures into lines
             if _state["debug"] and not isinstance(exc, click.exceptions.Exit):
                 raise
@@ -221,7 +261,7 @@ def main(ctx, max_pixels):
     \b
     Errors: one line on stderr, 'hdrcl: error: FILE: problem'.
     Exit codes: 0 success, 1 processing failed, 2 usage error, 3 unreadable or
-    inconsistent input.
+    inconsistent input, 130 interrupted, 143 terminated.
     Environment: PYOPENCL_CTX picks the device (or --device); HDRCL_OPENCL=0 uses the
     slower NumPy path; HDRCL_MAX_PIXELS bounds the pixels of one frame (--max-pixels).
     """

@@ -14,6 +14,10 @@ def _finite(ctx, param, value):
         from hdrcl.errors import UsageError
 
         raise UsageError(f"--{param.name}: expected a finite number of stops, not {value}")
+    if value is not None:
+        from hdrcl.report.tonemap import check_exposure
+
+        check_exposure(value, f"--{param.name}")
     return value
 
 

@@ -265,11 +265,9 @@ def merge_files(
         with BracketReader(paths, infos) as reader:
             frames, valid = reader.read_all()
         valid = _with_ignore(frames, valid, rgb)
-        frames, valid, shifts, box = _align(frames, valid, rel, device)
-        if crop:
-            y0, y1, x0, x1 = crop_box = box
-            frames = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in frames]
-            valid = [None if v is None else np.ascontiguousarray(v[y0:y1, x0:x1]) for v in valid]
+        frames, valid, shifts, crop_box = _align(frames, valid, rel, device, crop)
+        if crop_box is not None:
+            y0, y1, x0, x1 = crop_box
             h, w = y1 - y0, x1 - x0
         if resp is None:
             br = Bracket(frames=frames, times=rel, valid=valid, paths=paths, infos=infos)
@@ -429,8 +427,10 @@ class RescaledSink:
         self.sink.write_rows(y0, y1, data * self.scale)
 
 
-def _align(frames, valid, times, device):
-    """Shift ``frames`` onto the middle exposure; returns frames, masks, shifts, common box."""
+def _align(frames, valid, times, device, crop: bool = False):
+    """Shift ``frames`` onto the middle exposure; returns frames, masks, shifts and the
+    box every frame covers, ``(y0, y1, x0, x1)``. With ``crop`` the frames and masks are
+    cut to that box; without it the box returned is None."""
     from hdrcl.core.align import apply_shifts, estimate_shifts
     from hdrcl.io.metadata import format_time
 
@@ -442,7 +442,13 @@ def _align(frames, valid, times, device):
     for i, sh in enumerate(shifts):
         logger.info("align: frame %d (%s) shifted by dy=%d dx=%d", i, format_time(times[i]), sh[0], sh[1])
     out, masks, box = apply_shifts(frames, shifts, valid)
-    return list(out), list(masks), shifts, box
+    out, masks = list(out), list(masks)
+    if not crop:
+        return out, masks, shifts, None
+    y0, y1, x0, x1 = box
+    out = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in out]
+    masks = [None if v is None else np.ascontiguousarray(v[y0:y1, x0:x1]) for v in masks]
+    return out, masks, shifts, box
 
 
 def _warm_up(device, calibrating: bool):

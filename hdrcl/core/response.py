@@ -191,11 +191,17 @@ class Response:
             if worst <= 0:
                 continue
             steps = np.diff(g[lo:hi + 1])
-            slope = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0
-            levels = worst / slope if slope > 0 else float("inf")
+            bad = np.flatnonzero(depth > 0)
+            if not np.any(steps > 0):  # no rising step to measure the dip in levels by
+                out.append(
+                    f"channel {name}: recovered curve does not rise between codes 10 and 245 (it turns "
+                    f"back by {worst:.3g} between levels {bad[0] - 1} and {bad[-1]}): the frames do not "
+                    "constrain it; check that they differ and that their exposure times are right"
+                )
+                continue
+            levels = worst / float(np.median(steps[steps > 0]))
             if levels <= tolerance_levels:
                 continue
-            bad = np.flatnonzero(depth > 0)
             out.append(
                 f"channel {name}: recovered curve is not monotonic: it turns back by {worst:.3g} "
                 f"(about {levels:.1f} code levels) between levels {bad[0] - 1} and {bad[-1]}; "
@@ -232,9 +238,13 @@ class Response:
         if not isinstance(d, dict) or d.get("format") != RESPONSE_FORMAT:
             raise InputError(f"{source}: not an hdrcl response file (no \"format\": \"{RESPONSE_FORMAT}\")")
         version = d.get("version", 1)
-        if isinstance(version, int) and not isinstance(version, bool) and version > RESPONSE_VERSION:
+        # 2.0 and 1e300 are JSON Schema integers too: any number above the version known
+        # is a newer format (a fraction such as 1.5 fails the schema's integer check).
+        if (isinstance(version, int) and not isinstance(version, bool)
+                or isinstance(version, float) and version.is_integer()) and version > RESPONSE_VERSION:
+            shown = f"{version:g}" if isinstance(version, float) else str(version)
             raise InputError(
-                f"{source}: response file version {version} is newer than this hdrcl "
+                f"{source}: response file version {shown} is newer than this hdrcl "
                 f"understands ({RESPONSE_VERSION}); upgrade hdrcl"
             )
         validate(d, RESPONSE_SCHEMA, source)

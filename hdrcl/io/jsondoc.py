@@ -18,11 +18,14 @@ for a document that decodes, the path of the bad field (``sets[2].files[0]``):
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 from typing import Any, Optional
 
-from hdrcl.errors import InputError
+from hdrcl.errors import InputError, check_regular
+
+logger = logging.getLogger(__name__)
 
 #: Deepest nesting of arrays and objects accepted in a document.
 MAX_DEPTH = 64
@@ -54,13 +57,14 @@ def read_json(path, what: str) -> Any:
     Raises
     ------
     InputError
-        Missing, a folder, unreadable, binary, not UTF-8, not JSON, or nested deeper
+        Missing, a folder, a FIFO or device, unreadable, binary, not UTF-8, not JSON, or nested deeper
         than :data:`MAX_DEPTH`; the message names ``path``.
     """
     name = os.fspath(path)
+    if not os.path.lexists(name):
+        raise InputError(f"{name}: no such {what}")
+    check_regular(name, what)  # a FIFO or a device would block or never end
     try:
-        if os.path.isdir(name):
-            raise InputError(f"{name}: is a folder, not a {what}")
         with open(name, "rb") as fh:
             data = fh.read(MAX_BYTES + 1)
     except FileNotFoundError:
@@ -70,6 +74,28 @@ def read_json(path, what: str) -> Any:
     except OSError as exc:
         raise InputError(f"{name}: cannot read {what} ({exc.strerror or exc})") from None
     return loads(data, name, what)
+
+
+def read_state(path, what: str) -> Optional[dict]:
+    """One of hdrcl's own state files (a batch's report, a pooled response, a set's
+    report) as a dict, or None when it is absent or damaged.
+
+    The same guards as :func:`read_json` (size, nesting, binary data, FIFOs) apply; any
+    problem means "absent or stale": it is logged (info for a damaged file, debug for a
+    missing one) and the caller rebuilds the file. The caller still checks the types of
+    the fields it uses.
+    """
+    name = os.fspath(path)
+    try:
+        d = read_json(name, what)
+    except InputError as exc:
+        level = logging.DEBUG if not os.path.lexists(name) else logging.INFO
+        logger.log(level, "%s; it is rebuilt", exc)
+        return None
+    if not isinstance(d, dict):
+        logger.info("%s: damaged %s (not a JSON object); it is rebuilt", name, what)
+        return None
+    return d
 
 
 def loads(data: bytes, name: str, what: str) -> Any:
@@ -231,7 +257,7 @@ RESPONSE_SCHEMA = {
     "required": ["format", "bits", "channels", "knots", "g"],
     "properties": {
         "format": {"const": "hdrcl-response"},
-        "version": {"type": "integer", "minimum": 1},
+        "version": {"type": "integer", "minimum": 1, "maximum": 1},  # RESPONSE_VERSION
         "bits": {"enum": [8, 16]},
         "levels": {"enum": [256, 65536]},
         "channels": {"type": "array", "minItems": 1, "maxItems": 4,

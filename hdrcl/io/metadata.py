@@ -19,7 +19,7 @@ from typing import Mapping, Optional, Sequence, Union
 
 import numpy as np
 
-from hdrcl.errors import InputError, UsageError
+from hdrcl.errors import InputError, UsageError, check_regular
 
 logger = logging.getLogger(__name__)
 
@@ -243,6 +243,7 @@ def read_times_file(path) -> dict:
         The file cannot be read, a line is malformed, or a file is listed twice.
     """
     name = os.fspath(path)
+    check_regular(name, "times file")  # a FIFO or a device would block or never end
     try:
         with open(name, encoding="utf-8-sig") as fh:
             lines = fh.read().splitlines()

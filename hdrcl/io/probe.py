@@ -33,6 +33,8 @@ def reduced_pixels(path, min_size: Tuple[int, int] = (24, 32)) -> Optional[np.nd
     if is_raw(path):
         return None
     rows, cols = min_size
+    if not _regular(path):
+        return None
     inp = oiio.ImageInput.open(path)
     if inp is None:
         oiio.geterror()
@@ -83,6 +85,8 @@ def pixels_readable(path, rows: int = 256) -> bool:
     finite. A truncated or damaged file whose header is intact fails here."""
     import OpenImageIO as oiio
 
+    if not _regular(path):
+        return False
     inp = oiio.ImageInput.open(os.fspath(path))
     if inp is None:
         oiio.geterror()
@@ -103,3 +107,14 @@ def pixels_readable(path, rows: int = 256) -> bool:
         return False
     finally:
         inp.close()
+
+
+def _regular(path) -> bool:
+    """Whether ``path`` is a regular file (a FIFO or a device would block the decoder)."""
+    from hdrcl.errors import HdrclError, check_regular
+
+    try:
+        check_regular(path)
+    except HdrclError:
+        return False
+    return True

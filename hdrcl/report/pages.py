@@ -185,23 +185,44 @@ def _entry_from_dict(d: dict, folder: str, name: str) -> ReportEntry:
                        camera=dict(d.get("camera") or {}), inputs=inputs)
 
 
+#: What a damaged entry can raise while it is rebuilt or drawn (it is then skipped).
+_DAMAGED = (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError)
+
+
+def _load_entry(path: str, folder: str, name: str) -> Optional[ReportEntry]:
+    """The entry stored at ``path``, or None when it is absent, another kind of JSON or
+    damaged in any way (read through :func:`hdrcl.io.jsondoc.read_state`; logged, never
+    an error: the page is drawn without it)."""
+    from hdrcl.io.jsondoc import read_state
+    from hdrcl.report.sheet import _card
+
+    d = read_state(path, "set report")
+    if d is None or d.get("format") != REPORT_FORMAT:
+        return None
+    try:
+        if not isinstance(d.get("name", name), str) or not isinstance(d.get("status", STATUS_DONE), str) \
+                or not isinstance(d.get("error") or "", str) \
+                or not all(isinstance(w, str) for w in d.get("warnings") or []):
+            raise TypeError("name, status, error and warnings must be text")
+        entry = _entry_from_dict(d, folder, name)
+        _card(entry, 0)  # an entry the page cannot draw is as good as absent
+    except _DAMAGED as exc:
+        logger.info("%s: damaged set report (%s: %s); left out", path, type(exc).__name__,
+                    str(exc).splitlines()[0] if str(exc) else "")
+        return None
+    return entry
+
+
 def load_set_report(folder: Union[str, os.PathLike], name: str) -> Optional[ReportEntry]:
     """The entry :func:`write_set_report` wrote for ``name`` earlier, or None if absent
     or unreadable (for sets a batch skipped because their output was current)."""
-    path = os.path.join(os.fspath(folder), file_stem(name) + ".json")
-    try:
-        with open(path, encoding="utf-8") as f:
-            d = json.load(f)
-        if d.get("format") != REPORT_FORMAT:
-            return None
-        return _entry_from_dict(d, os.fspath(folder), name)
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-        logger.debug("no usable report for %s at %s: %s", name, path, exc)
-        return None
+    folder = os.fspath(folder)
+    return _load_entry(os.path.join(folder, file_stem(name) + ".json"), folder, name)
 
 
 def load_report_folder(folder: Union[str, os.PathLike]) -> List[ReportEntry]:
-    """Every set report in ``folder`` (any run's), sorted by name; unreadable ones skipped."""
+    """Every set report in ``folder`` (any run's), sorted by name; unreadable or damaged
+    ones skipped (logged)."""
     folder = os.fspath(folder)
     out = []
     try:
@@ -211,13 +232,9 @@ def load_report_folder(folder: Union[str, os.PathLike]) -> List[ReportEntry]:
     for fn in names:
         if not fn.endswith(".json") or fn.startswith("."):
             continue
-        try:
-            with open(os.path.join(folder, fn), encoding="utf-8") as f:
-                d = json.load(f)
-            if isinstance(d, dict) and d.get("format") == REPORT_FORMAT:
-                out.append(_entry_from_dict(d, folder, fn[:-5]))
-        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-            logger.debug("skipping %s in the report folder: %s", fn, exc)
+        entry = _load_entry(os.path.join(folder, fn), folder, fn[:-5])
+        if entry is not None:
+            out.append(entry)
     return sorted(out, key=lambda e: e.name)
 
 

@@ -95,6 +95,27 @@ def stats_stride(h: int, w: int, max_pixels: int = STATS_MAX_PIXELS) -> int:
     return max(1, int(math.ceil(math.sqrt(h * w / max(int(max_pixels), 1)))))
 
 
+#: Largest exposure change (EV) accepted: a factor of 1.8e19 either way is far beyond any
+#: useful brightening or darkening (and ``2.0 ** 2000`` overflows).
+MAX_EXPOSURE_EV = 64.0
+
+
+def check_exposure(exposure, name: str = "exposure") -> float:
+    """``exposure`` as a float; UsageError naming ``name`` unless it is a finite number
+    of stops within +-:data:`MAX_EXPOSURE_EV` (``2.0 ** 2000`` overflows)."""
+    from hdrcl.errors import UsageError
+
+    try:
+        ev = float(exposure)
+    except (TypeError, ValueError):
+        raise UsageError(f"{name}: {exposure!r} is not a number of stops") from None
+    if not math.isfinite(ev):
+        raise UsageError(f"{name}: {exposure} is not a finite number of stops")
+    if abs(ev) > MAX_EXPOSURE_EV:
+        raise UsageError(f"{name}: {exposure:g} stops is out of range (at most {MAX_EXPOSURE_EV:g} either way)")
+    return ev
+
+
 def statistics(radiance: np.ndarray, operator: str = "reinhard", exposure: float = 0.0) -> ToneParams:
     """Scene statistics of ``radiance`` for ``operator``, with ``exposure`` EV.
 
@@ -248,10 +269,7 @@ def tonemap(radiance: np.ndarray, operator: str = "reinhard", *, exposure: float
     from hdrcl.cl.backend import get_processor
 
     _check(operator, int(bits))
-    if not math.isfinite(float(exposure)):
-        from hdrcl.errors import UsageError
-
-        raise UsageError(f"--exposure: {exposure} is not a finite number of stops")
+    check_exposure(exposure)
     rad = np.asarray(radiance)
     squeeze = rad.ndim == 2
     if squeeze:
@@ -293,6 +311,7 @@ def tonemap_file(radiance_path, output, operator: str = "reinhard", *, exposure:
     if ext in (".jpg", ".jpeg") and bits == 16:
         raise UsageError(f"{output}: JPEG holds 8 bits; use .png or .tif for 16-bit output")
     _check(operator, bits)
+    check_exposure(exposure)
     rad, space = read_radiance_colorspace(radiance_path, require_float=True)  # no photo as radiance
     if space != "rec709":
         from hdrcl.io.colorspace import convert

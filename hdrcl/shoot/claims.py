@@ -28,12 +28,11 @@ import glob
 import logging
 import os
 import signal
-import stat
 import threading
 import time
 from typing import Iterator, Optional
 
-from hdrcl.errors import InputError
+from hdrcl.errors import check_regular  # noqa: F401 - moved to hdrcl.errors; kept importable here
 
 logger = logging.getLogger(__name__)
 
@@ -184,26 +183,6 @@ def folder_lock(folder: str) -> Iterator[None]:
         yield
     finally:
         os.close(fd)
-
-
-def check_regular(path: str) -> None:
-    """Raise InputError at once unless ``path`` is a regular file.
-
-    A FIFO would block the first read for ever and ``/dev/zero`` never ends: such an
-    entry fails its own set before anything reads it.
-    """
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    if stat.S_ISDIR(st.st_mode):
-        raise InputError(f"{path}: is a folder, not an image")
-    if not stat.S_ISREG(st.st_mode):
-        kind = ("a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device" if stat.S_ISCHR(st.st_mode)
-                or stat.S_ISBLK(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode) else "special")
-        raise InputError(f"{path}: not a regular file ({kind})")
 
 
 # ------------------------------------------------------------------------ workers

@@ -14,6 +14,7 @@ import numpy as np
 
 from hdrcl.core.response import Response
 from hdrcl.errors import HdrclError, InputError
+from hdrcl.io.jsondoc import read_state
 from hdrcl.shoot.jobs import (
     MAX_POOL_SETS,
     RESPONSE_SUFFIX,
@@ -127,19 +128,23 @@ def _calibrate_group(group: str, jobs: List[SetJob], out_dir: str, options: Batc
             entry.warnings.append(f"set {j.index} not pooled: {exc}")
     key = _json_digest({"recipe": DIGEST_RECIPE, "hdrcl": __version__, "solve": options.solve_params(),
                         "reference": list(jobs[0].reference) if jobs else None, "sets": keyed})
-    try:
-        with open(path, encoding="utf-8") as fh:
-            saved = json.load(fh)
-        if isinstance(saved, dict) and saved.get("calibration", {}).get("key") == key:
+    saved = read_state(path, "pooled response") or {}  # absent or damaged: solve again
+    calib = saved.get("calibration")
+    if isinstance(calib, dict) and calib.get("key") == key:
+        warns = calib.get("warnings", [])
+        try:
+            if not isinstance(warns, list) or not all(isinstance(w, str) for w in warns):
+                raise InputError(f"{path}: calibration.warnings: expected a list of strings")
             Response.from_dict(saved, source=path)  # validates
+        except HdrclError as exc:  # stale or damaged: solve again
+            logger.info("%s; the response is solved again", str(exc).splitlines()[0])
+        else:
             entry.payload = {k: v for k, v in saved.items() if k != "calibration"}
             entry.digest = response_digest(entry.payload)
             entry.source = "loaded"
-            entry.warnings += list(saved.get("calibration", {}).get("warnings", []))
+            entry.warnings += warns
             logger.info("%s: response loaded from %s", group, path)
             return entry
-    except (OSError, ValueError, HdrclError):
-        pass  # absent, stale or damaged: solve again
     brackets, pooled, first_info = [], [], None
     for j in usable:
         try:

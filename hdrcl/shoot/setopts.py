@@ -53,12 +53,7 @@ def aligned_source(job: SetJob, opened, opts: BatchOptions, times):
     with BracketReader(job.files, opened.infos) as reader:
         frames, valid = reader.read_all()
     valid = _with_ignore(frames, valid, opts.ignore_color)
-    frames, valid, shifts, box = _align(frames, valid, times, opts.device)
-    crop = None
-    if opts.crop:
-        y0, y1, x0, x1 = crop = box
-        frames = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in frames]
-        valid = [None if v is None else np.ascontiguousarray(v[y0:y1, x0:x1]) for v in valid]
+    frames, valid, shifts, crop = _align(frames, valid, times, opts.device, bool(opts.crop))
     return ArraySource(frames, valid), shifts, crop
 
 

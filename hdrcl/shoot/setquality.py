@@ -3,7 +3,6 @@ after the EXR is committed, reports of skipped sets kept or rebuilt, the contact
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 from typing import List, Optional
@@ -114,17 +113,16 @@ def _quality_for(res: SetResult, job: SetJob, bracket, resp: Response, times, ra
 def _current_quality(folder: str, job: SetJob, digest: Optional[str]) -> Optional[dict]:
     """The figures of a report written for this very output (same digest, every file
     present), or None."""
+    from hdrcl.io.jsondoc import read_state
     from hdrcl.report.pages import REPORT_FORMAT, file_stem
 
-    try:
-        with open(os.path.join(folder, file_stem(_report_stem(job)) + ".json"), encoding="utf-8") as fh:
-            d = json.load(fh)
-    except (OSError, ValueError):
+    if digest is None:
         return None
-    if not isinstance(d, dict) or d.get("format") != REPORT_FORMAT or digest is None or d.get(DIGEST_KEY) != digest:
-        return None
+    d = read_state(os.path.join(folder, file_stem(_report_stem(job)) + ".json"), "set report")
+    if d is None or d.get("format") != REPORT_FORMAT or d.get(DIGEST_KEY) != digest:
+        return None  # absent, damaged or stale: rebuilt
     files = d.get("files") or {}
-    if not isinstance(d.get("figures"), dict) or not all(
+    if not isinstance(files, dict) or not isinstance(d.get("figures"), dict) or not all(
             isinstance(f, str) and os.path.isfile(os.path.join(folder, f)) for f in files.values()):
         return None
     return d["figures"]

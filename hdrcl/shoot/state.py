@@ -169,20 +169,20 @@ def _report_lock(out_dir: str):
 
 def _merge_entries(path: str, results: List[SetResult], plan: _Plan) -> List[dict]:
     """This run's entries plus earlier entries of other sets of the same manifest."""
+    from hdrcl.io.jsondoc import read_state
+
     mine = {r.index: r.to_dict() for r in results}
-    try:
-        with open(path, encoding="utf-8") as fh:
-            old = json.load(fh)
-        old_sets = old.get("sets", []) if isinstance(old, dict) else []
-    except (OSError, ValueError):
-        old_sets = []
+    old = read_state(path, "batch report") or {}  # absent or damaged: this run's entries only
+    old_sets = old.get("sets") if isinstance(old.get("sets"), list) else []
     for e in old_sets:
-        try:
-            i = int(e["index"])
-        except (KeyError, TypeError, ValueError):
+        if not isinstance(e, dict) or not isinstance(e.get("index"), int) or isinstance(e["index"], bool):
             continue
+        files = e.get("files")
+        if not isinstance(files, list) or not all(isinstance(f, str) for f in files):
+            continue
+        i = e["index"]
         job = plan.jobs.get(i)
-        if i not in mine and job is not None and [os.path.abspath(f) for f in e.get("files", [])] == job.files:
+        if i not in mine and job is not None and [os.path.abspath(f) for f in files] == job.files:
             mine[i] = e
     return [mine[i] for i in sorted(mine)]
 
