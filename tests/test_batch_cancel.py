@@ -181,14 +181,52 @@ def test_truncated_output_is_rebuilt(tmp_path):
     assert read_radiance(victim)[0].shape == (192, 256, 3)
 
 
-def test_report_lock_never_follows_a_symlink(tmp_path):
+def test_symlinks_in_the_output_folder_are_never_written_through(tmp_path):
+    """The report's lock is an flock on the folder (no lock file), but the claim file and
+    the report are opened by name: a symbolic link planted there must not redirect a
+    write outside the output folder."""
     folder, out = tmp_path / "shoot", tmp_path / "out"
     make_clean_shoot(folder, sets=1, frames=3)
     out.mkdir()
-    victim = tmp_path / "victim"
-    os.symlink(victim, out / ".report.lock")
-    assert CliRunner().invoke(main, ["batch", str(folder), "-o", str(out)]).exit_code == 0
-    assert not victim.exists()
+    claim_victim, report_victim = tmp_path / "claim-victim", tmp_path / "report-victim.json"
+    report_victim.write_text('{"keep": true}')
+    os.symlink(claim_victim, out / ".IMG_0001.claim")  # dangling: O_CREAT through it would make the victim
+    os.symlink(report_victim, out / "report.json")
+    res = subprocess.run(batch_cmd(folder, out), env=ENV, capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert not claim_victim.exists()
+    assert report_victim.read_text() == '{"keep": true}'
+    assert not os.path.islink(out / "report.json") and report_of(out)["sets"][0]["status"] == "done"
+
+
+def test_a_killed_worker_loses_no_other_set(shoot8, tmp_path):
+    """kill -9 of one worker mid-merge (an OOM kill): its set is run again in a fresh
+    pool, every other set completes."""
+    folder, groups = shoot8
+    out = tmp_path / "out"
+    proc, kids = start_busy(folder, out)
+    victim, deadline = None, time.monotonic() + 30
+    while victim is None and time.monotonic() < deadline:
+        for n in os.listdir(out):
+            if n.endswith(".claim"):
+                try:
+                    pid = int((out / n).read_text().strip() or 0)
+                except (OSError, ValueError):
+                    continue
+                if pid in kids:
+                    victim = pid
+                    break
+        time.sleep(0.005)
+    assert victim is not None, "no worker held a claim"
+    os.kill(victim, signal.SIGKILL)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err.decode()[-3000:]
+    rep = report_of(out)
+    assert len(rep["sets"]) == len(groups)
+    assert {s["status"] for s in rep["sets"]} == {"done"}
+    for s in rep["sets"]:
+        assert read_radiance(s["output"])[0].shape == (480, 640, 3)
+    assert litter(out) == []
 
 
 def test_memorial_merges_with_no_options(memorial, tmp_path):

@@ -254,7 +254,8 @@ def demo(folder, size, frames, seed, no_shoot, device):
         raise UsageError(f"--size: expected WxH, not '{size}'") from None
     if w < 16 or h < 16:
         raise UsageError("--size: at least 16x16")
-    rep = run_demo(folder, width=w, height=h, frames=frames, seed=seed, device=device, shoot=not no_shoot)
+    rep = run_demo(folder, width=w, height=h, frames=frames, seed=seed, device=device, shoot=not no_shoot,
+                   handle_signals=True)
     say(f"synthetic bracket: {len(rep.frames)} frames in {os.path.join(folder, 'frames')} "
                f"(scene spans {rep.dynamic_range:g} decades)")
     say(f"merged with {'OpenCL' if rep.backend == 'opencl' else 'NumPy'} -> {rep.radiance}")

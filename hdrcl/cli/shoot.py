@@ -234,7 +234,7 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
         rep = run_batch(source, out_dir, options=opts, sets=sets, response=response, jobs=jobs,
                         scheduler=scheduler, retries=retries, force=force, report=report_json,
                         calibrate_only=calibrate_only, recursive=recursive, frames_per_set=frames_per_set,
-                        gap=gap, progress=progress, times_file=times_file)
+                        gap=gap, progress=progress, times_file=times_file, handle_signals=True)
     except Cancelled as exc:  # before any set ran (scanning, calibrating): nothing to report
         progress.close()
         click.echo(f"hdrcl: {exc}", err=True)

@@ -16,9 +16,10 @@ an open descriptor), so no lock file can be redirected.
 **Workers die with the batch.** Each worker process asks the kernel to kill it when its
 parent dies (Linux ``prctl(PR_SET_PDEATHSIG, SIGKILL)``) and also runs a watchdog thread
 that kills it when its parent process id changes (every platform, also covers the race
-before ``prctl``). On SIGTERM or SIGINT the batch kills its workers at once
-(:func:`kill_workers`), removes the temporary files of the sets they held, writes the
-report of what finished and exits 143 or 130.
+before ``prctl``). On SIGTERM or SIGINT the batch (the CLI, :func:`cancel_signals`)
+kills its workers at once, removes the temporary files of the sets they held, writes the
+report of what finished and exits 143 or 130; called from Python, the caller's handlers
+stay and whatever they raise reaches the caller after the same cleanup.
 """
 from __future__ import annotations
 
@@ -230,13 +231,18 @@ def tie_to_parent(parent_pid: int) -> None:
 
 
 @contextlib.contextmanager
-def cancel_signals() -> Iterator[None]:
+def cancel_signals(install: bool = True) -> Iterator[None]:
     """Turn SIGTERM and SIGINT into :class:`Cancelled` in the main thread.
 
-    Elsewhere (a thread, an embedding application that already handles them) the
-    handlers are left alone.
+    Parameters
+    ----------
+    install : bool
+        False leaves the handlers alone (an embedding application's, or Python's
+        default that raises ``KeyboardInterrupt``); :func:`hdrcl.shoot.run.run_batch`
+        installs them only when asked to (the CLI does). In another thread nothing is
+        installed either. The previous handlers are restored on exit.
     """
-    if threading.current_thread() is not threading.main_thread():
+    if not install or threading.current_thread() is not threading.main_thread():
         yield
         return
 

@@ -34,13 +34,16 @@ class DemoReport:
 
 
 def run_demo(folder, *, width: int = 768, height: int = 512, frames: int = 7, step: float = 2.0,
-             decades: float = 4.5, seed: int = 0, device=None, shoot: bool = True) -> DemoReport:
+             decades: float = 4.5, seed: int = 0, device=None, shoot: bool = True,
+             handle_signals: bool = False) -> DemoReport:
     """Write a synthetic bracket to ``folder/frames``, merge it, and check the result;
     then (``shoot``) write a sample shoot to ``folder/shoot`` and batch it into
     ``folder/batch`` with a quality report.
 
     The camera is an S-shaped curve (:class:`hdrcl.core.synthetic.Camera`) with a slightly
     different curve per channel; the scene spans ``decades`` orders of magnitude.
+    ``handle_signals`` lets the batch take SIGTERM/SIGINT (the command line's choice,
+    see :func:`hdrcl.shoot.run.run_batch`).
     """
     from hdrcl.core.exposure import expose_file
     from hdrcl.core.merge import merge_files
@@ -107,7 +110,8 @@ def _demo_batch(rep: DemoReport, device) -> None:
     rep.batch = os.path.join(rep.folder, "batch")
     write_sample_shoot(rep.shoot)
     out = run_batch(rep.shoot, rep.batch, options=BatchOptions(device=device,
-                                                               report_dir=os.path.join(rep.batch, "report")))
+                                                               report_dir=os.path.join(rep.batch, "report")),
+                    handle_signals=handle_signals)
     rep.batch_done = sum(1 for r in out.results if r.status == "done")
     rep.batch_skipped = sum(1 for r in out.results if r.status == "skipped")
     rep.batch_failed = sum(1 for r in out.results if r.status == "failed")

@@ -55,28 +55,44 @@ def _worker_init(level: int, parent: int) -> None:
 def run_processes(set_jobs: List, ctx, emit: Callable, *, task: Callable, failed: Callable, jobs: int = 2) -> None:
     """Run ``set_jobs`` in ``jobs`` spawned worker processes.
 
-    A worker that dies (killed, out of memory) fails the sets it had not finished,
-    with that reason; the other sets complete.
+    A worker that dies (killed, out of memory) breaks the pool, and the pool cannot
+    tell which set it was running: the sets that had not finished are run again, in
+    a fresh pool, once each (their claims died with the worker, so the new run
+    removes its temporary files). A set lost a second time fails with that reason;
+    the other sets complete. Any exception here (SIGTERM, Ctrl-C) kills the workers
+    of the current pool at once and is raised.
     """
     mp = multiprocessing.get_context("spawn")
     level = logging.getLogger("hdrcl").getEffectiveLevel()
-    pool = concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=mp, initializer=_worker_init,
-                                                  initargs=(level, os.getpid()))
-    try:
-        futures = {pool.submit(task, job, ctx): job for job in set_jobs}
-        for fut in concurrent.futures.as_completed(futures):
-            job = futures[fut]
-            try:
-                res = fut.result()
-            except concurrent.futures.process.BrokenProcessPool as exc:
-                res = failed(job, RuntimeError(f"worker process died ({exc})"))
-            except Exception as exc:  # pickling problems and the like
-                res = failed(job, exc)
-            emit(res)
-    except BaseException:
-        _kill_pool(pool)
-        raise
-    pool.shutdown(wait=True)
+    pending, lost_once = list(set_jobs), set()
+    while pending:
+        pool = concurrent.futures.ProcessPoolExecutor(max_workers=min(jobs, len(pending)), mp_context=mp,
+                                                      initializer=_worker_init, initargs=(level, os.getpid()))
+        again = []
+        try:
+            futures = {pool.submit(task, job, ctx): job for job in pending}
+            for fut in concurrent.futures.as_completed(futures):
+                job = futures[fut]
+                try:
+                    res = fut.result()
+                except concurrent.futures.process.BrokenProcessPool as exc:
+                    if job.index not in lost_once:
+                        lost_once.add(job.index)
+                        again.append(job)
+                        continue
+                    res = failed(job, RuntimeError(f"worker process died twice ({exc})"))
+                except Exception as exc:  # pickling problems and the like
+                    res = failed(job, exc)
+                emit(res)
+        except BaseException:
+            _kill_pool(pool)
+            raise
+        if again:
+            _kill_pool(pool)  # what is left of the broken pool
+            logger.warning("a worker process died: running %d unfinished set(s) again in a fresh pool", len(again))
+        else:
+            pool.shutdown(wait=True)
+        pending = sorted(again, key=lambda j: j.index)
 
 
 def _kill_pool(pool) -> None:

@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 from hdrcl.errors import InputError, UsageError
-from hdrcl.shoot.jobs import BatchOptions, SetJob
+from hdrcl.shoot.jobs import RESPONSE_SUFFIX, BatchOptions, SetJob
 
 logger = logging.getLogger(__name__)
 
@@ -257,6 +257,77 @@ def _plan(manifest, out_dir: str, options: BatchOptions, ranges) -> _Plan:
         groups.setdefault(group, []).append(s.index)
     selected = [jobs[s.index] for s in select_sets(sets, ranges)]
     return _Plan(jobs=jobs, selected=selected, reference=reference, groups=groups)
+
+
+def _written_files(plan: _Plan, out_dir: str, *, report_path: str, report_dir: Optional[str],
+                   responses: bool) -> List[Tuple[str, str]]:
+    """Every file a run of ``plan`` may write, with what it is: outputs, previews, claim
+    files, the groups' responses (when calibrated here), the JSON report and the
+    quality report's files."""
+    from hdrcl.report.inputs import file_stem
+    from hdrcl.report.pages import INDEX_NAME
+
+    out: List[Tuple[str, str]] = [(report_path, "JSON report")]
+    for job in plan.selected:
+        stem = os.path.splitext(os.path.basename(job.output))[0]
+        out.append((job.output, "output"))
+        if job.preview is not None:
+            out.append((job.preview, "preview"))
+        out.append((os.path.join(out_dir, f".{stem}.claim"), "claim file"))
+        if report_dir is not None:
+            fs = os.path.join(report_dir, file_stem(stem))
+            out += [(fs + tail, "quality report") for tail in
+                    (".json", "-preview.jpg", "-response.svg", "-histogram.svg", "-coverage.png")]
+            out += [(f"{fs}-frame-{n:02d}.jpg", "quality report") for n in range(len(job.files))]
+    if responses:
+        out += [(os.path.join(out_dir, _slug(g) + RESPONSE_SUFFIX), "response")
+                for g in sorted({j.group for j in plan.selected})]
+    if report_dir is not None:
+        out.append((os.path.join(report_dir, INDEX_NAME), "contact sheet"))
+    return out
+
+
+def check_outputs_spare_inputs(manifest, plan: _Plan, out_dir: str, *, report_path: str,
+                               report_dir: Optional[str] = None, responses: bool = True,
+                               source=None) -> None:
+    """Refuse, before anything is written, a run that would write over one of its inputs.
+
+    The inputs are every file of the manifest (its sets and the groups it does not
+    merge) and the manifest file itself; the outputs are those of
+    :func:`_written_files`. Two paths are the same file when ``os.stat`` says so (hard
+    links, symbolic links, case-insensitive file systems) or, for a file not written
+    yet, when their normalised real paths are equal. ``hdrcl batch SHOOT -o SHOOT``
+    would otherwise replace each set's first JPEG by its preview.
+
+    Raises
+    ------
+    UsageError
+        One line naming the first output that is also an input.
+    """
+    inputs = [f for s in manifest.sets for f in s.files] + [f for u in manifest.unmerged for f in u.files]
+    if source is not None and isinstance(source, (str, os.PathLike)) and os.path.isfile(source):
+        inputs.append(os.fspath(source))
+    ids, names = {}, {}
+    for f in inputs:
+        f = os.path.abspath(os.fspath(f))
+        names.setdefault(os.path.normcase(os.path.realpath(f)), f)
+        try:
+            st = os.stat(f)
+        except OSError:
+            continue
+        ids.setdefault((st.st_dev, st.st_ino), f)
+    for path, what in _written_files(plan, out_dir, report_path=report_path, report_dir=report_dir,
+                                     responses=responses):
+        hit = names.get(os.path.normcase(os.path.realpath(path)))
+        if hit is None:
+            try:
+                st = os.stat(path)
+            except OSError:
+                continue
+            hit = ids.get((st.st_dev, st.st_ino))
+        if hit is not None:
+            raise UsageError(f"{path}: the {what} would overwrite the input {hit}; "
+                             "choose another output folder")
 
 
 # --------------------------------------------------------------------- loading sets

@@ -81,7 +81,7 @@ from hdrcl.shoot.jobs import (
     _Context,
     _reference_text,
 )
-from hdrcl.shoot.plan import _plan, load_source, parse_sets
+from hdrcl.shoot.plan import _plan, check_outputs_spare_inputs, load_source, parse_sets
 from hdrcl.shoot.pooling import _prepare_responses
 from hdrcl.shoot.setquality import _contact_sheet
 from hdrcl.shoot.setrun import _failed, _merge_stage, _Opening, _read_stage, process_set
@@ -148,6 +148,7 @@ def run_batch(
     gap: Optional[float] = None,
     progress: Optional[Callable[[Optional[SetResult], int, int], None]] = None,
     times_file: Union[str, os.PathLike, None] = None,
+    handle_signals: bool = False,
 ) -> BatchReport:
     """Merge every bracket set of a shoot into ``out_dir``.
 
@@ -188,10 +189,17 @@ def run_batch(
         without EXIF; lists named ``image_list.txt`` or ``times.txt`` beside the frames
         are found without it.
 
-    SIGTERM and SIGINT (in the main thread) stop the run within a couple of seconds:
-    worker processes are killed, temporary files of unfinished sets removed, and the
-    report written for the sets that finished; ``BatchReport.cancelled`` holds the
-    signal (exit code 143 or 130).
+    handle_signals : bool
+        Install handlers for SIGTERM and SIGINT for the duration of the run (the CLI
+        does); by default the caller's handlers are left alone.
+
+    With ``handle_signals`` (in the main thread), SIGTERM and SIGINT stop the run
+    within a couple of seconds: worker processes are killed, temporary files of
+    unfinished sets removed, and the report written for the sets that finished;
+    ``BatchReport.cancelled`` holds the signal (exit code 143 or 130). Without it, an
+    exception raised while the sets run (``KeyboardInterrupt`` from Ctrl-C, or
+    whatever the caller's handler raises) kills the worker processes, removes the
+    temporary files of unfinished sets and reaches the caller; no report is written.
 
     Returns
     -------
@@ -217,8 +225,8 @@ def run_batch(
     from hdrcl.io.writers import _exr_compression  # validates the name before any work
 
     _exr_compression(options.compression)
-    # SIGTERM / Ctrl-C raise Cancelled in the main thread from here on (see the docstring).
-    with cancel_signals():
+    # With handle_signals, SIGTERM / Ctrl-C raise Cancelled in the main thread from here on.
+    with cancel_signals(install=handle_signals):
         ranges = parse_sets(sets) if isinstance(sets, str) else (list(sets) if sets is not None else None)
         out_dir = os.path.abspath(os.fspath(out_dir))
         if os.path.exists(out_dir) and not os.path.isdir(out_dir):
@@ -240,6 +248,9 @@ def run_batch(
                 raise UsageError(f"{folder}: cannot create the {what} folder ({exc.strerror or exc})") from None
 
         plan = _plan(manifest, out_dir, options, ranges)
+        report_path = os.path.abspath(os.fspath(report)) if report is not None else os.path.join(out_dir, REPORT_NAME)
+        check_outputs_spare_inputs(manifest, plan, out_dir, report_path=report_path, report_dir=report_dir,
+                                   responses=response is None, source=source)
         logger.info("%d set(s) in the manifest, %d selected; reference %s", len(plan.jobs), len(plan.selected),
                     _reference_text(plan.reference))
         responses = _prepare_responses(plan, out_dir, options, response)
@@ -285,9 +296,13 @@ def run_batch(
             logger.warning("%s: %d of %d set(s) finished; stopping", exc, len(results), total)
             # The workers are dead and their claims released: their temporary files go.
             remove_orphan_temps(out_dir, stems)
+        except BaseException:
+            # KeyboardInterrupt in API mode (or the caller's own signal exception): the
+            # workers are dead; clean up after them and let the caller have it.
+            remove_orphan_temps(out_dir, stems)
+            raise
 
         rep.results = sorted(results, key=lambda r: r.index)
-        report_path = os.path.abspath(os.fspath(report)) if report is not None else os.path.join(out_dir, REPORT_NAME)
         if not os.path.isdir(os.path.dirname(report_path)):
             raise UsageError(f"{report_path}: report folder does not exist")
         with _report_lock(os.path.dirname(report_path)):

@@ -3,11 +3,12 @@ and writing it (merge stage); :func:`process_set` runs both.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import time as _time
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional
+from typing import Dict, Iterator, List, Optional
 
 from hdrcl.errors import HdrclError
 from hdrcl.shoot.jobs import (
@@ -84,6 +85,19 @@ def _rebuild_preview(job: SetJob, digest: str, options: BatchOptions) -> None:
               metadata=_preview_metadata(digest, options, counts))
 
 
+@contextlib.contextmanager
+def _claimed(job: SetJob) -> Iterator[None]:
+    """Hold the set's claim (:mod:`hdrcl.shoot.claims`) while writing any of its files,
+    so that another batch's cleanup or ``--force`` never removes a file in flight."""
+    from hdrcl.shoot.claims import claim_set
+
+    claim = claim_set(os.path.dirname(job.output), os.path.splitext(os.path.basename(job.output))[0])
+    try:
+        yield
+    finally:
+        claim.release()
+
+
 def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
     """Hash the set, skip it if its outputs are current, else read its headers."""
     seconds: Dict[str, float] = {}
@@ -111,14 +125,16 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
                                 counts=_counts_of(pmeta), ev_offset=_float_or_none(meta.get("evOffset")))
                 if not preview_ok:
                     t1 = _time.perf_counter()
-                    _rebuild_preview(job, digest, ctx.options)
+                    with _claimed(job):  # its temporary file is the claim holder's
+                        _rebuild_preview(job, digest, ctx.options)
                     seconds["preview"] = _time.perf_counter() - t1
                     res.warnings.append("preview was missing or stale: rebuilt from the EXR")
                 if ctx.options.report_dir:
                     res.quality = _current_quality(ctx.options.report_dir, job, digest)
                     if res.quality is None:
                         t1 = _time.perf_counter()
-                        _rebuild_quality(res, job, ctx)
+                        with _claimed(job):
+                            _rebuild_quality(res, job, ctx)
                         seconds["quality"] = _time.perf_counter() - t1
                 return res
         t1 = _time.perf_counter()

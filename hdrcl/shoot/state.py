@@ -190,14 +190,29 @@ def _merge_entries(path: str, results: List[SetResult], plan: _Plan) -> List[dic
 def _remove_stale_temps(out_dir: str, stems: Sequence[str]) -> None:
     """Delete temporary files that killed runs left behind.
 
-    A set's files are removed only when nobody holds its claim (their writer is gone,
-    :mod:`hdrcl.shoot.claims`); other temporary files (JSON) only when older than
-    :data:`STALE_TEMP_SECONDS`, as another chunk may be writing them right now.
+    A set's files (``stems``) are removed when nobody holds its claim (their writer is
+    gone, :mod:`hdrcl.shoot.claims`). Other temporary files (JSON, the sets of another
+    chunk, the quality report's) only when older than :data:`STALE_TEMP_SECONDS`, as
+    another chunk may be writing them right now, and never a file of a set whose claim
+    a live process holds (a long merge of another chunk).
     """
-    from hdrcl.shoot.claims import remove_orphan_temps
+    from hdrcl.shoot.claims import SetClaim, remove_orphan_temps
 
     remove_orphan_temps(out_dir, stems)
-    mine = set()
+    held: Dict[str, bool] = {}
+
+    def is_held(stem: str) -> bool:
+        if stem not in held:
+            c = SetClaim(out_dir, stem)
+            try:
+                got = c.acquire(wait=False)
+            except OSError:
+                got = False
+            if got:
+                c.release()
+            held[stem] = not got
+        return held[stem]
+
     now = _time.time()
     pat = re.compile(r"^\.(?P<stem>.+)\.tmp-[0-9a-f]{8}\.(exr|jpg)$|^\..+\.json\.[^.]+\.tmp$")
     try:
@@ -210,6 +225,9 @@ def _remove_stale_temps(out_dir: str, stems: Sequence[str]) -> None:
             continue
         p = os.path.join(out_dir, name)
         with contextlib.suppress(OSError):
-            if m.group("stem") in mine or now - os.path.getmtime(p) > STALE_TEMP_SECONDS:
-                os.remove(p)
-                logger.debug("removed stale temporary file %s", p)
+            if now - os.path.getmtime(p) <= STALE_TEMP_SECONDS:
+                continue
+            if m.group("stem") is not None and is_held(m.group("stem")):
+                continue
+            os.remove(p)
+            logger.debug("removed stale temporary file %s", p)
