@@ -155,8 +155,8 @@ def merge_files(
     ``response`` the set calibrates itself from a first streaming pass that keeps only
     each frame's sampling grid (:meth:`hdrcl.io.reader.BracketReader.read_grid`); the
     fusion pass then decodes the frames again, its first strip while the response is
-    solved. Only ``align`` holds whole frames in memory. The output is written atomically: nothing appears at ``output`` unless the whole
-    merge succeeded.
+    solved. Only ``align`` holds whole frames in memory. The output is written
+    atomically: nothing appears at ``output`` unless the whole merge succeeded.
 
     Parameters
     ----------

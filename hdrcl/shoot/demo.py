@@ -96,11 +96,11 @@ def run_demo(folder, *, width: int = 768, height: int = 512, frames: int = 7, st
                      response=rfile, preview=preview, curve_error=curve_err, radiance_error=rad_err,
                      dynamic_range=decades, backend=res.backend, seconds=res.seconds)
     if shoot:
-        _demo_batch(rep, device)
+        _demo_batch(rep, device, handle_signals)
     return rep
 
 
-def _demo_batch(rep: DemoReport, device) -> None:
+def _demo_batch(rep: DemoReport, device, handle_signals: bool = False) -> None:
     """The shoot job: a sample shoot with EXIF, merged by ``hdrcl batch`` with a report."""
     from hdrcl.shoot.jobs import BatchOptions
     from hdrcl.shoot.run import run_batch
