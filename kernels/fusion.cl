@@ -4,16 +4,17 @@
  *
  *   ln E = sum_j w(Z_j) (g_c(Z_j) - ln dt_j) / sum_j w(Z_j)
  *
- * Two kernels share one strip of codes:
+ * Three kernels share one strip of codes:
  *
  *   fuse      the fast path. Each work item takes 4 pixels (4*NCH consecutive values,
- *             so every lane's channel is known at compile time), loads them as
- *             uchar4/ushort4 vectors and makes one 8-byte gather per sample from a
- *             table per frame that folds weight and log exposure together:
- *             lut[p][c][z] = (w(z)(g_c(z) - ln dt_p)/ln 2, w(z)). One division and one
- *             exp2 per value, none per sample. A value whose
+ *             so every value's channel is known at compile time) and makes one 8-byte
+ *             load per sample from a table per frame that folds weight and log
+ *             exposure together: lut[p][c][z] = (w(z)(g_c(z) - ln dt_p)/ln 2, w(z)),
+ *             accumulated per value in private float2s. One division and one exp2
+ *             per value, none per sample. A value whose
  *             weights sum to zero is written as -1 (impossible radiance) and raises a
  *             flag (a plain store of 1: no atomics on the fast path).
+ *   fuse_tail the last npix % 4 pixels, one value at a time, same arithmetic.
  *   fuse_fix  run only when fuse raised the flag: one work item per pixel applies
  *             the twin's rule to them. Clipped high (the shortest valid frame reads
  *             2Z >= L) -> g_c(Zmax) - ln dt_shortest; otherwise black ->
@@ -26,6 +27,8 @@
  *   -DNCH=1|3               channels per pixel (default 3)
  *   -DHAS_VALID             per-frame validity masks are given
  *   -DLEVELS=256|65536      code values (must equal the levels argument)
+ *   -DNFRAMES=P             optional: frame count fixed at build time (must equal the
+ *                           nframes argument): the compiler then unrolls the frame loop
  *
  * Arguments (units, layout)
  *   frames   PIXEL_T [P][plane]  codes of a strip: frame p starts at p*plane, pixels
@@ -52,36 +55,29 @@
 #define LEVELS 256
 #endif
 
-#define CAT_(a, b) a##b
-#define CAT(a, b) CAT_(a, b)
-#define PIXEL4 CAT(PIXEL_T, 4)
-#define LOAD4(i, p) vload4((i), (p))
-
-#ifdef HAS_VALID
-#define MASK(v, ok) select((float4)0.0f, (v), (ok))
+/* Frame count: a compile-time constant when the host gives -DNFRAMES (the frame loop
+ * then unrolls), else the nframes argument. */
+#ifdef NFRAMES
+#define FRAME_COUNT NFRAMES
 #else
-#define MASK(v, ok) (v)
+#define FRAME_COUNT nframes
 #endif
 
-/* Contribution of one 4-lane vector of codes whose lanes have channels c0..c3: one
- * float2 gather (weighted log exposure, weight) per lane. */
-#define GATHER(z, c0, c1, c2, c3, l, num, den, ok)                                   \
-    do {                                                                             \
-        const float2 t0_ = l[(c0) * LEVELS + (z).s0], t1_ = l[(c1) * LEVELS + (z).s1]; \
-        const float2 t2_ = l[(c2) * LEVELS + (z).s2], t3_ = l[(c3) * LEVELS + (z).s3]; \
-        num += MASK((float4)(t0_.x, t1_.x, t2_.x, t3_.x), (ok));                     \
-        den += MASK((float4)(t0_.y, t1_.y, t2_.y, t3_.y), (ok));                     \
-    } while (0)
+/* Value k of a work item's 4 pixels (channel k % NCH, pixel k / NCH, both constants)
+ * adds its sample of frame p to its accumulator a<k>; a masked-out sample adds 0. */
+#ifdef HAS_VALID
+#define SAMPLE(k) a##k += m[(k) / NCH] ? l[((k) % NCH) * LEVELS + f[k]] : (float2)(0.0f)
+#else
+#define SAMPLE(k) a##k += l[((k) % NCH) * LEVELS + f[k]]
+#endif
 
-inline float4 finish(const float4 num, const float4 den, __global uint *counts)
+/* exp2(num / den), or -1 (impossible radiance, for fuse_fix) where the weights sum to zero. */
+inline float4 quotient(const float4 num, const float4 den)
 {
-    const int4 zero = den <= 0.0f;
-    if (any(zero))
-        counts[3] = 1u; /* a flag, not a count: every writer stores the same value */
-    return select(exp2(num / den), (float4)(-1.0f), zero);
+    return select(exp2(num / den), (float4)(-1.0f), den <= 0.0f);
 }
 
-/* Scalar version of one value, for the ragged end of a strip. */
+/* Scalar version of one value, for the ragged end of a strip (fuse_tail). */
 inline float one_value(__global const PIXEL_T *frames, __global const uchar *valid,
                        __global const float2 *lut, __global uint *counts, const int i, const int c,
                        const int nframes, const int levels, const int plane, const int vplane)
@@ -103,6 +99,11 @@ inline float one_value(__global const PIXEL_T *frames, __global const uchar *val
     return -1.0f;
 }
 
+/* The fast path. Per sample: one scalar load of the code, one 8-byte load from the
+ * folded table (its index is the code plus a constant), one float2 add into that
+ * value's own accumulator. Scalar loads and private accumulators, rather than vector
+ * loads and lane shuffles, keep the inner loop at a few instructions per sample on CPU
+ * drivers; summation order is that of the frames, as in the twin. */
 __kernel void fuse(__global const PIXEL_T *frames,
                    __global const uchar *valid,
                    __global const float2 *lut,
@@ -116,46 +117,58 @@ __kernel void fuse(__global const PIXEL_T *frames,
 {
     const int q = get_global_id(0);
     const int i0 = q * 4; /* first pixel of this work item */
-    if (i0 >= npix)
+    if (i0 + 4 > npix) /* the last npix % 4 pixels are fuse_tail's */
         return;
-    if (i0 + 4 > npix) { /* ragged end */
-        for (int i = i0; i < npix; ++i)
-            for (int c = 0; c < NCH; ++c)
-                out[(size_t)i * NCH + c] = one_value(frames, valid, lut, counts, i, c, nframes, levels,
-                                                     plane, vplane);
-        return;
-    }
     const size_t v0 = (size_t)i0 * NCH;
-    float4 na = 0.0f;
-    float4 da = 0.0f;
+    float2 a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, a3 = 0.0f;
 #if NCH == 3
-    float4 nb = 0.0f, nc = 0.0f, db = 0.0f, dc = 0.0f;
+    float2 a4 = 0.0f, a5 = 0.0f, a6 = 0.0f, a7 = 0.0f, a8 = 0.0f, a9 = 0.0f, a10 = 0.0f, a11 = 0.0f;
 #endif
-    for (int p = 0; p < nframes; ++p) {
+    for (int p = 0; p < FRAME_COUNT; ++p) {
         __global const PIXEL_T *f = frames + (size_t)p * plane + v0;
         __global const float2 *l = lut + p * NCH * LEVELS;
 #ifdef HAS_VALID
-        const int4 m = convert_int4(vload4(0, valid + (size_t)p * vplane + i0)) != 0;
-#else
-        const int4 m = (int4)(-1);
+        __global const uchar *m = valid + (size_t)p * vplane + i0;
 #endif
+        SAMPLE(0); SAMPLE(1); SAMPLE(2); SAMPLE(3);
 #if NCH == 3
-        /* values 0..11 = pixels 0..3 x RGB: lanes (R G B R) (G B R G) (B R G B) */
-        const PIXEL4 a = LOAD4(0, f), b = LOAD4(1, f), c = LOAD4(2, f);
-        GATHER(a, 0, 1, 2, 0, l, na, da, m.s0001);
-        GATHER(b, 1, 2, 0, 1, l, nb, db, m.s1122);
-        GATHER(c, 2, 0, 1, 2, l, nc, dc, m.s2333);
-#else
-        const PIXEL4 a = LOAD4(0, f);
-        GATHER(a, 0, 0, 0, 0, l, na, da, m);
+        SAMPLE(4); SAMPLE(5); SAMPLE(6); SAMPLE(7); SAMPLE(8); SAMPLE(9); SAMPLE(10); SAMPLE(11);
 #endif
     }
+    /* One flag store per work item at most: values whose weights sum to zero. */
     __global float *o = out + v0;
-    vstore4(finish(na, da, counts), 0, o);
+    int4 zero = (float4)(a0.y, a1.y, a2.y, a3.y) <= 0.0f;
+    vstore4(quotient((float4)(a0.x, a1.x, a2.x, a3.x), (float4)(a0.y, a1.y, a2.y, a3.y)), 0, o);
 #if NCH == 3
-    vstore4(finish(nb, db, counts), 1, o);
-    vstore4(finish(nc, dc, counts), 2, o);
+    zero |= (float4)(a4.y, a5.y, a6.y, a7.y) <= 0.0f;
+    zero |= (float4)(a8.y, a9.y, a10.y, a11.y) <= 0.0f;
+    vstore4(quotient((float4)(a4.x, a5.x, a6.x, a7.x), (float4)(a4.y, a5.y, a6.y, a7.y)), 1, o);
+    vstore4(quotient((float4)(a8.x, a9.x, a10.x, a11.x), (float4)(a8.y, a9.y, a10.y, a11.y)), 2, o);
 #endif
+    if (any(zero))
+        counts[3] = 1u; /* a flag, not a count: every writer stores the same value */
+}
+
+/* The last npix % 4 pixels of a strip (fuse takes whole groups of 4): one work item per
+ * pixel from `first`. A separate kernel keeps the ragged end's loops out of fuse, where
+ * they stop some drivers from vectorising across work items. */
+__kernel void fuse_tail(__global const PIXEL_T *frames,
+                        __global const uchar *valid,
+                        __global const float2 *lut,
+                        __global float *out,
+                        __global uint *counts,
+                        const int npix,
+                        const int nframes,
+                        const int levels,
+                        const int plane,
+                        const int vplane,
+                        const int first)
+{
+    const int i = first + (int)get_global_id(0);
+    if (i >= npix)
+        return;
+    for (int c = 0; c < NCH; ++c)
+        out[(size_t)i * NCH + c] = one_value(frames, valid, lut, counts, i, c, nframes, levels, plane, vplane);
 }
 
 __kernel void fuse_fix(__global const PIXEL_T *frames,

@@ -46,6 +46,24 @@ def test_fusion_kernel_matches_twin_on_odd_sizes(cl_device, bits, channels):
     assert np.all(np.isfinite(got))
 
 
+@pytest.mark.parametrize("w,strip", [(3, 3), (5, 5), (9, 18)])  # strips of 3, 5 and 18 pixels
+def test_fusion_kernel_ragged_strip_ends(cl_device, w, strip):
+    """Strips whose pixel count is not a multiple of 4 (or below 4): the last pixels go
+    through fuse_tail, and must equal the twin like the rest."""
+    from hdrcl.cl.fusion import FusionProcessor
+
+    cam, rad, times, frames = _odd_bracket(h=7, w=w, seed=4)
+    tables = _tables(cam, 3, 8)
+    wt = weight_table(256)
+    valid = [np.random.default_rng(k).random(frames[0].shape[:2]) > 0.2 for k in range(len(frames))]
+    proc = FusionProcessor(ctx=cl_device, strip_pixels=strip)
+    for vv in (None, valid):
+        got, counts = proc.fuse(frames, np.log(times), tables, wt, vv)
+        want, wcounts = ref.fuse(frames, np.log(times), tables, wt, vv)
+        np.testing.assert_allclose(got, want, rtol=RTOL, atol=0)
+        assert counts == wcounts
+
+
 def test_zero_weight_rule(cl_device):
     """Clipped high everywhere -> shortest frame at the top code; black -> longest at 0."""
     from hdrcl.cl.fusion import FusionProcessor

@@ -25,24 +25,65 @@ def files(tmp_path):
     return paths, [float(t) for t in times], tmp_path
 
 
-@pytest.mark.parametrize("budget", ["1024", "0.01"])  # in memory, and two passes
-def test_file_merge_equals_in_memory_merge(files, budget, monkeypatch, cl_device):
+@pytest.mark.parametrize("grid_rows", [64, 5])  # one grid strip; many, ragged
+def test_file_merge_equals_in_memory_merge(files, grid_rows, monkeypatch, cl_device):
     import hdrcl.cl.processing as proc
+    import hdrcl.core.sampling as sampling
+    import hdrcl.io.reader as reader
 
     paths, times, d = files
-    monkeypatch.setenv("HDRCL_MEMORY_MB", budget)
     monkeypatch.setattr(proc, "STRIP_PIXELS", 1000)  # many strips, a ragged last one
+    monkeypatch.setattr(reader, "GRID_STRIP_ROWS", grid_rows)
+    monkeypatch.setattr(sampling, "MAX_GRID_PIXELS", 2000)  # a grid of stride 3
     from hdrcl.cl.backend import _processors
 
     _processors.clear()
-    res = hdrcl.merge_files(paths, d / "out.exr", times=times, dtype="float", keep_radiance=True,
-                            ignore_color=(0, 0, 255))
-    _processors.clear()
-    whole = hdrcl.merge(paths, times=times, ignore_color=(0, 0, 255))
+    try:
+        res = hdrcl.merge_files(paths, d / "out.exr", times=times, dtype="float", keep_radiance=True,
+                                ignore_color=(0, 0, 255))
+        _processors.clear()
+        whole = hdrcl.merge(paths, times=times, ignore_color=(0, 0, 255))
+    finally:
+        _processors.clear()  # no processor with tiny strips outlives the test
     np.testing.assert_allclose(res.radiance, whole, rtol=1e-6)
     back, meta = read_radiance(str(d / "out.exr"))
     np.testing.assert_array_equal(back, res.radiance)
     assert res.radiance is not None and res.shape == (131, 97, 3)
+
+
+def test_streaming_calibration_gives_the_in_memory_curve(files, monkeypatch):
+    """Calibration from files keeps only each frame's sampling grid, read strip by
+    strip; the curve equals the one calibrated from the whole frames in memory."""
+    import hdrcl.core.sampling as sampling
+    import hdrcl.io.reader as reader
+    from hdrcl.core.bracket import load_bracket
+
+    paths, times, d = files
+    monkeypatch.setattr(sampling, "MAX_GRID_PIXELS", 2000)  # stride 3: the grid is not the image
+    monkeypatch.setattr(reader, "GRID_STRIP_ROWS", 7)  # rounded up to 9 rows: many strips, a ragged last
+    whole = hdrcl.calibrate(load_bracket(paths, times=times, ignore_color=(0, 0, 255)))
+    streamed = hdrcl.calibrate(paths, times=times, ignore_color=(0, 0, 255))
+    assert whole.samples == streamed.samples
+    np.testing.assert_allclose(streamed.tables(), whole.tables(), atol=1e-9)
+    merged = hdrcl.merge_files(paths, d / "out.hdr", times=times, ignore_color=(0, 0, 255))
+    np.testing.assert_allclose(merged.response.tables(), whole.tables(), atol=1e-9)
+
+
+def test_reader_prefetch_then_other_strip_size(files):
+    """A first strip started early but then not used (other strip height) is dropped and
+    the frames are read again from the top."""
+    from hdrcl.io.reader import BracketReader
+
+    paths = files[0]
+    with BracketReader(paths) as r:
+        whole, _ = r.read_all()
+    with BracketReader(paths) as r:
+        grid, _ = r.read_grid(2)
+        np.testing.assert_array_equal(grid[1], whole[1][::2, ::2])
+        r.prefetch(10)
+        got = [np.concatenate(fs) for fs in zip(*[f for _, _, f, _ in r.strips(16)])]
+    for a, b in zip(got, whole):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_writer_is_atomic_on_failure(tmp_path):
@@ -83,3 +124,31 @@ def test_thumbnail_is_a_subsample(files, cl_device):
     res = hdrcl.merge_files(paths, d / "t.exr", times=times, dtype="float", keep_radiance=True, thumbnail=30)
     stride = int(np.ceil(131 / 30))
     np.testing.assert_array_equal(res.thumbnail, res.radiance[::stride, ::stride])
+
+
+def test_calibrating_deghost_merge_reuses_the_grid(files, monkeypatch):
+    """A calibrating --deghost merge: the ghost model reads the sampling grid again
+    (given back from the calibration pass, not decoded a third time), while the first
+    fusion strip is already decoding; the result equals the same merge with the
+    response given."""
+    import hdrcl.io.reader as reader
+
+    paths, times, d = files
+    calls = []
+    real = reader.BracketReader._read
+
+    def counting(self, k, y0, y1):
+        calls.append((k, y0))
+        return real(self, k, y0, y1)
+
+    monkeypatch.setattr(reader.BracketReader, "_read", counting)
+    a = hdrcl.merge_files(paths, d / "a.exr", times=times, dtype="float", keep_radiance=True, deghost=True)
+    decoded_rows = len([c for c in calls if c[0] == 0])
+    calls.clear()
+    b = hdrcl.merge_files(paths, d / "b.exr", times=times, dtype="float", keep_radiance=True, deghost=True,
+                          response=a.response)
+    np.testing.assert_array_equal(a.radiance, b.radiance)
+    assert a.counts == b.counts
+    # calibrating: the grid pass plus the fusion pass; with the response: the ghost
+    # model's grid pass plus the fusion pass. The same number of reads of frame 0.
+    assert decoded_rows == len([c for c in calls if c[0] == 0])

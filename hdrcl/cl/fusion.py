@@ -27,9 +27,10 @@ class FusionPlan:
             raise ValueError(f"fusion handles 1 or 3 channels, not {nch}")
         self.levels = tables.shape[1]
         self.has_valid = has_valid
-        opts = (f"-DPIXEL_T={_PIXEL_T[self.dtype]}", f"-DNCH={nch}", f"-DLEVELS={self.levels}") + (
+        opts = (f"-DPIXEL_T={_PIXEL_T[self.dtype]}", f"-DNCH={nch}", f"-DLEVELS={self.levels}", f"-DNFRAMES={nframes}") + (
             ("-DHAS_VALID",) if has_valid else ())
         self.knl = proc.ctx.kernel("fusion", "fuse", opts)
+        self.tail = proc.ctx.kernel("fusion", "fuse_tail", opts)
         self.fix = proc.ctx.kernel("fusion", "fuse_fix", opts)
         log_t = np.asarray(log_times, np.float64)
         wt = np.asarray(weights, np.float64)
@@ -68,8 +69,11 @@ class FusionPlan:
                 v = self._ones[:npix] if valid[j] is None else np.ascontiguousarray(valid[j], dtype=np.uint8)
                 cl.enqueue_copy(q, self.valid_b, v, dst_offset=j * self.spix, is_blocking=False)
         args = (np.int32(npix), np.int32(self.p), np.int32(self.levels), np.int32(self.plane), np.int32(self.spix))
-        self.knl(q, (round_up((npix + 3) // 4),), None, self.frames_b, self.valid_b, self.lut,
-                 self.out_b, self.counts_b, *args)
+        bufs = (self.frames_b, self.valid_b, self.lut, self.out_b, self.counts_b)
+        if npix >= 4:
+            self.knl(q, (round_up(npix // 4),), None, *bufs, *args)
+        if npix % 4:
+            self.tail(q, (round_up(npix % 4),), None, *bufs, *args, np.int32(npix - npix % 4))
         cl.enqueue_copy(q, self.counts, self.counts_b, is_blocking=True)
         if self.counts[3]:  # the fast path flagged values that need the zero-weight rule
             self.fix(q, (round_up(npix),), None, self.frames_b, self.valid_b, self.hi, self.lo, self.out_b,
@@ -130,7 +134,8 @@ class FusionProcessor(OpenCLProcessor):
 def profile_kernel(proc: FusionProcessor, frames, log_times, tables, weights, repeats: int = 3) -> float:
     """Seconds the ``fuse`` kernel alone takes over whole in-memory ``frames`` (best of
     ``repeats``), measured by OpenCL profiling events with the data already on the
-    device: the figure behind "kernel bandwidth" in ``scripts/bench.py``."""
+    device: the figure behind "kernel bandwidth" in ``scripts/bench.py`` (``npix % 4``
+    pixels at the end, fuse_tail's, are left out)."""
     ctx = proc.ctx
     h, w, c = frames[0].shape
     dtype = frames[0].dtype
@@ -143,7 +148,7 @@ def profile_kernel(proc: FusionProcessor, frames, log_times, tables, weights, re
     ob = cl.Buffer(ctx.context, mf.READ_WRITE, npix * c * 4)
     best = float("inf")
     for _ in range(max(1, repeats)):
-        ev = plan.knl(q, (round_up((npix + 3) // 4),), None, fb, plan.valid_b, plan.lut, ob, plan.counts_b, np.int32(npix), np.int32(len(frames)), np.int32(plan.levels),
+        ev = plan.knl(q, (round_up(npix // 4),), None, fb, plan.valid_b, plan.lut, ob, plan.counts_b, np.int32(npix), np.int32(len(frames)), np.int32(plan.levels),
                       np.int32(npix * c), np.int32(npix))
         ev.wait()
         best = min(best, (ev.profile.end - ev.profile.start) * 1e-9)

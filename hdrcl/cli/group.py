@@ -248,8 +248,11 @@ class HdrclGroup(click.Group):
 
 @click.group(cls=HdrclGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="hdrcl", prog_name="hdrcl")
+@click.option("--max-pixels", type=click.IntRange(min=1), default=None, metavar="N",
+              help="Refuse frames of more than N pixels, checked before decoding "
+                   "[default: HDRCL_MAX_PIXELS, else 1000000000].")
 @click.pass_context
-def main(ctx):
+def main(ctx, max_pixels):
     """Merge bracketed photographs into HDR radiance maps (Debevec & Malik 1997).
 
     Fusion and virtual exposures run as OpenCL kernels (any OpenCL device; PoCL on
@@ -260,9 +263,11 @@ def main(ctx):
     Exit codes: 0 success, 1 processing failed, 2 usage error, 3 unreadable or
     inconsistent input, 130 interrupted, 143 terminated.
     Environment: PYOPENCL_CTX picks the device (or --device); HDRCL_OPENCL=0 uses the
-    slower NumPy path.
+    slower NumPy path; HDRCL_MAX_PIXELS bounds the pixels of one frame (--max-pixels).
     """
     ctx.ensure_object(dict)
+    if max_pixels is not None:  # the environment carries it to batch workers too
+        os.environ["HDRCL_MAX_PIXELS"] = str(max_pixels)
     _setup_logging()
 
 

@@ -136,24 +136,28 @@ def load_bracket(
 
 
 def read_infos(paths: Sequence[str]) -> list:
-    """Headers of ``paths`` (no pixels decoded), read in parallel; InputError names the file."""
+    """Headers of ``paths`` (no pixels decoded), read in parallel; InputError names the file
+    (also a frame over the pixel limit, :func:`hdrcl.io.frames.max_pixels`)."""
     import concurrent.futures
 
-    from hdrcl.io.frames import read_info
+    from hdrcl.io.frames import check_pixel_limit, read_info
 
     if len(paths) < 2:
         from hdrcl.io.metadata import resolve_exposures
 
         resolve_exposures(paths)  # raises the "needs at least two exposures" error
     with concurrent.futures.ThreadPoolExecutor(max_workers=min(8, len(paths))) as pool:
-        return list(pool.map(read_info, paths))
+        infos = list(pool.map(read_info, paths))
+    for info in infos:
+        check_pixel_limit(info)
+    return infos
 
 
 def memory_budget() -> int:
-    """Bytes of decoded frames a calibrating merge may hold at once (``HDRCL_MEMORY_MB``).
+    """Bytes of decoded frames a quality report may hold whole (``HDRCL_MEMORY_MB``).
 
-    Above it, calibration reads a decimated grid in a first pass and fusion decodes the
-    frames again strip by strip, so memory stays flat at the cost of a second decode.
+    Above it, the report measures the decimated sampling grid instead. (Merging never
+    holds whole frames, except with ``--align``: calibration streams.)
     """
     try:
         mb = float(os.environ.get("HDRCL_MEMORY_MB", "1024"))
@@ -188,12 +192,15 @@ def _open_files(paths, times, times_file):
     return paths, infos, np.asarray(metadata.relative_exposures(exposures), np.float64)
 
 
-def _grid_bracket(paths, infos, rel, rgb) -> Bracket:
-    """The decimated grid that sample selection uses, read in one streaming pass."""
+def _grid_bracket(paths, infos, rel, rgb, reader=None) -> Bracket:
+    """The decimated grid that sample selection uses, read in one streaming pass
+    (through ``reader`` when given: it is rewound for a later pass, not closed)."""
     from hdrcl.core.sampling import grid_stride
     from hdrcl.io.reader import BracketReader
 
-    with BracketReader(paths, infos) as reader:
-        frames, valid = reader.read_grid(grid_stride(reader.height, reader.width))
+    if reader is None:
+        with BracketReader(paths, infos) as own:
+            return _grid_bracket(paths, infos, rel, rgb, reader=own)
+    frames, valid = reader.read_grid(grid_stride(reader.height, reader.width))
     return Bracket(frames=frames, times=rel, valid=_with_ignore(frames, valid, rgb), paths=paths, infos=infos,
                    grid=True)

@@ -60,6 +60,24 @@ def expose(radiance: np.ndarray, response: Union[Response, str, os.PathLike], ti
     return render(radiance, _as_response(response), time, bits=bits, device=device)
 
 
+#: Longest ``--motion-blur`` in pixels: its cost grows with the length (one shifted
+#: copy of the image per pixel), so a typo like 1e9 must not run for ever.
+MAX_MOTION_BLUR = 1000
+
+
+def _check_blur_length(blur, shape) -> None:
+    """UsageError unless no component of ``blur = (dx, dy)`` (finite: :func:`_check_blur`)
+    is longer than the image (``shape``) and the whole is at most :data:`MAX_MOTION_BLUR`
+    pixels long."""
+    dx, dy = blur
+    text = f"{dx:g},{dy:g}"
+    if max(abs(dx), abs(dy)) > max(shape[:2]):
+        raise UsageError(f"--motion-blur: {text} is longer than the image ({shape[1]}x{shape[0]})")
+    length = float(np.hypot(dx, dy))
+    if length > MAX_MOTION_BLUR:
+        raise UsageError(f"--motion-blur: {text} is {length:.0f} pixels long; at most {MAX_MOTION_BLUR}")
+
+
 def expose_file(
     radiance_path: Union[str, os.PathLike],
     output: Union[str, os.PathLike],
@@ -73,7 +91,9 @@ def expose_file(
     """Render a radiance file as a virtual photograph file (JPEG, PNG or TIFF).
 
     ``motion_blur=(dx, dy)`` first blurs the radiance along that vector
-    (:func:`hdrcl.core.radiometry.motion_blur`), as a camera moving during the exposure would.
+    (:func:`hdrcl.core.radiometry.motion_blur`), as a camera moving during the exposure would;
+    it must be finite, no component longer than the image and the whole at most
+    :data:`MAX_MOTION_BLUR` pixels long (UsageError otherwise).
     """
     from hdrcl.io.radiance import read_radiance
     from hdrcl.io.writers import LDR_EXTENSIONS, write_ldr
@@ -93,9 +113,7 @@ def expose_file(
     resp = _as_response(response)
     rad, _meta = read_radiance(radiance_path, require_float=True)
     if motion_blur is not None:
-        if max(abs(v) for v in motion_blur) > max(rad.shape[:2]):
-            raise UsageError(f"--motion-blur: {motion_blur[0]:g},{motion_blur[1]:g} is longer than the image "
-                             f"({rad.shape[1]}x{rad.shape[0]})")
+        _check_blur_length(motion_blur, rad.shape)
         from hdrcl.core.radiometry import motion_blur as _blur
 
         rad = _blur(rad, *motion_blur)

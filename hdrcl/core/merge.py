@@ -18,7 +18,6 @@ from hdrcl.core.bracket import (
     _open_files,
     _parse_ignore_color,
     _with_ignore,
-    memory_budget,
 )
 from hdrcl.core.calibrate import calibrate, exposures_used
 from hdrcl.core.response import Response, _as_response
@@ -153,10 +152,11 @@ def merge_files(
 
     The frames are decoded, fused and written strip by strip, with decoding, fusion and
     encoding overlapping, so memory stays bounded whatever the image size. Without a
-    ``response`` the set calibrates itself: frames up to :func:`memory_budget` are held
-    in memory for that; larger sets are read twice (a decimated grid, then the strips).
-    The output is written atomically: nothing appears at ``output`` unless the whole
-    merge succeeded.
+    ``response`` the set calibrates itself from a first streaming pass that keeps only
+    each frame's sampling grid (:meth:`hdrcl.io.reader.BracketReader.read_grid`); the
+    fusion pass then decodes the frames again, its first strip while the response is
+    solved. Only ``align`` holds whole frames in memory. The output is written
+    atomically: nothing appears at ``output`` unless the whole merge succeeded.
 
     Parameters
     ----------
@@ -211,7 +211,7 @@ def merge_files(
         radiance file appears, and renamed into place after it.
     """
     from hdrcl.cl.backend import get_processor
-    from hdrcl.core.pipeline import ArraySink, ArraySource, Thumbnail, stream_merge
+    from hdrcl.core.pipeline import ArraySink, ArraySource, Thumbnail, strip_rows, stream_merge
     from hdrcl.io.colorspace import check as check_space
     from hdrcl.io.outmeta import camera_from_infos
     from hdrcl.io.reader import BracketReader
@@ -261,32 +261,35 @@ def merge_files(
                           for p, t in zip(paths, rel)]
     t1 = _time.perf_counter()
     shifts = crop_box = None
-    itemsize = 1 if first.bits == 8 else 2
-    in_memory = align or (resp is None and len(paths) * h * w * nch * itemsize <= memory_budget())
-    if in_memory:
+    if align:  # alignment works on whole frames: they are held in memory
         with BracketReader(paths, infos) as reader:
             frames, valid = reader.read_all()
         valid = _with_ignore(frames, valid, rgb)
-        if align:
-            frames, valid, shifts, crop_box = _align(frames, valid, rel, device, crop)
-            if crop_box is not None:
-                y0, y1, x0, x1 = crop_box
-                h, w = y1 - y0, x1 - x0
+        frames, valid, shifts, crop_box = _align(frames, valid, rel, device, crop)
+        if crop_box is not None:
+            y0, y1, x0, x1 = crop_box
+            h, w = y1 - y0, x1 - x0
         if resp is None:
             br = Bracket(frames=frames, times=rel, valid=valid, paths=paths, infos=infos)
             resp = calibrate(br, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
                              fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance)
         source = ArraySource(frames, valid)
         ignore = None
-    elif resp is None:
-        resp = calibrate(_grid_bracket(paths, infos, rel, rgb), samples=samples, smoothness=smoothness,
-                         weight=weight, seed=seed, fit_exposures=fit_exposures,
-                         exposure_tolerance=exposure_tolerance)
-        source = BracketReader(paths, infos)
-        ignore = rgb
     else:
         source = BracketReader(paths, infos)
         ignore = rgb
+        if resp is None:
+            # Streaming calibration: one pass keeps only the sampling grid of each frame,
+            # then the solve runs while the fusion pass decodes its first strip.
+            try:
+                grid = _grid_bracket(paths, infos, rel, rgb, reader=source)
+                warm.join()
+                source.prefetch(strip_rows(w, device))
+                resp = calibrate(grid, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
+                                 fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance)
+            except BaseException:
+                source.close()
+                raise
     nominal = rel
     rel = exposures_used(resp, rel)
     t2 = _time.perf_counter()

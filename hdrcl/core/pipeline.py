@@ -66,6 +66,14 @@ class Thumbnail:
         self.array[g0:g0 + rows.shape[0]] = rows
 
 
+def strip_rows(width: int, device: Optional[str] = None) -> int:
+    """Rows per strip :func:`stream_merge` uses for frames ``width`` pixels wide."""
+    proc = get_processor("fusion", device)
+    if proc is not None:
+        return proc.strip_rows(width)
+    return max(1, NUMPY_STRIP_PIXELS // max(width, 1))
+
+
 def _learn_ghosts(source, order, log_t, tables, wts, ignore_color, threshold):
     """The set's residual distribution (:func:`hdrcl.core.deghost.learn`) from the frames
     of an in-memory source, or from a decimated grid of a streamed one (one extra
@@ -158,7 +166,7 @@ def stream_merge(
         plan = proc.plan(len(order), source.width, nch, source.dtype, log_t, tables, wts, has_valid)
         rows = plan.rows
     else:
-        rows = max(1, NUMPY_STRIP_PIXELS // max(source.width, 1))
+        rows = strip_rows(source.width, device)
     counts = {"clipped_high": 0, "clipped_low": 0, "no_data": 0}
     ghosts = {"ghost": 0, "ghost_unresolved": 0}
     if deghost:

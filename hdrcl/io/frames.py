@@ -381,14 +381,16 @@ def read_image(path) -> Image:
     """
     name = _name(path)
     if is_raw(name):
-        from hdrcl.io.raw import read_raw
+        from hdrcl.io.raw import read_raw, read_raw_info
 
+        check_pixel_limit(read_raw_info(name))
         f = read_raw(name)
         return Image(pixels=f.pixels, valid=None, info=f.info)
     inp = _open_input(name)
     try:
         spec = inp.spec()
         info = _info_from_spec(spec, name)
+        check_pixel_limit(info)
         colour, alpha = _channel_layout(spec, name)
         fmt = "uint8" if info.bits == 8 else "uint16"
         with decoder_stderr():
@@ -462,6 +464,37 @@ def read_images(paths: Sequence) -> list:
                 f"{first.info.path} has {first.info.bits}-bit"
             )
     return images
+
+
+#: Default of :func:`max_pixels`: one gigapixel per frame.
+DEFAULT_MAX_PIXELS = 1_000_000_000
+
+
+def max_pixels() -> int:
+    """Pixels one frame may have (``HDRCL_MAX_PIXELS``, or ``hdrcl --max-pixels``;
+    default one gigapixel). Checked from the header, before anything is decoded, so a
+    small file that inflates to an enormous image is refused at once."""
+    from hdrcl.errors import UsageError
+
+    text = os.environ.get("HDRCL_MAX_PIXELS", "").strip()
+    if not text:
+        return DEFAULT_MAX_PIXELS
+    try:
+        value = int(float(text))
+    except (ValueError, OverflowError):
+        value = 0
+    if value < 1:
+        raise UsageError(f"HDRCL_MAX_PIXELS must be a positive number of pixels, not {text!r}")
+    return value
+
+
+def check_pixel_limit(info: FrameInfo) -> None:
+    """Raise InputError (naming the file) when a frame has more pixels than :func:`max_pixels`."""
+    limit = max_pixels()
+    n = int(info.width) * int(info.height)
+    if n > limit:
+        raise InputError(f"{info.path}: {info.width}x{info.height} is {n / 1e6:.0f} megapixels, over the limit "
+                         f"of {limit / 1e6:g} megapixels per frame (raise it with --max-pixels or HDRCL_MAX_PIXELS)")
 
 
 def check_compatible(infos: Sequence[FrameInfo]) -> None:

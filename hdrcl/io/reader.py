@@ -17,11 +17,16 @@ from hdrcl.io.frames import (
     _open_input,
     _read_error,
     check_compatible,
+    check_pixel_limit,
     decoder_stderr,
     read_info,
 )
 from hdrcl.io.metadata import FrameInfo
 from hdrcl.io.raw import is_raw
+
+#: Rows per strip of :meth:`BracketReader.read_grid` (rounded up to the grid's stride):
+#: small enough that a strip of one frame stays in cache while its grid is taken.
+GRID_STRIP_ROWS = 64
 
 
 class BracketReader:
@@ -51,6 +56,8 @@ class BracketReader:
             odd = self.paths[raws.index(False) if raws[0] else raws.index(True)]
             raise InputError(f"{odd}: a bracket set mixes RAW and non-RAW files")
         self.infos = list(infos) if infos is not None else [read_info(p) for p in self.paths]
+        for info in self.infos:
+            check_pixel_limit(info)
         check_compatible(self.infos)
         first = self.infos[0]
         self.width, self.height = first.width, first.height
@@ -58,6 +65,8 @@ class BracketReader:
         self._inputs: list = [None] * len(self.paths)
         self._layout: list = [None] * len(self.paths)
         self._raw_wb = None
+        self._first = None  # (rows, _Prefetch) started by prefetch()
+        self._grid = None  # (stride, frames, valid) of the last read_grid
         if any(raws):
             from hdrcl.io.raw import camera_white_balance
 
@@ -78,6 +87,9 @@ class BracketReader:
         self.close()
 
     def close(self) -> None:
+        if self._first is not None:  # never close the files under a running decode
+            self._first[1].wait()
+            self._first = None
         self._pool.shutdown(wait=True)
         for k, inp in enumerate(self._inputs):
             if inp is not None and hasattr(inp, "close"):
@@ -129,11 +141,26 @@ class BracketReader:
         got = [f.result() for f in futs]  # first failure in path order is raised
         return [g[0] for g in got], [g[1] for g in got]
 
+    def prefetch(self, rows: int) -> None:
+        """Start decoding the first strip of ``rows`` rows now, on helper threads, so
+        that a later :meth:`strips` with the same ``rows`` finds it ready (a merge
+        overlaps it with the response solve)."""
+        if self._first is None:
+            rows = max(1, int(rows))
+            self._first = (rows, _Prefetch(self, 0, min(self.height, rows)))
+
     def strips(self, rows: int):
         """Yield ``(y0, y1, frames, valid)`` top to bottom, decoding one strip ahead."""
         rows = max(1, int(rows))
         starts = list(range(0, self.height, rows))
         ahead = None
+        if self._first is not None:
+            first_rows, ahead = self._first
+            self._first = None
+            if first_rows != rows:  # not the strip asked for: drop it, decode afresh
+                ahead.wait()
+                ahead = None
+                self._rewind()
         try:
             for n, y0 in enumerate(starts):
                 y1 = min(self.height, y0 + rows)
@@ -147,6 +174,13 @@ class BracketReader:
             if ahead is not None:  # never close the files under a running decode
                 ahead.wait()
 
+    def _rewind(self) -> None:
+        """Close the open files so the next read starts again from the top."""
+        for k, inp in enumerate(self._inputs):
+            if inp is not None and hasattr(inp, "close"):
+                inp.close()
+            self._inputs[k] = None
+
     def read_all(self):
         """Every frame whole: ``(frames, valid)``; memory grows with the image.
 
@@ -158,23 +192,58 @@ class BracketReader:
         return [g[0] for g in got], [g[1] for g in got]
 
     def read_grid(self, stride: int):
-        """Every ``stride``-th row and column of every frame, read in one pass."""
+        """Every ``stride``-th row and column of every frame, read in one streaming pass
+        (once: a second call with the same stride returns the same arrays, not to be
+        modified).
+
+        Each frame is decoded top to bottom in strips of about :data:`GRID_STRIP_ROWS`
+        rows on its own thread, which keeps only the grid's rows and columns of each
+        strip (while the strip is still in cache): memory is the grid plus one small
+        strip per frame, whatever the image size. One thread per frame (not per core)
+        lets the frames finish together instead of leaving a core idle at the end.
+        """
+        import threading
+
         stride = max(1, int(stride))
+        if self._grid is not None and self._grid[0] == stride:  # read already (calibration)
+            return list(self._grid[1]), list(self._grid[2])
+        if self._first is not None:  # a strip decoding ahead would share the open files
+            self._first[1].wait()
+            self._first = None
+        self._rewind()
         hh = len(range(0, self.height, stride))
         ww = len(range(0, self.width, stride))
         frames = [np.empty((hh, ww, self.nch), self.dtype) for _ in self.paths]
-        valid = [None] * len(self.paths)
-        rows = stride * max(1, (1 << 22) // max(self.width * stride, 1))
-        for y0, y1, fs, vs in self.strips(rows):
-            g0 = y0 // stride
-            g1 = g0 + len(range(y0, y1, stride))
-            for k, (f, v) in enumerate(zip(fs, vs)):
-                frames[k][g0:g1] = f[::stride, ::stride]
-                if v is not None:
-                    if valid[k] is None:
-                        valid[k] = np.ones((hh, ww), bool)
-                    valid[k][g0:g1] = v[::stride, ::stride]
-        return frames, valid
+        valid: list = [None] * len(self.paths)
+        rows = stride * max(1, -(-GRID_STRIP_ROWS // stride))  # a multiple of the stride
+        errors: list = [None] * len(self.paths)
+
+        def frame(k):
+            try:
+                for y0 in range(0, self.height, rows):
+                    f, v = self._read(k, y0, min(self.height, y0 + rows))
+                    g0 = y0 // stride
+                    sub = f[::stride, ::stride]
+                    frames[k][g0:g0 + sub.shape[0]] = sub
+                    if v is not None:
+                        if valid[k] is None:
+                            valid[k] = np.ones((hh, ww), bool)
+                        valid[k][g0:g0 + sub.shape[0]] = v[::stride, ::stride]
+            except BaseException as exc:  # handed to the caller, first file first
+                errors[k] = exc
+
+        threads = [threading.Thread(target=frame, args=(k,), name=f"hdrcl-grid-{k}", daemon=True)
+                   for k in range(len(self.paths))]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        for exc in errors:
+            if exc is not None:
+                raise exc
+        self._rewind()  # a later strips() pass starts from the top again
+        self._grid = (stride, frames, valid)  # small; a second call (ghost model) reuses it
+        return list(frames), list(valid)
 
 
 class _Prefetch:
