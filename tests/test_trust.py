@@ -209,7 +209,14 @@ def test_values_beyond_half_are_rescaled_or_written_as_float(tmp_path, field, cl
     # Times in microseconds' worth: radiance of order 1e6..1e10, beyond half.
     tiny = times * 1e-7
     out = tmp_path / "r.exr"
-    res = merge_files(paths, out, times=tiny, response=true_response(), keep_radiance=True)
+    # Default (--dtype auto): float, so every tool reads the radiance as it is.
+    res0 = merge_files(paths, tmp_path / "auto.exr", times=tiny, response=true_response(), keep_radiance=True)
+    px0, spec0 = _read(tmp_path / "auto.exr")
+    assert spec0.format == "float" and spec0.getattribute("hdrcl:halfScale") is None
+    np.testing.assert_allclose(px0, res0.radiance, rtol=1e-6)
+    assert "written as float" in res0.storage_note
+    # --dtype half: half rescaled by a recorded power of two.
+    res = merge_files(paths, out, times=tiny, response=true_response(), keep_radiance=True, dtype="half")
     px, spec = _read(out)
     scale = spec.getattribute("hdrcl:halfScale")
     assert spec.format == "half" and scale is not None and scale < 1
@@ -246,7 +253,8 @@ def test_batch_keeps_values_beyond_half(tmp_path, field, cl_device):
     (folder / "times.txt").write_text("".join(f"{p.name} {float(t) * 1e-7!r}\n" for p, t in zip(paths, times)))
     true_response().save(str(tmp_path / "true.json"))
     out = tmp_path / "out"
-    res = CliRunner().invoke(main, ["batch", str(folder), "-o", str(out), "--response", str(tmp_path / "true.json")])
+    res = CliRunner().invoke(main, ["batch", str(folder), "-o", str(out), "--response", str(tmp_path / "true.json"),
+                                    "--dtype", "half"])
     assert res.exit_code == 0, res.output
     (exr,) = sorted(out.glob("*.exr"))
     px, spec = _read(exr)
@@ -339,3 +347,18 @@ def test_steep_toe_alone_is_not_a_stretched_curve():
     assert film.span_problem() is None
     stretched = Response(bits=8, g=2.0 * body[None, :], knots=knot_positions(8), channels=("Y",))
     assert stretched.span_decades() > 4.0 and "stretch" in stretched.span_problem()
+
+
+def test_ordinary_set_is_plain_half_or_float_never_scaled_by_default(tmp_path, field, cl_device):
+    """A daylight-like set whose possible range exceeds half (short frames) must not be
+    stored scaled by default: other tools would show it stops too dark."""
+    from hdrcl.core.merge import merge_files
+
+    rad, c = field
+    times = s.stops(5, 2.0, centre=c) * 1e-3
+    frames = s.bracket(rad, times, CAM, noise=0.5, seed=8)
+    paths = _write_set(tmp_path, frames)
+    res = merge_files(paths, tmp_path / "d.exr", times=times, response=true_response(), keep_radiance=True)
+    px, spec = _read(tmp_path / "d.exr")
+    assert spec.getattribute("hdrcl:halfScale") is None
+    np.testing.assert_allclose(px, res.radiance, rtol=1e-3)

@@ -177,8 +177,10 @@ def device_option(f):
 def output_options(f):
     f = click.option("--compression", default="zip", show_default=True,
                      help="EXR compression: none, zip, zips, piz, pxr24, b44, b44a, dwaa, dwab (dwaa:45 sets a level).")(f)
-    f = click.option("--dtype", type=click.Choice(["half", "float"]), default="half", show_default=True,
-                     help="EXR sample type.")(f)
+    f = click.option("--dtype", type=click.Choice(["auto", "half", "float"]), default="auto", show_default=True,
+                     help="EXR sample type. auto: half when every value the merge can produce fits half "
+                          "floats, else float. half: half always, rescaled by a power of two recorded as "
+                          "hdrcl:halfScale when needed (other tools then read it scaled). float: float.")(f)
     return f
 
 

@@ -128,7 +128,7 @@ def merge_files(
     samples: Optional[int] = None,
     smoothness: Optional[float] = None,
     seed: int = 0,
-    dtype: str = "half",
+    dtype: str = "auto",
     compression: str = "zip",
     device: Optional[str] = None,
     keep_radiance: bool = False,
@@ -386,7 +386,7 @@ def choose_storage(output, dtype, resp, times, first, nch, factors, units, meta,
     from hdrcl.io import halfrange
 
     if os.path.splitext(output)[1].lower() != ".exr":
-        return dtype, 1.0
+        return ("half" if dtype == "auto" else dtype), 1.0
     lo, hi = radiance_bounds(resp, times, nch)
     if factors is not None:
         lo, hi = lo * float(np.min(factors)), hi * float(np.max(factors))

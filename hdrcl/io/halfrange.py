@@ -4,10 +4,11 @@ Half floats hold values up to 65504 with 11 significant bits down to 2^-14 (6.1e
 below that they are subnormal, with a fixed step of 2^-24, and below 2^-25 they are 0.
 Values are accepted down to :data:`HALF_FLOOR` = 2^-16 (step 0.4 % of the value, finer
 than RGBE's 1 %): about 9.6 decades in all. A radiance map that reaches beyond either end
-would be written as ``inf`` or as an underflowed (or coarsely rounded) value. :func:`plan` decides, from bounds on the
-values that can occur, whether to write half as is, half rescaled by a power of two
-(the multiplier is recorded in the file's metadata as ``hdrcl:halfScale``: stored value =
-radiance x halfScale), or float.
+would be written as ``inf`` or as an underflowed (or coarsely rounded) value.
+:func:`plan` decides, from bounds on the values that can occur, whether to write half as
+is or float (``--dtype auto``, the default: every tool reads the values as they are), or,
+with ``--dtype half``, half rescaled by a power of two (the multiplier is recorded in the
+file's metadata as ``hdrcl:halfScale``: stored value = radiance x halfScale).
 """
 from __future__ import annotations
 
@@ -42,15 +43,18 @@ class HalfPlan:
     message: Optional[str] = None
 
 
-def plan(lo: float, hi: float, dtype: str = "half", *, keep_units: bool = False) -> HalfPlan:
+def plan(lo: float, hi: float, dtype: str = "auto", *, keep_units: bool = False) -> HalfPlan:
     """Choose the storage of values in ``[lo, hi]`` (smallest positive, largest).
 
     Parameters
     ----------
     lo, hi : float
         Bounds on the positive values the map can hold.
-    dtype : {"half", "float"}
-        What was asked for.
+    dtype : {"auto", "half", "float"}
+        What was asked for. ``auto`` (the default): half when ``[lo, hi]`` fits, else
+        float, so that every tool reads the radiance as it is. ``half``: half always,
+        rescaled by a power of two when needed (the multiplier is recorded as
+        ``hdrcl:halfScale``; hdrcl's reader undoes it, other tools see scaled values).
     keep_units : bool
         The values are in physical units (``--absolute``, ``--reference-patch``): never
         rescale them; write float when half cannot hold them.
@@ -59,7 +63,7 @@ def plan(lo: float, hi: float, dtype: str = "half", *, keep_units: bool = False)
     -------
     HalfPlan
     """
-    if dtype != "half":
+    if dtype not in ("half", "auto"):
         return HalfPlan(dtype)
     if not (lo > 0 and math.isfinite(lo) and math.isfinite(hi) and hi >= lo):
         return HalfPlan("float", 1.0, f"radiance bounds {lo:g}..{hi:g} are not usable with half floats; "
@@ -70,6 +74,10 @@ def plan(lo: float, hi: float, dtype: str = "half", *, keep_units: bool = False)
     if keep_units:
         return HalfPlan("float", 1.0, f"radiance may reach {span}, beyond half floats "
                                       f"({HALF_FLOOR:.3g}..{HALF_MAX:g}); written as float to keep its units")
+    if dtype == "auto":
+        return HalfPlan("float", 1.0, f"radiance may reach {span}, beyond half floats "
+                                      f"({HALF_FLOOR:.3g}..{HALF_MAX:g}); written as float "
+                                      "(--dtype half stores it rescaled instead)")
     k_min = math.ceil(math.log2(HALF_FLOOR / lo))  # smallest exponent that lifts lo
     k_max = math.floor(math.log2(HALF_MAX / hi))  # largest that keeps hi finite
     if k_min > k_max:

@@ -78,7 +78,7 @@ class BatchOptions:
     seed: int = 0
     ignore_color: Optional[Tuple[int, int, int]] = None
     deghost: bool = False
-    dtype: str = "half"
+    dtype: str = "auto"
     compression: str = "zip"
     preview: bool = True
     preview_size: int = 512

@@ -218,8 +218,8 @@ def run_batch(
         raise UsageError(f"--jobs must be at least 1, not {jobs}")
     if scheduler is not None and jobs > 1:
         raise UsageError("--jobs and --scheduler exclude each other: the Dask cluster decides the parallelism")
-    if options.dtype not in ("half", "float"):
-        raise UsageError(f"--dtype: '{options.dtype}' is not one of half, float")
+    if options.dtype not in ("auto", "half", "float"):
+        raise UsageError(f"--dtype: '{options.dtype}' is not one of auto, half, float")
     if options.preview_size < 16:
         raise UsageError("--preview-size must be at least 16 pixels")
     from hdrcl.io.writers import _exr_compression  # validates the name before any work
