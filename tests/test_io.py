@@ -192,3 +192,53 @@ def test_import_does_not_load_oiio():
     root = Path(__file__).resolve().parents[1]
     env = dict(os.environ, PYTHONPATH=str(root))
     assert subprocess.run([sys.executable, "-c", code], cwd=root, env=env).returncode == 0
+
+
+def test_interrupted_grid_read_stops_its_decoders_first(tmp_path, monkeypatch):
+    """SIGTERM (raised in the main thread by the CLI) while the calibration grid decodes:
+    every decoder thread has stopped before the exception leaves read_grid, so closing
+    the reader never pulls files from under a running decode (that aborted the process)."""
+    import signal
+    import threading
+    import time
+
+    from hdrcl.io.reader import BracketReader
+
+    rng = np.random.default_rng(0)
+    paths = []
+    for k in range(3):
+        p = tmp_path / f"f{k}.png"
+        _write(p, rng.integers(0, 255, (400, 64, 3), dtype=np.uint8))
+        paths.append(str(p))
+    slow = BracketReader._read
+    running = []
+
+    def slow_read(self, k, y0, y1):
+        running.append(k)
+        try:
+            time.sleep(0.02)
+            return slow(self, k, y0, y1)
+        finally:
+            running.remove(k)
+
+    monkeypatch.setattr(BracketReader, "_read", slow_read)
+    monkeypatch.setattr("hdrcl.io.reader.GRID_STRIP_ROWS", 8)
+
+    class Stop(Exception):
+        pass
+
+    def raise_stop(signum, frame):
+        raise Stop()
+
+    old = signal.signal(signal.SIGALRM, raise_stop)
+    try:
+        with BracketReader(paths) as reader:
+            signal.setitimer(signal.ITIMER_REAL, 0.1)
+            with pytest.raises(Stop):
+                reader.read_grid(2)
+            assert running == []  # no decode in flight once the exception is out
+            time.sleep(0.05)
+            assert not any(t.name.startswith("hdrcl-grid") for t in threading.enumerate())
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)

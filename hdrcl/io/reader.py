@@ -218,9 +218,15 @@ class BracketReader:
         rows = stride * max(1, -(-GRID_STRIP_ROWS // stride))  # a multiple of the stride
         errors: list = [None] * len(self.paths)
 
+        stop = threading.Event()
+        finished = threading.Condition()
+        running = [len(self.paths)]
+
         def frame(k):
             try:
                 for y0 in range(0, self.height, rows):
+                    if stop.is_set():  # the caller is unwinding (an error, SIGTERM, Ctrl-C)
+                        return
                     f, v = self._read(k, y0, min(self.height, y0 + rows))
                     g0 = y0 // stride
                     sub = f[::stride, ::stride]
@@ -231,13 +237,27 @@ class BracketReader:
                         valid[k][g0:g0 + sub.shape[0]] = v[::stride, ::stride]
             except BaseException as exc:  # handed to the caller, first file first
                 errors[k] = exc
+            finally:
+                with finished:
+                    running[0] -= 1
+                    finished.notify_all()
 
-        threads = [threading.Thread(target=frame, args=(k,), name=f"hdrcl-grid-{k}", daemon=True)
-                   for k in range(len(self.paths))]
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join()
+        def wait_all():
+            with finished:
+                while running[0]:
+                    finished.wait()
+
+        for k in range(len(self.paths)):
+            threading.Thread(target=frame, args=(k,), name=f"hdrcl-grid-{k}", daemon=True).start()
+        # Not Thread.join: on CPython 3.11 a join interrupted by an exception (SIGTERM and
+        # Ctrl-C raise in this thread) can leave later joins returning while the thread
+        # still runs. Interrupted, every decoder finishes its strip and stops before
+        # anything closes the files under it.
+        try:
+            wait_all()
+        finally:
+            stop.set()
+            wait_all()
         for exc in errors:
             if exc is not None:
                 raise exc
