@@ -332,3 +332,31 @@ def test_watchdog_kills_a_worker_whose_parent_died_without_pdeathsig(tmp_path):
     while alive([pid]) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert alive([pid]) == []
+
+
+class _Job:
+    def __init__(self, index):
+        self.index = index
+
+
+def _dies_on_set_zero(job, ctx):
+    """A set that kills its worker every time (too big for memory, say)."""
+    if job.index == 0:
+        time.sleep(0.2)  # the other sets are running or queued when it goes
+        os._exit(9)
+    time.sleep(0.5)
+    return ("done", job.index)
+
+
+def test_a_set_that_kills_its_worker_fails_alone():
+    """Only the set that takes its worker down fails ("died twice"); the sets that were
+    merely queued in the broken pool complete."""
+    from hdrcl.shoot.executors import run_processes
+
+    results = []
+    run_processes([_Job(i) for i in range(4)], None, results.append, task=_dies_on_set_zero,
+                  failed=lambda job, exc: ("failed", job.index, str(exc)), jobs=2)
+    by_index = {r[1]: r for r in results}
+    assert sorted(by_index) == [0, 1, 2, 3]
+    assert by_index[0][0] == "failed" and "died twice" in by_index[0][2]
+    assert all(by_index[i] == ("done", i) for i in (1, 2, 3))

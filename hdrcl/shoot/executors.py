@@ -56,43 +56,48 @@ def run_processes(set_jobs: List, ctx, emit: Callable, *, task: Callable, failed
     """Run ``set_jobs`` in ``jobs`` spawned worker processes.
 
     A worker that dies (killed, out of memory) breaks the pool, and the pool cannot
-    tell which set it was running: the sets that had not finished are run again, in
-    a fresh pool, once each (their claims died with the worker, so the new run
-    removes its temporary files). A set lost a second time fails with that reason;
-    the other sets complete. Any exception here (SIGTERM, Ctrl-C) kills the workers
-    of the current pool at once and is raised.
+    tell which set it was running: the sets that had not finished are run again, each
+    alone in a fresh one-worker pool (their claims died with the worker, so the new run
+    removes its temporary files). So a set that kills its worker every time fails by
+    itself ("died twice") and every other set completes. Any exception here (SIGTERM,
+    Ctrl-C) kills the workers of the current pool at once and is raised.
     """
     mp = multiprocessing.get_context("spawn")
     level = logging.getLogger("hdrcl").getEffectiveLevel()
-    pending, lost_once = list(set_jobs), set()
-    while pending:
-        pool = concurrent.futures.ProcessPoolExecutor(max_workers=min(jobs, len(pending)), mp_context=mp,
+
+    def run_round(batch: List, workers: int) -> List:
+        """Run ``batch``; emit every result; return the sets a dying worker took down."""
+        pool = concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=mp,
                                                       initializer=_worker_init, initargs=(level, os.getpid()))
-        again = []
+        lost = []
         try:
-            futures = {pool.submit(task, job, ctx): job for job in pending}
+            futures = {pool.submit(task, job, ctx): job for job in batch}
             for fut in concurrent.futures.as_completed(futures):
                 job = futures[fut]
                 try:
                     res = fut.result()
-                except concurrent.futures.process.BrokenProcessPool as exc:
-                    if job.index not in lost_once:
-                        lost_once.add(job.index)
-                        again.append(job)
-                        continue
-                    res = failed(job, RuntimeError(f"worker process died twice ({exc})"))
+                except concurrent.futures.process.BrokenProcessPool:
+                    lost.append(job)
+                    continue
                 except Exception as exc:  # pickling problems and the like
                     res = failed(job, exc)
                 emit(res)
         except BaseException:
             _kill_pool(pool)
             raise
-        if again:
+        if lost:
             _kill_pool(pool)  # what is left of the broken pool
-            logger.warning("a worker process died: running %d unfinished set(s) again in a fresh pool", len(again))
         else:
             pool.shutdown(wait=True)
-        pending = sorted(again, key=lambda j: j.index)
+        return lost
+
+    lost = run_round(list(set_jobs), min(jobs, len(set_jobs)))
+    if lost:
+        logger.warning("a worker process died: running %d unfinished set(s) again, one at a time", len(lost))
+    for job in sorted(lost, key=lambda j: j.index):
+        if run_round([job], 1):
+            emit(failed(job, RuntimeError("its worker process died twice while merging it "
+                                          "(killed, or out of memory)")))
 
 
 def _kill_pool(pool) -> None:
