@@ -263,6 +263,11 @@ def test_batch_keeps_values_beyond_half(tmp_path, field, cl_device):
     assert np.isfinite(px).all() and (px > 0).all() and px.max() < 65504
     back, _meta = read_radiance(str(exr))
     assert back.max() > 65504  # radiance beyond half, kept through the multiplier
+    import json
+
+    (entry,) = json.loads((out / "report.json").read_text())["sets"]
+    assert "halfScale" in entry["storage"]  # a decision, recorded apart from the warnings
+    assert not any("halfScale" in w for w in entry["warnings"])
 
 
 def test_absurd_times_are_refused(tmp_path, field):

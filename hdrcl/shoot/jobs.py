@@ -137,7 +137,8 @@ class SetResult:
     or ``"failed"`` (``error`` says why). ``seconds`` holds the time of each stage,
     ``counts`` the pixel-channels clipped high/low in every frame and without data,
     ``quality`` the set's quality figures (:meth:`hdrcl.report.quality.QualityFigures.to_dict`)
-    when a quality report is written.
+    when a quality report is written, ``storage`` the EXR storage decision when half
+    floats could not hold the set as asked (information, not a warning).
     """
 
     index: int
@@ -153,6 +154,7 @@ class SetResult:
     digest: Optional[str] = None
     response: Optional[str] = None
     quality: Optional[dict] = None
+    storage: Optional[str] = None  # how the EXR was stored when half could not hold it (a decision)
 
     def to_dict(self) -> dict:
         return {
@@ -169,6 +171,7 @@ class SetResult:
             "hash": self.digest,
             "response": self.response,
             "quality": self.quality,
+            "storage": self.storage,
         }
 
 

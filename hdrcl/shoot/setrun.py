@@ -266,8 +266,7 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
                 writer.abort()
                 raise
         seconds.update({"merge": t1 - t0, "preview": t2 - t1, "write": _time.perf_counter() - t2})
-        notes = (list(step.notes) + list(opened.notes) + fit_notes + list(resp.warnings) + list(about.warnings)
-                 + list(warnings))
+        notes = list(step.notes) + list(opened.notes) + fit_notes + list(resp.warnings) + list(warnings)
         if opts.report_dir and kept is None:
             notes.append("quality report not measured: aligned sets are not measured in a batch")
         if counts.get("no_data"):
@@ -276,7 +275,8 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
         res = SetResult(index=job.index, files=list(job.files), status=STATUS_DONE, output=job.output,
                         preview=job.preview, warnings=notes, seconds=seconds,
                         counts={k: int(counts.get(k, 0)) for k in keys},
-                        ev_offset=round(opened.ev_offset, 6), digest=step.digest, response=job.group)
+                        ev_offset=round(opened.ev_offset, 6), digest=step.digest, response=job.group,
+                        storage=about.storage_note)
         if kept is not None:
             # After the EXR is committed: the report never holds back or spoils an output.
             t3 = _time.perf_counter()
