@@ -26,6 +26,13 @@ def _fsync(path: str, directory: bool = False) -> None:
         os.close(fd)
 
 
+def temp_path(target: str, folder: str) -> str:
+    """The hidden temporary name beside ``target`` (``.out.tmp-1a2b3c4d.exr``): the
+    extension stays last so format detection by extension still works."""
+    stem, ext = os.path.splitext(os.path.basename(target))
+    return os.path.join(folder, f".{stem}.tmp-{secrets.token_hex(4)}{ext}")
+
+
 @contextlib.contextmanager
 def atomic_output(path):
     """Yield a temporary path beside ``path``; move it onto ``path`` on success.
@@ -57,8 +64,7 @@ def atomic_output(path):
     if os.path.isdir(target):
         raise UsageError(f"output '{target}' is a folder")
     _check_folder_writable(target, folder)
-    stem, ext = os.path.splitext(os.path.basename(target))
-    tmp = os.path.join(folder, f".{stem}.tmp-{secrets.token_hex(4)}{ext}")
+    tmp = temp_path(target, folder)
     try:
         yield tmp
         _fsync(tmp)  # data on disk before the name points at it (power loss, not just kill)
@@ -220,8 +226,7 @@ def stage_text(path, text: str, *, encoding: str = "utf-8") -> StagedFile:
     if os.path.isdir(target):
         raise UsageError(f"{target}: is a folder")
     _check_folder_writable(target, folder)
-    stem, ext = os.path.splitext(os.path.basename(target))
-    tmp = os.path.join(folder, f".{stem}.tmp-{secrets.token_hex(4)}{ext}")
+    tmp = temp_path(target, folder)
     data = text.encode(encoding)
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
