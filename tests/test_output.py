@@ -207,7 +207,11 @@ def test_memorial_example_warns_only_when_earned(memorial, tmp_path):
     seen += res.stderr
     assert "warning" not in seen, seen
     spec = _spec(tmp_path / "m.exr")
-    assert spec.getattribute("Software") == "hdrcl 0.1.0" and spec.getattribute("ExposureTime") == 1.0
+    assert spec.getattribute("Software") == "hdrcl 0.1.0"
+    # 1.0 is what the reference exposure records as white: the power of two nearest the
+    # middle of 1/1024..32 s (median between 1/4 and 1/2 s), recorded as OpenEXR's expTime
+    assert spec.getattribute("ExposureTime") == 0.25 == spec.getattribute("hdrcl:referenceExposure")
+    assert spec.format == "half"  # measured on the data: Memorial fits half floats
 
 
 def test_batch_colorspace_and_preview_operator(tmp_path):

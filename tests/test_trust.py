@@ -198,25 +198,57 @@ def _read(path):
     return px, spec
 
 
+def test_tiny_exposures_are_written_as_half_relative_to_the_middle_exposure(tmp_path, field, cl_device):
+    """Radiance relative to 1 s reaches 1e6..1e10 with microsecond exposures; relative
+    to the bracket's middle exposure (hdrcl.core.encode) it is an ordinary image: half,
+    no rescale, the reference recorded in standard metadata, and hdrcl's reader gives
+    the 1 s radiance back within half rounding."""
+    from hdrcl.core.merge import merge_files
+    from hdrcl.io.radiance import read_radiance
+
+    rad, c = field
+    times = s.stops(5, 2.0, centre=c)
+    frames = s.bracket(rad, times, CAM, noise=0.5, seed=7)
+    paths = _write_set(tmp_path, frames)
+    tiny = times * 1e-7
+    res = merge_files(paths, tmp_path / "auto.exr", times=tiny, response=true_response(), keep_radiance=True)
+    px, spec = _read(tmp_path / "auto.exr")
+    t_ref = spec.getattribute("hdrcl:referenceExposure")
+    assert spec.format == "half" and spec.getattribute("hdrcl:halfScale") is None
+    assert t_ref == 2.0 ** round(np.log2(np.median(tiny)))  # a power of two: the scaling is exact
+    assert spec.getattribute("ExposureTime") == pytest.approx(t_ref)  # OpenEXR's expTime
+    assert res.storage_note is None and res.stored.passes == 1
+    np.testing.assert_allclose(px, res.radiance * t_ref, rtol=1e-3)  # half rounding
+    back, meta = read_radiance(tmp_path / "auto.exr")
+    assert meta["referenceExposure"] == t_ref
+    np.testing.assert_allclose(back, res.radiance, rtol=1e-3)
+
+
 def test_values_beyond_half_are_rescaled_or_written_as_float(tmp_path, field, cl_device):
-    """A real DSLR set gave 0.26 % inf; --reference-patch ...=100 on Memorial 1,516."""
+    """A real DSLR set gave 0.26 % inf; --reference-patch ...=100 on Memorial 1,516. With
+    the reference exposure asked to be 1 s, microsecond exposures give radiance of
+    1e6..1e10: measured on the data, it does not fit half."""
     from hdrcl.core.merge import merge_files
 
     rad, c = field
     times = s.stops(5, 2.0, centre=c)
     frames = s.bracket(rad, times, CAM, noise=0.5, seed=7)
     paths = _write_set(tmp_path, frames)
-    # Times in microseconds' worth: radiance of order 1e6..1e10, beyond half.
     tiny = times * 1e-7
     out = tmp_path / "r.exr"
     # Default (--dtype auto): float, so every tool reads the radiance as it is.
-    res0 = merge_files(paths, tmp_path / "auto.exr", times=tiny, response=true_response(), keep_radiance=True)
+    res0 = merge_files(paths, tmp_path / "auto.exr", times=tiny, response=true_response(), keep_radiance=True,
+                       reference_exposure=1)
     px0, spec0 = _read(tmp_path / "auto.exr")
     assert spec0.format == "float" and spec0.getattribute("hdrcl:halfScale") is None
     np.testing.assert_allclose(px0, res0.radiance, rtol=1e-6)
-    assert "written as float" in res0.storage_note
+    assert "written as float" in res0.storage_note and res0.stored.passes == 2
+    # the range measured on the merged data, not predicted from the curve's ends
+    assert res0.stored.hi == pytest.approx(float(res0.radiance.max()), rel=1e-6)
+    assert res0.stored.lo == pytest.approx(float(res0.radiance[res0.radiance > 0].min()), rel=1e-6)
     # --dtype half: half rescaled by a recorded power of two.
-    res = merge_files(paths, out, times=tiny, response=true_response(), keep_radiance=True, dtype="half")
+    res = merge_files(paths, out, times=tiny, response=true_response(), keep_radiance=True, dtype="half",
+                      reference_exposure="1")
     px, spec = _read(out)
     scale = spec.getattribute("hdrcl:halfScale")
     assert spec.format == "half" and scale is not None and scale < 1
@@ -233,6 +265,7 @@ def test_values_beyond_half_are_rescaled_or_written_as_float(tmp_path, field, cl
     res2 = merge_files(paths, out2, times=tiny, response=true_response(), reference_patch="10,10,20,20=1e7")
     px2, spec2 = _read(out2)
     assert spec2.format == "float" and spec2.getattribute("hdrcl:halfScale") is None
+    assert spec2.getattribute("hdrcl:referenceExposure") is None
     assert np.isfinite(px2).all() and (px2 > 0).all()
     assert any("written as float to keep its units" in w for w in res2.warnings)
 
@@ -254,7 +287,7 @@ def test_batch_keeps_values_beyond_half(tmp_path, field, cl_device):
     true_response().save(str(tmp_path / "true.json"))
     out = tmp_path / "out"
     res = CliRunner().invoke(main, ["batch", str(folder), "-o", str(out), "--response", str(tmp_path / "true.json"),
-                                    "--dtype", "half"])
+                                    "--dtype", "half", "--reference-exposure", "1"])
     assert res.exit_code == 0, res.output
     (exr,) = sorted(out.glob("*.exr"))
     px, spec = _read(exr)
@@ -268,6 +301,15 @@ def test_batch_keeps_values_beyond_half(tmp_path, field, cl_device):
     (entry,) = json.loads((out / "report.json").read_text())["sets"]
     assert "halfScale" in entry["storage"]  # a decision, recorded apart from the warnings
     assert not any("halfScale" in w for w in entry["warnings"])
+    # Without --reference-exposure the same set is an ordinary half image.
+    out_b = tmp_path / "out-b"
+    res = CliRunner().invoke(main, ["batch", str(folder), "-o", str(out_b), "--response", str(tmp_path / "true.json")])
+    assert res.exit_code == 0, res.output
+    (exr,) = sorted(out_b.glob("*.exr"))
+    px, spec = _read(exr)
+    assert spec.format == "half" and spec.getattribute("hdrcl:halfScale") is None
+    back2, _ = read_radiance(str(exr))
+    np.testing.assert_allclose(back2, back, rtol=2e-3)
 
 
 def test_absurd_times_are_refused(tmp_path, field):
@@ -365,5 +407,8 @@ def test_ordinary_set_is_plain_half_or_float_never_scaled_by_default(tmp_path, f
     paths = _write_set(tmp_path, frames)
     res = merge_files(paths, tmp_path / "d.exr", times=times, response=true_response(), keep_radiance=True)
     px, spec = _read(tmp_path / "d.exr")
-    assert spec.getattribute("hdrcl:halfScale") is None
-    np.testing.assert_allclose(px, res.radiance, rtol=1e-3)
+    assert spec.getattribute("hdrcl:halfScale") is None and spec.format == "half"
+    # the file holds radiance x the reference exposure, as its expTime says
+    t_ref = spec.getattribute("ExposureTime")
+    assert t_ref == spec.getattribute("hdrcl:referenceExposure")
+    np.testing.assert_allclose(px, res.radiance * t_ref, rtol=1e-3)

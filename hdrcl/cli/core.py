@@ -20,6 +20,7 @@ from hdrcl.cli.options import (
     fit_options,
     ghost_options,
     output_options,
+    reference_exposure_option,
     seconds_callback,
     warn_inapplicable,
     solve_options,
@@ -147,13 +148,15 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
               help="Write a quality report here (sets accumulate in one folder): preview, input frames, "
                    "camera settings, response, histogram and coverage plots, figures, index.html.")
 @output_options
+@reference_exposure_option
 @colorspace_option
 @click.option("--owner", default=None, metavar="TEXT",
               help="Owner / copyright recorded in the file [default: the frames' EXIF Copyright].")
 @device_option
 def merge(images, output, response, save_response, times, times_file, ignore_color, samples, smoothness,
           seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, ghost_threshold, ghost_reference,
-          neutral, reference_patch, absolute, align, crop, report, dtype, compression, colorspace, owner, device):
+          neutral, reference_patch, absolute, align, crop, report, dtype, compression, reference_exposure,
+          colorspace, owner, device):
     """Merge one bracket set into a radiance map."""
     from hdrcl.core.merge import merge_files
     from hdrcl.io.metadata import format_time
@@ -167,7 +170,7 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
                       ghost_threshold=ghost_threshold, ghost_reference=ghost_reference,
                       neutral=neutral, reference_patch=reference_patch, absolute=absolute,
                       thumbnail=512 if report else 0, align=align, crop=crop, colorspace=colorspace.lower(),
-                      owner=owner, save_response=save_response)
+                      owner=owner, save_response=save_response, reference_exposure=reference_exposure)
     h, w_, c = res.shape
     total = sum(res.seconds.values())
     say(f"wrote {output}: {w_}x{h}, {c} channel(s), {len(res.paths)} frames "

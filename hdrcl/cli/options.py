@@ -178,10 +178,28 @@ def output_options(f):
     f = click.option("--compression", default="zip", show_default=True,
                      help="EXR compression: none, zip, zips, piz, pxr24, b44, b44a, dwaa, dwab (dwaa:45 sets a level).")(f)
     f = click.option("--dtype", type=click.Choice(["auto", "half", "float"]), default="auto", show_default=True,
-                     help="EXR sample type. auto: half when every value the merge can produce fits half "
-                          "floats, else float. half: half always, rescaled by a power of two recorded as "
-                          "hdrcl:halfScale when needed (other tools then read it scaled). float: float.")(f)
+                     help="EXR sample type. auto: half when every merged value fits half floats "
+                          "(measured on the data), else float. half: half always, rescaled by a power of two "
+                          "recorded as hdrcl:halfScale when needed (other tools then read it scaled). "
+                          "float: float.")(f)
     return f
+
+
+def _reference_seconds(ctx, param, value):
+    if value is None:
+        return None
+    from hdrcl.core.encode import check_reference_exposure
+
+    return check_reference_exposure(value, "--reference-exposure")
+
+
+def reference_exposure_option(f):
+    """What 1.0 means in the output (``merge`` and ``batch``)."""
+    return click.option("--reference-exposure", default=None, metavar="SECONDS", callback=_reference_seconds,
+                        help="A value of 1.0 in the output is what a frame of this exposure (at the first "
+                             "frame's f-number and ISO; batch: the shoot's) records as white [default: the "
+                             "power of two nearest the middle exposure; batch: one per camera for the "
+                             "whole shoot]. Recorded as expTime / EXPOSURE=.")(f)
 
 
 seconds_callback = _seconds

@@ -28,6 +28,7 @@ from hdrcl.cli.options import (
     ignore_color_option,
     batch_merge_options,
     output_options,
+    reference_exposure_option,
     solve_options,
     weight_option,
 )
@@ -187,13 +188,14 @@ class _Progress:
 @deghost_option
 @batch_merge_options
 @output_options
+@reference_exposure_option
 @colorspace_option
 @device_option
 @click.pass_context
 def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force, calibrate_only, report_dir,
           report_json, as_json, preview, preview_size, tonemap, recursive, frames_per_set, gap, samples, smoothness,
           seed, weight, ignore_color, deghost, align, crop, neutral, fit_exposures, times_file, dtype, compression,
-          colorspace, device):
+          reference_exposure, colorspace, device):
     """Merge every bracket set of a folder or manifest into OUT_DIR.
 
     SOURCE is a folder of photographs (grouped as 'hdrcl scan' does) or a manifest
@@ -228,7 +230,7 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
                         ignore_color=ignore_color, deghost=deghost, dtype=dtype, compression=compression,
                         preview=preview, preview_size=preview_size, tonemap=tonemap, colorspace=colorspace.lower(),
                         device=device, report_dir=report_dir, align=align, crop=crop, neutral=neutral,
-                        fit_exposures=fit_exposures)
+                        fit_exposures=fit_exposures, reference_exposure=reference_exposure)
     progress = _Progress(sys.stderr, sys.stderr.isatty(), quiet)
     try:
         rep = run_batch(source, out_dir, options=opts, sets=sets, response=response, jobs=jobs,

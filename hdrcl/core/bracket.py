@@ -192,15 +192,16 @@ def _open_files(paths, times, times_file):
     return paths, infos, np.asarray(metadata.relative_exposures(exposures), np.float64)
 
 
-def _grid_bracket(paths, infos, rel, rgb, reader=None) -> Bracket:
+def _grid_bracket(paths, infos, rel, rgb, reader=None, keep: bool = False) -> Bracket:
     """The decimated grid that sample selection uses, read in one streaming pass
-    (through ``reader`` when given: it is rewound for a later pass, not closed)."""
+    (through ``reader`` when given: it is rewound for a later pass, not closed; with
+    ``keep`` it also keeps the decoded frames for that pass, so they are decoded once)."""
     from hdrcl.core.sampling import grid_stride
     from hdrcl.io.reader import BracketReader
 
     if reader is None:
         with BracketReader(paths, infos) as own:
             return _grid_bracket(paths, infos, rel, rgb, reader=own)
-    frames, valid = reader.read_grid(grid_stride(reader.height, reader.width))
+    frames, valid = reader.read_grid(grid_stride(reader.height, reader.width), keep=keep)
     return Bracket(frames=frames, times=rel, valid=_with_ignore(frames, valid, rgb), paths=paths, infos=infos,
                    grid=True)

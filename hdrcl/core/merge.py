@@ -47,6 +47,8 @@ class MergeResult:
     nominal: Optional[np.ndarray] = None  # the set's own exposures before any refinement
     crop: Optional[tuple] = None  # (y0, y1, x0, x1) of the input kept, with align + crop
     storage_note: Optional[str] = None  # how an EXR was stored when half could not hold it
+    stored: Optional[object] = None  # hdrcl.core.encode.Stored: type, reference exposure, measured range
+    stages: dict = field(default_factory=dict)  # seconds per stage (decode, solve, fuse, encode, write); overlapping
 
     def __post_init__(self):
         if not self.shape and self.radiance is not None:
@@ -147,6 +149,7 @@ def merge_files(
     colorspace: str = "rec709",
     owner: Optional[str] = None,
     save_response: Union[str, os.PathLike, None] = None,
+    reference_exposure=None,
 ) -> MergeResult:
     """Merge image files into a radiance file (EXR, HDR, TIFF or PFM by extension).
 
@@ -179,10 +182,17 @@ def merge_files(
         With ``deghost``: the frame ghost pixels are taken from (an int is an index into
         ``paths``); default the middle exposure.
 
-    A half-float EXR that could not hold the radiance (bounds from the response and the
-    exposures, before anything is written) is rescaled by a power of two recorded as
-    ``hdrcl:halfScale``, or, for ``absolute``/``reference_patch`` units or a range beyond
-    half floats, written as float; ``result.warnings`` says which.
+    The file holds radiance times the reference exposure (:mod:`hdrcl.core.encode`: 1.0
+    is what a frame of ``reference_exposure`` seconds records as white; default the
+    power of two nearest the bracket's middle exposure; recorded as ``expTime`` and
+    ``hdrcl:referenceExposure``, or ``EXPOSURE=`` in a Radiance file). An EXR is half
+    float whenever the merged values fit, which is measured on the data as it streams;
+    otherwise (``dtype="auto"``, or absolute units) it is fused again into float, or
+    (``dtype="half"``) into half rescaled by a power of two recorded as
+    ``hdrcl:halfScale``; ``result.warnings`` and ``result.stored`` say which.
+    reference_exposure : float or str, optional
+        The reference exposure in seconds (``"1/125"`` accepted) at the first frame's
+        f-number and ISO.
     neutral : "x,y,w,h", optional
         White balance: scale the channels so this patch comes out neutral
         (:mod:`hdrcl.core.radiometry`).
@@ -211,6 +221,7 @@ def merge_files(
         radiance file appears, and renamed into place after it.
     """
     from hdrcl.cl.backend import get_processor
+    from hdrcl.core.encode import check_reference_exposure, fuse_to_file, reference_for
     from hdrcl.core.pipeline import ArraySink, ArraySource, Thumbnail, strip_rows, stream_merge
     from hdrcl.io.colorspace import check as check_space
     from hdrcl.io.outmeta import camera_from_infos
@@ -219,6 +230,7 @@ def merge_files(
     from hdrcl.io.writers import RADIANCE_EXTENSIONS, RadianceWriter
 
     colorspace = check_space(colorspace)
+    reference_exposure = check_reference_exposure(reference_exposure)
     output = os.fspath(output)
     ext = os.path.splitext(output)[1].lower()
     if ext not in RADIANCE_EXTENSIONS:
@@ -245,7 +257,9 @@ def merge_files(
         "given" if response is not None else "calibrated from these frames")
     resp = _as_response(response)
     calibrated = resp is None
+    seconds: dict = {}
     t0 = _time.perf_counter()
+    # --- read: headers, exposures
     paths, infos, rel = _open_files(paths, times, times_file)
     warm = _warm_up(device, calibrating=resp is None)
     first = infos[0]
@@ -260,10 +274,12 @@ def merge_files(
         resp.exposures = [{"file": os.path.basename(p), "nominal": float(t), "fitted": None, "used": float(t)}
                           for p, t in zip(paths, rel)]
     t1 = _time.perf_counter()
+    seconds["open"] = t1 - t0
     shifts = crop_box = None
     if align:  # alignment works on whole frames: they are held in memory
         with BracketReader(paths, infos) as reader:
             frames, valid = reader.read_all()
+            seconds["decode"] = reader.decode_seconds
         valid = _with_ignore(frames, valid, rgb)
         frames, valid, shifts, crop_box = _align(frames, valid, rel, device, crop)
         if crop_box is not None:
@@ -279,20 +295,25 @@ def merge_files(
         source = BracketReader(paths, infos)
         ignore = rgb
         if resp is None:
-            # Streaming calibration: one pass keeps only the sampling grid of each frame,
-            # then the solve runs while the fusion pass decodes its first strip.
+            # --- sample + solve. One streaming pass decodes every frame once: it keeps
+            # the sampling grid and the decoded codes (io.framecache), which the fusion
+            # pass then reads instead of decoding again.
             try:
-                grid = _grid_bracket(paths, infos, rel, rgb, reader=source)
+                grid = _grid_bracket(paths, infos, rel, rgb, reader=source, keep=True)
+                seconds["decode"] = source.decode_seconds
                 warm.join()
                 source.prefetch(strip_rows(w, device))
+                ts = _time.perf_counter()
                 resp = calibrate(grid, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
                                  fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance)
+                seconds["solve"] = _time.perf_counter() - ts
             except BaseException:
                 source.close()
                 raise
     nominal = rel
     rel = exposures_used(resp, rel)
     t2 = _time.perf_counter()
+    seconds["calibrate"] = t2 - t1
     warm.join()
     backend = "numpy" if get_processor("fusion", device) is None else "opencl"
     result = MergeResult(radiance=None, response=resp, counts={}, times=rel, paths=paths, backend=backend,
@@ -312,7 +333,10 @@ def merge_files(
                                               neutral, reference_patch, absolute, h, w)
         meta = _provenance(result, source_name)
         meta.update(units)
-        dtype, half_scale = choose_storage(output, dtype, resp, rel, first, nch, factors, units, meta, result)
+        unit = units.get("units", "relative")
+        t_ref = reference_for(output, rel, reference_exposure, unit)
+        if unit == "relative":
+            meta["referenceExposure"] = t_ref
         check = None
         if not calibrated:  # a given response: check the exposures against the pixels
             from hdrcl.core.exposure_fit import ExposureCheck
@@ -324,24 +348,51 @@ def merge_files(
         meta["colorspace"] = colorspace
         if shifts is not None:
             meta["alignShifts"] = [list(map(int, sh)) for sh in shifts]
-        camera = camera_from_infos(infos, owner=owner, units=units.get("units", "relative"))
+        camera = camera_from_infos(infos, owner=owner, units=unit, exposure_time=t_ref)
         when = first.capture_time.strftime("%Y:%m:%d %H:%M:%S") if first.capture_time else None
-        with RadianceWriter(output, w, h, nch, dtype=dtype, compression=compression, metadata=meta,
-                            timestamp=when, colorspace=colorspace, camera=camera) as writer:
-            sink = writer if half_scale == 1.0 else RescaledSink(writer, half_scale)
-            sink = sink if keep is None else _Tee(sink, keep)
+
+        def open_writer(dt, half_scale):
+            m = dict(meta)
+            if half_scale != 1.0:
+                m["halfScale"] = half_scale
+            return RadianceWriter(output, w, h, nch, dtype=dt, compression=compression, metadata=m,
+                                  timestamp=when, colorspace=colorspace, camera=camera)
+
+        def run(file_sink, first_pass):
+            # --- fuse (the encode and write happen in the writer's thread as strips come)
+            sinks = [file_sink] + ([keep] if keep is not None and first_pass else [])
+            sink = sinks[0] if len(sinks) == 1 else _Tee(*sinks)
             if factors is not None:
                 from hdrcl.core.radiometry import ScaledSink
 
                 sink = ScaledSink(sink, factors)
+            if not first_pass and hasattr(source, "rewind"):
+                source.rewind()
             counts, backend = stream_merge(source, rel, resp, sink, weight=weight, ignore_color=ignore,
-                                           has_valid=has_valid, device=device, thumbnail=thumb,
+                                           has_valid=has_valid, device=device,
+                                           thumbnail=thumb if first_pass else None,
                                            deghost=deghost, ghost_mask=mask,
                                            ghost_reference=ghost_reference, ghost_threshold=ghost_threshold,
-                                           exposure_check=check)
-            if check is not None:
+                                           exposure_check=check if first_pass else None, seconds=seconds)
+            result.backend = backend
+            if check is not None and first_pass:
                 _report_exposure_check(check, result, exposure_tolerance)
-        result.warnings += writer.warnings
+            return counts
+
+        writer, counts, stored = fuse_to_file(open_writer, run, output=output, dtype=dtype, reference=t_ref,
+                                              keep_units=unit != "relative")
+        tw = _time.perf_counter()
+        try:
+            result.warnings += writer.close()
+        except BaseException:
+            writer.abort()
+            raise
+        seconds["write"] = _time.perf_counter() - tw
+        result.stored = stored
+        if stored.note:
+            msg = f"{output}: {stored.note}"
+            result.warnings.append(msg)
+            result.storage_note = stored.note
         if mask is not None:
             from hdrcl.io.writers import write_ldr
 
@@ -354,7 +405,6 @@ def merge_files(
         if hasattr(source, "close"):
             source.close()
     result.counts = counts
-    result.backend = backend
     result.radiance = keep.array if keep is not None else None
     result.thumbnail = thumb.array if thumb is not None else None
     if counts.get("no_data"):
@@ -363,7 +413,9 @@ def merge_files(
         result.warnings.append(msg)
     if deghost:
         logger.info("%s: ghost pixels %.2f %%", output, 100.0 * counts.get("ghost", 0) / max(h * w, 1))
-    result.seconds = {"open": t1 - t0, "calibrate": t2 - t1, "fuse_and_write": _time.perf_counter() - t2}
+    result.stages = {k: seconds[k] for k in ("decode", "solve", "fuse", "encode", "write") if k in seconds}
+    result.seconds = {"open": seconds["open"], "calibrate": seconds["calibrate"],
+                      "fuse_and_write": _time.perf_counter() - t2}
     return result
 
 
@@ -376,30 +428,6 @@ def _check_response_fits(resp: Response, source: str, first: str, bits: int, nch
         raise InputError(f"{source}: a response for {resp.bits}-bit frames, but {first} is {bits}-bit")
     if resp.nchannels not in (1, nch):
         raise InputError(f"{source}: a response with {resp.nchannels} channel(s), but {first} has {nch}")
-
-
-def choose_storage(output, dtype, resp, times, first, nch, factors, units, meta, result):
-    """The EXR sample type and multiplier that keep every value (:mod:`hdrcl.io.halfrange`):
-    half as asked, half rescaled by a power of two (``hdrcl:halfScale``), or float
-    (physical units, or a range beyond half floats); said in ``result.warnings``."""
-    from hdrcl.core.fusion import radiance_bounds
-    from hdrcl.io import halfrange
-
-    if os.path.splitext(output)[1].lower() != ".exr":
-        return ("half" if dtype == "auto" else dtype), 1.0
-    lo, hi = radiance_bounds(resp, times, nch)
-    if factors is not None:
-        lo, hi = lo * float(np.min(factors)), hi * float(np.max(factors))
-    hp = halfrange.plan(lo, hi, dtype, keep_units=units.get("units", "relative") != "relative")
-    if hp.message:
-        # A decision, not a fault: the summary line ("storage:") and the report say it.
-        msg = f"{output}: {hp.message}"
-        logger.info("%s", msg)
-        result.warnings.append(msg)
-        result.storage_note = hp.message
-    if hp.scale != 1.0:
-        meta["halfScale"] = hp.scale
-    return hp.dtype, hp.scale
 
 
 def _report_exposure_check(check, result, tolerance):
@@ -415,16 +443,6 @@ def _report_exposure_check(check, result, tolerance):
     for m in msgs:
         logger.warning("%s", m)
         result.warnings.append(m)
-
-
-class RescaledSink:
-    """Passes strips on multiplied by ``scale`` (a copy: other sinks still see radiance)."""
-
-    def __init__(self, sink, scale: float):
-        self.sink, self.scale = sink, np.float32(scale)
-
-    def write_rows(self, y0, y1, data):
-        self.sink.write_rows(y0, y1, data * self.scale)
 
 
 def _align(frames, valid, times, device, crop: bool = False):

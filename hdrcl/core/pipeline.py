@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import logging
+import time
 from collections import deque
 from typing import Optional, Sequence
 
@@ -112,6 +113,7 @@ def stream_merge(
     ghost_reference=None,
     ghost_threshold: Optional[float] = None,
     exposure_check=None,
+    seconds: Optional[dict] = None,
 ):
     """Fuse every strip of ``source`` and hand it to ``sink.write_rows``.
 
@@ -143,6 +145,10 @@ def stream_merge(
         See :func:`hdrcl.core.deghost.reference_index` and :func:`hdrcl.core.deghost.learn`.
     exposure_check : hdrcl.core.exposure_fit.ExposureCheck, optional
         Given every strip (frames in exposure order) to measure the exposure ratios.
+    seconds : dict, optional
+        Receives the time spent (added to what it holds): ``fuse`` (the kernel or its
+        twin), ``encode`` (the sink, on the writer thread) and, for a decoding source,
+        ``decode`` (summed over its decoder threads).
 
     Returns
     -------
@@ -182,10 +188,18 @@ def stream_merge(
     held = None  # deghost: (y0, y1, frames, valid, out) awaiting the next strip's rows
     tail = None  # deghost: last CONTEXT rows (frames, valid, unreplaced fused) of the strip before ``held``
 
+    timing = {"fuse": 0.0, "encode": 0.0}
+    decoded0 = getattr(source, "decode_seconds", 0.0)
+
+    def write(y0, y1, out):
+        t = time.perf_counter()
+        sink.write_rows(y0, y1, out)
+        timing["encode"] += time.perf_counter() - t
+
     def emit(y0, y1, out):
         if thumbnail is not None:
             thumbnail.add(y0, y1, out)
-        pending.append(writer.submit(sink.write_rows, y0, y1, out))
+        pending.append(writer.submit(write, y0, y1, out))
 
     def rows_of(frames, vv, out, sl):
         return ([f[sl].copy() for f in frames],
@@ -217,6 +231,7 @@ def stream_merge(
             buf = buffers[0]
             buffers.rotate(-1)
             out = buf[: y1 - y0]
+            tf = time.perf_counter()
             if plan is not None:
                 plan.fuse_strip(frames, valid if has_valid else None, out)
             else:
@@ -224,6 +239,7 @@ def stream_merge(
                 out[...] = rad
                 for k in counts:
                     counts[k] += c[k]
+            timing["fuse"] += time.perf_counter() - tf
             if deghost:
                 vv = valid if has_valid else None
                 if held is not None:
@@ -237,6 +253,12 @@ def stream_merge(
             fut.result()
     if plan is not None:
         counts = plan.result_counts()
+    if seconds is not None:
+        for k, v in timing.items():
+            seconds[k] = seconds.get(k, 0.0) + v
+        decoded = getattr(source, "decode_seconds", 0.0) - decoded0
+        if decoded:
+            seconds["decode"] = seconds.get("decode", 0.0) + decoded
     if deghost:
         counts.update(ghosts)
     return counts, ("opencl" if plan is not None else "numpy")

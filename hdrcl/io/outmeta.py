@@ -13,14 +13,16 @@ read by standard names:
 ``lens``               ``lensModel``
 ``focal_length``       ``nominalFocalLength``      mm
 ``fnumber``, ``iso``   ``aperture``, ``isoSpeed``  the reference exposure: a value of 1 in
-``exposure_time``      ``expTime`` (1 s)           the map is what a frame of ``expTime``
+``exposure_time``      ``expTime``                 the map is what a frame of ``expTime``
                                                    at this f-number and ISO records as 1
+                                                   (:mod:`hdrcl.core.encode`)
 =====================  ==========================  =========================================
 
 The reference f-number and ISO are the first frame's (the merge expresses every frame's
 exposure at its settings, :func:`hdrcl.io.metadata.relative_exposures`); they are left out
 when the map has absolute units. Radiance (``.hdr``) files get the standard header lines
-``SOFTWARE=``, ``EXPOSURE=1`` (the values are the map's, unscaled), ``PRIMARIES=`` and
+``SOFTWARE=``, ``EXPOSURE=`` (the reference exposure: Radiance tools divide the stored
+values by it to get radiance relative to 1 s), ``PRIMARIES=`` and
 ``CAPDATE=``, which OpenImageIO's RGBE writer does not write, so they are inserted into
 the header after writing. TIFF keeps ``Software``, ``Make``, ``Model``, ``Copyright``
 and ``DateTime`` as TIFF tags.
@@ -78,7 +80,10 @@ def standard_attributes(ext: str, camera: Optional[Mapping]) -> list:
 def hdr_header_lines(camera: Optional[Mapping], colorspace: str, timestamp: Optional[str]) -> list:
     """The Radiance header lines hdrcl adds after ``FORMAT=`` (without newlines)."""
     prim = " ".join(f"{v:.4f}" for v in chromaticities(check_space(colorspace)))
-    lines = [f"SOFTWARE={software()}", "EXPOSURE=1.000000e+00", f"PRIMARIES= {prim}"]
+    # Radiance's convention: stored value = original x EXPOSURE. hdrcl stores radiance
+    # (relative to 1 s) times the reference exposure; absolute maps are stored as they are.
+    exposure = float((camera or {}).get("exposure_time") or 1.0)
+    lines = [f"SOFTWARE={software()}", f"EXPOSURE={exposure:.6e}", f"PRIMARIES= {prim}"]
     if timestamp:
         lines.append(f"CAPDATE= {_clean(timestamp)}")
     owner = (camera or {}).get("owner")
@@ -146,13 +151,14 @@ def inapplicable_options(path, dtype: Optional[str] = None, compression: Optiona
 
 
 def camera_from_infos(infos: Sequence, *, owner: Optional[str] = None, units: str = "relative",
-                      reference: Optional[tuple] = None) -> dict:
+                      reference: Optional[tuple] = None, exposure_time: float = 1.0) -> dict:
     """The ``camera`` mapping of :func:`standard_attributes` from the frames' headers.
 
     Make, model, lens, focal length and owner come from the first frame that has them;
-    the reference exposure (1 s at the first frame's f-number and ISO, or at
-    ``reference = (f-number, ISO)`` where the caller set another, as ``hdrcl batch``
-    does for a shoot) only when the map is in relative units.
+    the reference exposure (``exposure_time`` seconds, see :mod:`hdrcl.core.encode`, at
+    the first frame's f-number and ISO, or at ``reference = (f-number, ISO)`` where the
+    caller set another, as ``hdrcl batch`` does for a shoot) only when the map is in
+    relative units.
     """
     cam: dict = {}
     for key in ("make", "model", "lens", "focal_length"):
@@ -164,5 +170,5 @@ def camera_from_infos(infos: Sequence, *, owner: Optional[str] = None, units: st
     if units == "relative" and infos:
         n, iso = reference if reference is not None else (getattr(infos[0], "fnumber", None),
                                                           getattr(infos[0], "iso", None))
-        cam.update({"exposure_time": 1.0, "fnumber": n, "iso": iso})
+        cam.update({"exposure_time": float(exposure_time), "fnumber": n, "iso": iso})
     return {k: v for k, v in cam.items() if v not in (None, "")}

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+from typing import Optional
 
 import numpy as np
 
@@ -64,8 +65,9 @@ def read_radiance(path, *, require_float: bool = False) -> tuple:
     Returns
     -------
     pixels : numpy.ndarray
-        ``(H, W, C)`` float32, C = 1 or 3 (alpha and other channels dropped); radiance,
-        i.e. divided by ``hdrcl:halfScale`` where the file was stored rescaled.
+        ``(H, W, C)`` float32, C = 1 or 3 (alpha and other channels dropped); radiance
+        relative to a 1 s exposure, i.e. the stored values divided by
+        :func:`stored_scale` (the reference exposure and any ``hdrcl:halfScale``).
     metadata : dict
         The ``hdrcl:*`` attributes without the prefix (or the JSON kept in a TIFF's
         ImageDescription); empty when there are none.
@@ -92,6 +94,7 @@ def read_radiance(path, *, require_float: bool = False) -> tuple:
         if problem is not None:
             raise InputError(problem)
         metadata = _spec_metadata(spec)
+        exposure_line = _positive(spec.getattribute("hdr:exposure"))
     finally:
         inp.close()
     data = np.asarray(data, dtype=np.float32)
@@ -102,11 +105,28 @@ def read_radiance(path, *, require_float: bool = False) -> tuple:
         bad = int(np.count_nonzero(~np.isfinite(pixels)))
         if bad:
             raise InputError(f"{name}: not a usable radiance map ({bad} NaN or infinite sample(s))")
-    scale = metadata.get("halfScale")
-    if isinstance(scale, (int, float)) and scale > 0 and scale != 1:
-        # Stored as radiance x halfScale so that half floats could hold it (issue 9).
-        pixels = (pixels.astype(np.float64) / float(scale)).astype(np.float32)
+    divisor = stored_scale(metadata, exposure_line)
+    if divisor != 1.0:
+        pixels = (pixels.astype(np.float64) / divisor).astype(np.float32)
     return pixels, metadata
+
+
+def _positive(value) -> Optional[float]:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    v = float(value)
+    return v if (v > 0 and np.isfinite(v)) else None
+
+
+def stored_scale(metadata: dict, exposure_line: Optional[float] = None) -> float:
+    """What a file's values were multiplied by relative to radiance for a 1 s exposure:
+    ``hdrcl:referenceExposure`` x ``hdrcl:halfScale`` (:mod:`hdrcl.core.encode`), or a
+    Radiance file's ``EXPOSURE=`` (Radiance's convention: stored = original x EXPOSURE)."""
+    ref = _positive(metadata.get("referenceExposure"))
+    half = _positive(metadata.get("halfScale"))
+    if ref is None and half is None:
+        return exposure_line if exposure_line is not None else 1.0
+    return (ref or 1.0) * (half or 1.0)
 
 
 def _check_float_format(spec, name: str) -> None:
@@ -162,6 +182,7 @@ def read_metadata(path) -> dict:
     try:
         spec = inp.spec()
         metadata = _spec_metadata(spec)
+        exposure_line = _positive(spec.getattribute("hdr:exposure"))
     finally:
         inp.close()
     return metadata

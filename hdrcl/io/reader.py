@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import concurrent.futures
 import os
+import threading
+import time
 from typing import Optional, Sequence
 
 import numpy as np
@@ -67,6 +69,9 @@ class BracketReader:
         self._raw_wb = None
         self._first = None  # (rows, _Prefetch) started by prefetch()
         self._grid = None  # (stride, frames, valid) of the last read_grid
+        self.cache = None  # FrameCache filled by read_grid(keep=True): strips() reads it back
+        self.decode_seconds = 0.0  # decoding time summed over the decoder threads
+        self._time_lock = threading.Lock()
         if any(raws):
             from hdrcl.io.raw import camera_white_balance
 
@@ -91,12 +96,23 @@ class BracketReader:
             self._first[1].wait()
             self._first = None
         self._pool.shutdown(wait=True)
+        if self.cache is not None:
+            self.cache.close()
+            self.cache = None
         for k, inp in enumerate(self._inputs):
             if inp is not None and hasattr(inp, "close"):
                 inp.close()
             self._inputs[k] = None
 
     def _read(self, k: int, y0: int, y1: int):
+        t0 = time.perf_counter()
+        try:
+            return self._decode(k, y0, y1)
+        finally:
+            with self._time_lock:
+                self.decode_seconds += time.perf_counter() - t0
+
+    def _decode(self, k: int, y0: int, y1: int):
         name = self.paths[k]
         if self._raw_wb is not None:
             # LibRaw decodes whole frames: keep the frame while its strips are served
@@ -144,7 +160,9 @@ class BracketReader:
     def prefetch(self, rows: int) -> None:
         """Start decoding the first strip of ``rows`` rows now, on helper threads, so
         that a later :meth:`strips` with the same ``rows`` finds it ready (a merge
-        overlaps it with the response solve)."""
+        overlaps it with the response solve). Nothing to do when the frames are cached."""
+        if self.cache is not None and self.cache.complete:
+            return
         if self._first is None:
             rows = max(1, int(rows))
             self._first = (rows, _Prefetch(self, 0, min(self.height, rows)))
@@ -152,6 +170,11 @@ class BracketReader:
     def strips(self, rows: int):
         """Yield ``(y0, y1, frames, valid)`` top to bottom, decoding one strip ahead."""
         rows = max(1, int(rows))
+        if self.cache is not None and self.cache.complete:  # decoded once already (read_grid)
+            for y0 in range(0, self.height, rows):
+                y1 = min(self.height, y0 + rows)
+                yield (y0, y1) + tuple(self.cache.rows(y0, y1))
+            return
         starts = list(range(0, self.height, rows))
         ahead = None
         if self._first is not None:
@@ -174,6 +197,13 @@ class BracketReader:
             if ahead is not None:  # never close the files under a running decode
                 ahead.wait()
 
+    def rewind(self) -> None:
+        """Start the next :meth:`strips` pass from the top (from the cache when there is one)."""
+        if self._first is not None:
+            self._first[1].wait()
+            self._first = None
+        self._rewind()
+
     def _rewind(self) -> None:
         """Close the open files so the next read starts again from the top."""
         for k, inp in enumerate(self._inputs):
@@ -191,10 +221,14 @@ class BracketReader:
         got = [f.result() for f in futs]
         return [g[0] for g in got], [g[1] for g in got]
 
-    def read_grid(self, stride: int):
+    def read_grid(self, stride: int, keep: bool = False):
         """Every ``stride``-th row and column of every frame, read in one streaming pass
         (once: a second call with the same stride returns the same arrays, not to be
         modified).
+
+        With ``keep``, every decoded strip is also stored in a
+        :class:`~hdrcl.io.framecache.FrameCache` (:attr:`cache`), from which a later
+        :meth:`strips` pass reads instead of decoding the frames a second time.
 
         Each frame is decoded top to bottom in strips of about :data:`GRID_STRIP_ROWS`
         rows on its own thread, which keeps only the grid's rows and columns of each
@@ -202,8 +236,6 @@ class BracketReader:
         strip per frame, whatever the image size. One thread per frame (not per core)
         lets the frames finish together instead of leaving a core idle at the end.
         """
-        import threading
-
         stride = max(1, int(stride))
         if self._grid is not None and self._grid[0] == stride:  # read already (calibration)
             return list(self._grid[1]), list(self._grid[2])
@@ -213,6 +245,13 @@ class BracketReader:
         self._rewind()
         hh = len(range(0, self.height, stride))
         ww = len(range(0, self.width, stride))
+        cache = None
+        if keep:
+            from hdrcl.io.framecache import FrameCache
+
+            if self.cache is not None:
+                self.cache.close()
+            cache = self.cache = FrameCache(len(self.paths), self.height, self.width, self.nch, self.dtype)
         frames = [np.empty((hh, ww, self.nch), self.dtype) for _ in self.paths]
         valid: list = [None] * len(self.paths)
         rows = stride * max(1, -(-GRID_STRIP_ROWS // stride))  # a multiple of the stride
@@ -228,6 +267,8 @@ class BracketReader:
                     if stop.is_set():  # the caller is unwinding (an error, SIGTERM, Ctrl-C)
                         return
                     f, v = self._read(k, y0, min(self.height, y0 + rows))
+                    if cache is not None:
+                        cache.put(k, y0, f, v)
                     g0 = y0 // stride
                     sub = f[::stride, ::stride]
                     frames[k][g0:g0 + sub.shape[0]] = sub
@@ -260,7 +301,12 @@ class BracketReader:
             wait_all()
         for exc in errors:
             if exc is not None:
+                if cache is not None:
+                    cache.close()
+                    self.cache = None
                 raise exc
+        if cache is not None:
+            cache.finish()
         self._rewind()  # a later strips() pass starts from the top again
         self._grid = (stride, frames, valid)  # small; a second call (ghost model) reuses it
         return list(frames), list(valid)

@@ -35,9 +35,13 @@ logger = logging.getLogger(__name__)
 __all__ = ["run_processes", "run_dask", "dask_client"]
 
 
-def _worker_init(level: int, parent: int) -> None:
-    """Worker processes die with their parent and log like it: one line, same level."""
+def _worker_init(level: int, parent: int, share: int = 1) -> None:
+    """Worker processes die with their parent and log like it: one line, same level;
+    each holds decoded frames within its ``share`` of ``HDRCL_MEMORY_MB``
+    (:mod:`hdrcl.io.framecache`)."""
     from hdrcl.shoot.claims import tie_to_parent
+
+    os.environ["HDRCL_MEMORY_SHARE"] = str(max(1, int(share)))
 
     tie_to_parent(parent)
     from hdrcl.errors import WarningsBridge
@@ -68,7 +72,8 @@ def run_processes(set_jobs: List, ctx, emit: Callable, *, task: Callable, failed
     def run_round(batch: List, workers: int) -> List:
         """Run ``batch``; emit every result; return the sets a dying worker took down."""
         pool = concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=mp,
-                                                      initializer=_worker_init, initargs=(level, os.getpid()))
+                                                      initializer=_worker_init,
+                                                      initargs=(level, os.getpid(), workers))
         lost = []
         try:
             futures = {pool.submit(task, job, ctx): job for job in batch}

@@ -223,6 +223,36 @@ def _reference(infos: Sequence) -> Tuple[Optional[float], Optional[float]]:
 
 
 
+def _camera_references(sets, firsts, groups, reference, given=None) -> Dict[str, float]:
+    """One reference exposure per camera (response group) for the whole shoot, so that
+    every set of a camera comes out on one radiometric scale (:mod:`hdrcl.core.encode`):
+    ``given``, else the power of two nearest the median of the camera's exposures across
+    its sets, on the shoot's scale (f-number and ISO of ``reference``)."""
+    from hdrcl.core.encode import default_reference
+
+    by_index = {s.index: s for s in sets}
+    ref_n, ref_iso = reference
+    out = {}
+    for group, indices in groups.items():
+        if given is not None:
+            out[group] = float(given)
+            continue
+        times = []
+        for i in indices:
+            info = firsts.get(i)
+            k = 1.0
+            if info is not None and ref_n and info.fnumber and info.fnumber > 0:
+                k *= (ref_n / info.fnumber) ** 2
+            if info is not None and ref_iso and info.iso and info.iso > 0:
+                k *= info.iso / ref_iso
+            exposures = list(by_index[i].exposures) or (
+                [info.exposure_time] if info is not None and info.exposure_time else [])
+            times += [float(t) * k for t in exposures if t and t > 0]
+        if times:
+            out[group] = default_reference(times)
+    return out
+
+
 @dataclass
 class _Plan:
     jobs: Dict[int, SetJob]
@@ -248,13 +278,15 @@ def _plan(manifest, out_dir: str, options: BatchOptions, ranges) -> _Plan:
     reference = _reference([firsts[s.index] for s in sets])
     jobs, groups = {}, {}
     for s in sets:
+        groups.setdefault(_group_of(firsts[s.index]), []).append(s.index)
+    exposure_refs = _camera_references(sets, firsts, groups, reference, options.reference_exposure)
+    for s in sets:
         group = _group_of(firsts[s.index])
         stem = os.path.join(out_dir, stems[s.index])
         jobs[s.index] = SetJob(index=s.index, files=[os.path.abspath(f) for f in s.files],
                                exposures=[float(t) for t in s.exposures], output=stem + ".exr",
                                preview=stem + ".jpg" if options.preview else None, group=group,
-                               reference=reference)
-        groups.setdefault(group, []).append(s.index)
+                               reference=reference, exposure_ref=exposure_refs.get(group))
     selected = [jobs[s.index] for s in select_sets(sets, ranges)]
     return _Plan(jobs=jobs, selected=selected, reference=reference, groups=groups)
 

@@ -113,10 +113,17 @@ def _pool_of(indices: Sequence[int]) -> List[int]:
     return sorted({idx[round(i * (len(idx) - 1) / (m - 1))] for i in range(m)})
 
 
-def _calibrate_group(group: str, jobs: List[SetJob], out_dir: str, options: BatchOptions) -> ResponseEntry:
-    """Load the group's saved response if its key matches, else solve and save it."""
-    from hdrcl.core.solve import recover_response_pooled
+def _key_digest(key: str) -> str:
+    """The digest of a batch-calibrated response: its calibration key (the pooled files'
+    contents and the solve's parameters determine the curve), so a curve solved now, one
+    loaded from its file and one its set's merge will solve all give the same set digests."""
+    return _json_digest({"calibration": key})
 
+
+def _calibrate_group(group: str, jobs: List[SetJob], out_dir: str, options: BatchOptions,
+                     defer: bool = False) -> ResponseEntry:
+    """Load the group's saved response if its key matches, else solve and save it; with
+    ``defer``, a group of one set is left to that set's merge (:func:`solve_deferred`)."""
     path = os.path.join(out_dir, _slug(group) + RESPONSE_SUFFIX)
     entry = ResponseEntry(group=group, file=path, sets=[j.index for j in jobs])
     usable, keyed = [], []
@@ -140,13 +147,36 @@ def _calibrate_group(group: str, jobs: List[SetJob], out_dir: str, options: Batc
             logger.info("%s; the response is solved again", str(exc).splitlines()[0])
         else:
             entry.payload = {k: v for k, v in saved.items() if k != "calibration"}
-            entry.digest = response_digest(entry.payload)
+            entry.digest = _key_digest(key)
+            entry.key = key
             entry.source = "loaded"
             entry.warnings += warns
             logger.info("%s: response loaded from %s", group, path)
             return entry
+    entry.key = key
+    if defer and len(usable) == 1 and len(jobs) == 1:
+        entry.deferred = True
+        entry.digest = _key_digest(key)
+        entry.source = "calibrated"
+        entry.sets = [usable[0].index]
+        return entry
+    return _solve_pool(entry, usable, options)
+
+
+def _solve_pool(entry: ResponseEntry, usable: List[SetJob], options: BatchOptions, grids=None) -> ResponseEntry:
+    """Solve the pooled response of ``usable`` (their sampling grids read here, or given
+    as ``grids``: ``{index: (frames, times, valid)}``) and save it with its key."""
+    from hdrcl.core.solve import recover_response_pooled
+
+    group, path, key = entry.group, entry.file, entry.key
     brackets, pooled, first_info = [], [], None
     for j in usable:
+        if grids is not None:
+            infos, grid = grids[j.index]
+            brackets.append(grid)
+            pooled.append(j.index)
+            first_info = first_info or infos[0]
+            continue
         try:
             opened = _open_set(j)
             br = _calibration_grid(j, opened, options.ignore_color)
@@ -169,7 +199,7 @@ def _calibrate_group(group: str, jobs: List[SetJob], out_dir: str, options: Batc
     resp.camera = {k: v for k, v in (("make", first_info.make), ("model", first_info.model),
                                      ("iso", first_info.iso)) if v is not None}
     entry.payload = _normalised(resp)
-    entry.digest = response_digest(entry.payload)
+    entry.digest = _key_digest(key)
     entry.source = "calibrated"
     entry.sets = pooled
     entry.warnings += list(resp.warnings)
@@ -180,7 +210,10 @@ def _calibrate_group(group: str, jobs: List[SetJob], out_dir: str, options: Batc
     return entry
 
 
-def _prepare_responses(plan: _Plan, out_dir: str, options: BatchOptions, response=None) -> Dict[str, ResponseEntry]:
+def _prepare_responses(plan: _Plan, out_dir: str, options: BatchOptions, response=None,
+                       defer: bool = False) -> Dict[str, ResponseEntry]:
+    """Every needed group's response: given, loaded, solved now, or (``defer``) left to
+    the merge of a group's only set."""
     needed = sorted({j.group for j in plan.selected})
     if response is not None:
         if isinstance(response, Response):
@@ -193,8 +226,25 @@ def _prepare_responses(plan: _Plan, out_dir: str, options: BatchOptions, respons
                 for g in needed}
     out = {}
     for g in needed:
-        out[g] = _calibrate_group(g, [plan.jobs[i] for i in _pool_of(plan.groups[g])], out_dir, options)
+        out[g] = _calibrate_group(g, [plan.jobs[i] for i in _pool_of(plan.groups[g])], out_dir, options,
+                                  defer=defer)
     return out
+
+
+def solve_deferred(entry: ResponseEntry, job: SetJob, infos, grid, options: BatchOptions) -> Response:
+    """The response of a one-set group, solved by that set's merge from the sampling grid
+    of the decode that feeds its fusion, and saved (as :func:`_calibrate_group` would).
+
+    Raises
+    ------
+    HdrclError
+        The solve failed (the set fails with the reason).
+    """
+    _solve_pool(entry, [job], options, grids={job.index: (infos, grid)})
+    if entry.payload is None:
+        raise HdrclError(f"no response for {entry.group}: {entry.error}")
+    entry.deferred = False  # solved: a later use in this process loads it like any other
+    return _response_of(entry)
 
 
 _response_cache: Dict[str, Response] = {}

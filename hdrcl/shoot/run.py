@@ -12,7 +12,11 @@ index order), and the solve is deterministic, so every farm chunk, Dask worker o
 rerun arrives at the same curve. A saved curve whose recorded calibration key (the
 pooled files' contents and the solve's parameters) still matches is loaded instead
 of solved again; chunks running at the same moment each solve and write the same
-file atomically. The curve used is always the one as written to JSON (rounded the same
+file atomically. A camera with a single set in the manifest is solved by that set's
+merge, from the sampling grid of the decode that also feeds its fusion, so its frames
+are decoded once (:func:`hdrcl.shoot.pooling.solve_deferred`); the set digests name the
+calibration key, so a curve solved either way or loaded from its file gives the same
+digests. The curve used is always the one as written to JSON (rounded the same
 way), so a loaded curve and a freshly solved one give identical outputs.
 
 **One exposure scale for the shoot.** Every frame's effective exposure is taken
@@ -253,7 +257,9 @@ def run_batch(
                                    responses=response is None, source=source)
         logger.info("%d set(s) in the manifest, %d selected; reference %s", len(plan.jobs), len(plan.selected),
                     _reference_text(plan.reference))
-        responses = _prepare_responses(plan, out_dir, options, response)
+        # A camera with one set in the manifest is calibrated by that set's merge, from the
+        # decode that feeds its fusion (each frame decoded once).
+        responses = _prepare_responses(plan, out_dir, options, response, defer=not calibrate_only)
         unreadable = [f for u in manifest.unmerged if u.reason.startswith("corrupt") for f in u.files] \
             if ranges is None else []
         rep = BatchReport(unmerged=[{"files": [os.path.abspath(f) for f in u.files], "reason": u.reason}

@@ -15,10 +15,11 @@ from hdrcl.shoot.jobs import BatchOptions, SetJob
 logger = logging.getLogger(__name__)
 
 
-def fitted_times(job: SetJob, opened, opts: BatchOptions) -> Tuple[np.ndarray, List[str]]:
+def fitted_times(job: SetJob, opened, opts: BatchOptions, grid=None) -> Tuple[np.ndarray, List[str]]:
     """The exposures to merge with under ``opts.fit_exposures`` and notes on them.
 
-    The fit runs on the set's sampling grid with the metadata's exposures as the prior
+    The fit runs on the set's sampling grid (``grid``, a grid :class:`~hdrcl.core.bracket.Bracket`
+    read already, else read here) with the metadata's exposures as the prior
     (:func:`hdrcl.core.exposure_fit.fit_exposures`); ``auto`` takes the fitted value only
     for frames whose metadata the pixels clearly contradict.
     """
@@ -28,7 +29,7 @@ def fitted_times(job: SetJob, opened, opts: BatchOptions) -> Tuple[np.ndarray, L
     from hdrcl.core.exposure_fit import fit_exposures
     from hdrcl.shoot.pooling import _calibration_grid
 
-    br = _calibration_grid(job, opened, opts.ignore_color)
+    br = grid if grid is not None else _calibration_grid(job, opened, opts.ignore_color)
     fit = fit_exposures(br.frames, times, valid=br.valid_all, weight=opts.weight, seed=opts.seed)
     notes = []
     for k, (stops, flagged) in enumerate(zip(fit.stops, fit.flagged)):

@@ -128,9 +128,10 @@ def _current_quality(folder: str, job: SetJob, digest: Optional[str]) -> Optiona
     return d["figures"]
 
 
-def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context) -> None:
+def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context, radiance=None) -> None:
     """The report of a skipped set that has none (or a stale one): the frames are read
-    again (whole or the sampling grid) and the radiance from its EXR."""
+    again (whole or the sampling grid) and the radiance from its EXR (``radiance``, when
+    the caller read it already)."""
     from hdrcl.core.bracket import Bracket, _with_ignore
     from hdrcl.io.radiance import read_radiance
     from hdrcl.io.reader import BracketReader
@@ -147,7 +148,7 @@ def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context) -> None:
             frames, valid = reader.read_all() if stride == 1 else reader.read_grid(stride)
         bracket = Bracket(frames=frames, times=opened.times, valid=_with_ignore(frames, valid, opts.ignore_color),
                           paths=list(job.files), infos=opened.infos, grid=stride > 1)
-        rad, _ = read_radiance(job.output)
+        rad = radiance if radiance is not None else read_radiance(job.output)[0]
         small = downscale(rad, opts.preview_size if job.preview is not None else REPORT_IMAGE_SIZE)
         del rad
     except Exception as exc:

@@ -104,7 +104,7 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
     digest = None
     try:
         entry = ctx.responses.get(job.group)
-        if entry is None or entry.payload is None:
+        if entry is None or (entry.payload is None and not entry.deferred):
             # A set's own problem (its first frame is missing...) explains this best.
             _open_set(job)
             why = entry.error if entry is not None else "no response"
@@ -114,7 +114,19 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
         seconds["hash"] = _time.perf_counter() - t0
         if not ctx.force:
             exr_ok, preview_ok, meta, pmeta = _up_to_date(job, digest, ctx.options)
-            damaged = exr_ok and not verify_exr(job.output)
+            radiance = None
+            if exr_ok and ctx.options.report_dir and _current_quality(ctx.options.report_dir, job, digest) is None:
+                # Its report will need the radiance: reading it whole verifies every pixel too
+                # (the EXR is decoded once, not verified and then read again).
+                from hdrcl.io.radiance import read_radiance
+
+                try:
+                    radiance = read_radiance(job.output)[0]
+                    damaged = False
+                except HdrclError:
+                    damaged = True
+            else:
+                damaged = exr_ok and not verify_exr(job.output)
             if damaged:  # the header is right, the pixels are not (truncated, damaged)
                 logger.warning("%s: damaged output (its pixels cannot be read): merging the set again",
                                job.output)
@@ -134,7 +146,7 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
                     if res.quality is None:
                         t1 = _time.perf_counter()
                         with _claimed(job):
-                            _rebuild_quality(res, job, ctx)
+                            _rebuild_quality(res, job, ctx, radiance=radiance)
                         seconds["quality"] = _time.perf_counter() - t1
                 return res
         t1 = _time.perf_counter()
@@ -200,7 +212,8 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
     (:mod:`hdrcl.shoot.setopts`).
     """
     from hdrcl.cl.backend import get_processor
-    from hdrcl.core.merge import MergeResult, RescaledSink, _provenance, choose_storage
+    from hdrcl.core.encode import fuse_to_file, reference_for
+    from hdrcl.core.merge import MergeResult, _provenance
     from hdrcl.core.pipeline import stream_merge
     from hdrcl.io.reader import BracketReader
     from hdrcl.io.outmeta import camera_from_infos
@@ -213,13 +226,33 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
     seconds = step.seconds
     try:
         entry = ctx.responses[job.group]
-        resp = _response_of(entry)
         first = opened.infos[0]
         h, w = first.height, first.width
         t0 = _time.perf_counter()
         with _FUSE_LOCK, BracketReader(job.files, opened.infos) as reader:
             nch = reader.nch
-            times, fit_notes = fitted_times(job, opened, opts)
+            grid = None
+            if (entry.deferred or opts.fit_exposures != "off") and not opts.align:
+                # One streaming pass decodes every frame once: its sampling grid serves the
+                # response solve and the exposure fit, its decoded codes the fusion.
+                from hdrcl.core.bracket import _grid_bracket
+
+                grid = _grid_bracket(list(job.files), opened.infos, opened.times, opts.ignore_color,
+                                     reader=reader, keep=True)
+                seconds["decode"] = reader.decode_seconds
+            if entry.deferred:
+                from hdrcl.shoot.pooling import solve_deferred
+
+                ts = _time.perf_counter()
+                if grid is None:  # aligned sets hold their frames; the grid is read apart
+                    from hdrcl.shoot.pooling import _calibration_grid
+
+                    grid = _calibration_grid(job, opened, opts.ignore_color)
+                resp = solve_deferred(entry, job, opened.infos, (grid.frames, grid.times, grid.valid_all), opts)
+                seconds["solve"] = _time.perf_counter() - ts
+            else:
+                resp = _response_of(entry)
+            times, fit_notes = fitted_times(job, opened, opts, grid=grid)
             source, shifts = reader, None
             if opts.align:
                 source, shifts, _box = aligned_source(job, opened, opts, times)
@@ -240,21 +273,38 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
             kept = _KeptFrames(reader, _quality_stride(len(job.files), h, w, nch, reader.dtype)) \
                 if opts.report_dir and source is reader else None
             thumb = small if small is not None or not opts.report_dir else AreaAverage(h, w, nch, REPORT_IMAGE_SIZE)
-            # Half floats hold what this set can produce, rescaled, or the EXR is float.
-            dtype, half_scale = choose_storage(job.output, opts.dtype, resp, times, first, nch, factors, units,
-                                               meta, about)
-            writer = RadianceWriter(job.output, w, h, nch, dtype=dtype, compression=opts.compression,
-                                    metadata=meta, timestamp=opened.stamp, colorspace=opts.colorspace,
-                                    camera=camera_from_infos(opened.infos, reference=job.reference))
-            try:
-                has_valid = (opts.ignore_color is not None or any(i.nchannels in (2, 4) for i in opened.infos)
-                             or source is not reader)
-                sink = _Tee(writer if half_scale == 1.0 else RescaledSink(writer, half_scale), thumb)
+            t_ref = reference_for(job.output, times, job.exposure_ref, units.get("units", "relative"))
+            if units.get("units", "relative") == "relative":
+                meta["referenceExposure"] = t_ref
+            camera = camera_from_infos(opened.infos, reference=job.reference, units=units.get("units", "relative"),
+                                       exposure_time=t_ref)
+            has_valid = (opts.ignore_color is not None or any(i.nchannels in (2, 4) for i in opened.infos)
+                         or source is not reader)
+
+            def open_writer(dt, half_scale):
+                m = dict(meta)
+                if half_scale != 1.0:
+                    m["halfScale"] = half_scale
+                return RadianceWriter(job.output, w, h, nch, dtype=dt, compression=opts.compression, metadata=m,
+                                      timestamp=opened.stamp, colorspace=opts.colorspace, camera=camera)
+
+            def run(file_sink, first_pass):
+                sink = _Tee(file_sink, thumb) if first_pass else file_sink
                 if factors is not None:
                     sink = ScaledSink(sink, factors)
-                counts, _ = stream_merge(source if kept is None else kept, times, resp, sink,
-                                         weight=opts.weight, ignore_color=opts.ignore_color, has_valid=has_valid,
-                                         device=opts.device, deghost=opts.deghost)
+                src = source if kept is None or not first_pass else kept
+                if not first_pass and hasattr(src, "rewind"):
+                    src.rewind()
+                counts, _ = stream_merge(src, times, resp, sink, weight=opts.weight, ignore_color=opts.ignore_color,
+                                         has_valid=has_valid, device=opts.device, deghost=opts.deghost,
+                                         seconds=seconds)
+                return counts
+
+            # Half floats whenever the merged values fit (measured as they stream), else
+            # fused again into float or rescaled half (hdrcl.core.encode).
+            writer, counts, stored = fuse_to_file(open_writer, run, output=job.output, dtype=opts.dtype,
+                                                  reference=t_ref, keep_units=units.get("units", "relative") != "relative")
+            try:
                 t1 = _time.perf_counter()
                 # Preview first: the EXR, moved into place last, marks the set complete.
                 if small is not None:
@@ -265,6 +315,8 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
             except BaseException:
                 writer.abort()
                 raise
+            if stored.note:
+                about.storage_note = stored.note
         seconds.update({"merge": t1 - t0, "preview": t2 - t1, "write": _time.perf_counter() - t2})
         notes = list(step.notes) + list(opened.notes) + fit_notes + list(resp.warnings) + list(warnings)
         if opts.report_dir and kept is None:

@@ -25,7 +25,7 @@ logger = logging.getLogger(__name__)
 
 
 #: Version of the recipe of :func:`set_digest`; bump when outputs change meaning.
-DIGEST_RECIPE = 1
+DIGEST_RECIPE = 2  # 2: files hold radiance x the reference exposure (hdrcl.core.encode)
 
 
 #: EXR attribute (after the ``hdrcl:`` prefix) holding a set's digest.
@@ -83,6 +83,7 @@ def set_digest(job: SetJob, options: BatchOptions, response_hash: str) -> str:
         "files": [[os.path.basename(f), _file_digest(f)] for f in job.files],
         "exposures": list(job.exposures),
         "reference": list(job.reference),
+        "exposure_ref": job.exposure_ref,
         "response": response_hash,
         "output": options.output_params(),
     }

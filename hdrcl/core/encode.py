@@ -1,0 +1,173 @@
+"""The encode stage: what 1.0 means in a radiance file, how its values are stored, and
+fusing a bracket into it.
+
+**Scale.** hdrcl computes radiance relative to a 1 s exposure (the paper's ``E``). A
+file holds ``E x t_ref`` instead, where ``t_ref`` is the *reference exposure*: a value
+of 1.0 is what a frame of ``t_ref`` seconds, at the reference f-number and ISO, records
+as full white (linearised). By default ``t_ref`` is the power of two nearest the
+bracket's middle exposure (geometric), so ordinary scenes sit in the middle of the half
+float range and other tools show the image as bright as its middle frame; being a
+power of two, the scaling is exact in binary floating point. ``hdrcl batch`` gives every
+set of one camera the same ``t_ref`` (one radiometric scale across a shoot), and
+``reference_exposure`` / ``--reference-exposure`` set it explicitly. The reference is
+recorded in standard metadata: OpenEXR's ``expTime`` (with ``aperture`` and
+``isoSpeed``) and ``hdrcl:referenceExposure``, Radiance's ``EXPOSURE=`` line (stored =
+original x EXPOSURE, Radiance's own convention), and the TIFF's hdrcl JSON. PFM files
+have no metadata and hold ``E`` as is; so do maps in absolute units (cd/m^2).
+
+**Storage.** An EXR is half float whenever the values fit (``--dtype auto``, the
+default, and ``--dtype half``). The range is measured on the merged data as it streams
+(:class:`RangeMeter`), not predicted from the curve's ends: the fusion writes half
+optimistically and, only when a strip holds a value half cannot (beyond 65504, or a
+positive value below 2^-16), it measures the rest and fuses again into float (``auto``,
+and always for absolute units) or into half rescaled by a recorded power of two
+(``--dtype half``: ``hdrcl:halfScale``). A calibrating merge reads the second pass from
+its decoded-frame cache, so nothing is decoded twice.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import os
+from dataclasses import dataclass
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+
+from hdrcl.errors import UsageError
+from hdrcl.io import halfrange
+
+logger = logging.getLogger(__name__)
+
+#: Output types whose metadata can say what 1.0 means (they hold ``E x t_ref``).
+SCALED_EXTENSIONS = (".exr", ".hdr", ".tif", ".tiff")
+
+
+def check_reference_exposure(value, name: str = "reference_exposure") -> Optional[float]:
+    """``value`` as a positive finite number of seconds (None passes through)."""
+    if value is None:
+        return None
+    from hdrcl.io.metadata import _parse_seconds
+
+    try:
+        t = _parse_seconds(value) if isinstance(value, str) else float(value)
+    except (TypeError, ValueError, OverflowError):
+        t = None
+    if t is None or isinstance(value, bool):
+        raise UsageError(f"{name}: {value!r} is not an exposure time in seconds")
+    if not (math.isfinite(t) and 1e-9 <= t <= 1e7):
+        raise UsageError(f"{name}: {value!r} is not an exposure time between 1e-9 and 1e7 s")
+    return float(t)
+
+
+def default_reference(times: Sequence[float]) -> float:
+    """The power of two nearest the geometric middle of ``times`` (seconds).
+
+    The middle is the median of the log exposures, so one odd frame does not move it.
+    """
+    t = np.asarray([v for v in np.asarray(times, np.float64).ravel() if v > 0 and math.isfinite(v)])
+    if not t.size:
+        return 1.0
+    return float(2.0 ** round(float(np.median(np.log2(t)))))
+
+
+def reference_for(output: str, times: Sequence[float], given: Optional[float], units: str) -> float:
+    """The reference exposure a file of ``output``'s type gets: 1.0 for PFM and for
+    absolute units, else ``given`` or :func:`default_reference`."""
+    ext = os.path.splitext(os.fspath(output))[1].lower()
+    if units != "relative" or ext not in SCALED_EXTENSIONS:
+        return 1.0
+    return float(given) if given is not None else default_reference(times)
+
+
+class RangeMeter:
+    """A sink that scales strips to the file's values, measures their positive range
+    and hands them to ``sink`` while they fit half floats (``check``).
+
+    Once a strip does not fit, nothing more is forwarded (the file will be written
+    again) but the measuring goes on, so that the second pass knows the whole range.
+    """
+
+    def __init__(self, sink, scale: float, check: bool):
+        self.sink, self.scale, self.check = sink, np.float32(scale), check
+        self.lo, self.hi = math.inf, 0.0
+        self.overflow = False
+
+    def write_rows(self, y0: int, y1: int, data: np.ndarray) -> None:
+        values = data * self.scale if self.scale != 1 else data
+        if values.size:
+            lo = float(values.min())
+            if lo <= 0:  # pixels without data are 0; ignore them
+                pos = values[values > 0]
+                lo = float(pos.min()) if pos.size else math.inf
+            hi = float(values.max())
+            self.lo, self.hi = min(self.lo, lo), max(self.hi, hi)
+        if self.check and not self.overflow and (self.hi > halfrange.HALF_MAX or self.lo < halfrange.HALF_FLOOR):
+            self.overflow = True
+        if not self.overflow:
+            self.sink.write_rows(y0, y1, values)
+
+
+@dataclass
+class Stored:
+    """How a radiance file was written."""
+
+    dtype: str  # "half" or "float" (EXR); the writer's own type elsewhere
+    reference: float  # t_ref: file value = E (1 s) x reference x half_scale
+    half_scale: float = 1.0
+    lo: float = math.nan  # measured positive range of the file's values
+    hi: float = math.nan
+    note: Optional[str] = None  # the storage decision, when it was not plain half
+    passes: int = 1
+
+
+def fuse_to_file(open_writer: Callable, run: Callable, *, output: str, dtype: str, reference: float,
+                 keep_units: bool):
+    """Fuse into a radiance file, half whenever the data fit.
+
+    Parameters
+    ----------
+    open_writer : callable
+        ``open_writer(dtype, half_scale)`` -> an open :class:`hdrcl.io.writers.RadianceWriter`
+        (with ``hdrcl:halfScale`` in its metadata when ``half_scale != 1``).
+    run : callable
+        ``run(file_sink, first)`` streams the fusion into ``file_sink`` (strips of
+        radiance relative to 1 s) and returns the counts; ``first`` is False for the
+        second pass, which must not feed the caller's other sinks again.
+    dtype : {"auto", "half", "float"}
+    reference : float
+        Multiplier from 1 s radiance to the file's values (:func:`reference_for`).
+    keep_units : bool
+        Absolute units: never rescale; float when half cannot hold them.
+
+    Returns
+    -------
+    writer, counts, Stored
+        The writer is still open: the caller commits it with ``close()`` (or ``abort()``).
+    """
+    ext = os.path.splitext(os.fspath(output))[1].lower()
+    optimistic = ext == ".exr" and dtype in ("auto", "half")
+    first = "half" if optimistic or dtype == "auto" else dtype
+    writer = open_writer(first, 1.0)
+    meter = RangeMeter(writer, reference, check=optimistic)
+    try:
+        counts = run(meter, True)
+    except BaseException:
+        writer.abort()
+        raise
+    stored = Stored(dtype=first, reference=reference, lo=meter.lo, hi=meter.hi)
+    if not meter.overflow:
+        return writer, counts, stored
+    writer.abort()
+    hp = halfrange.plan(meter.lo, meter.hi, dtype, keep_units=keep_units)
+    stored = Stored(dtype=hp.dtype, reference=reference, half_scale=hp.scale, lo=meter.lo, hi=meter.hi,
+                    note=hp.message.replace("may reach", "reaches") if hp.message else None, passes=2)
+    logger.info("%s: %s", output, stored.note)
+    writer = open_writer(hp.dtype, hp.scale)
+    again = RangeMeter(writer, reference * hp.scale, check=False)
+    try:
+        counts = run(again, False)
+    except BaseException:
+        writer.abort()
+        raise
+    return writer, counts, stored

@@ -1,0 +1,143 @@
+"""Decoded frames kept for a second pass, so that every frame is decoded once.
+
+A calibrating merge needs the frames twice: first for the sampling grid the response is
+solved from, then for the fusion. Decoding a JPEG costs far more than copying its
+decoded codes, so the first pass (:meth:`hdrcl.io.reader.BracketReader.read_grid`)
+stores every decoded strip in a :class:`FrameCache` and the fusion pass reads its strips
+back from there instead of decoding again.
+
+The codes stay in memory when they fit half of the memory budget (``HDRCL_MEMORY_MB``,
+default 1024 MB); otherwise they are spilled to an anonymous temporary file
+(``HDRCL_SCRATCH_DIR``, else the system's temporary folder). The file is unlinked from
+the moment it is created, so it leaves nothing behind however the process ends (kill -9
+included), and its pages live in the operating system's page cache rather than in the
+process, which keeps the merge's resident memory bounded whatever the image size.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from typing import List, Optional
+
+import numpy as np
+
+#: Default memory budget (MB) for decoded frames, shared with :func:`hdrcl.core.bracket.memory_budget`.
+DEFAULT_MEMORY_MB = 1024.0
+
+
+def memory_budget_bytes() -> int:
+    """This process's share of ``HDRCL_MEMORY_MB`` in bytes (default
+    :data:`DEFAULT_MEMORY_MB`, divided between a batch's worker processes); an unusable
+    value falls back to the default here (the CLI refuses it up front)."""
+    try:
+        mb = float(os.environ.get("HDRCL_MEMORY_MB", DEFAULT_MEMORY_MB))
+    except ValueError:
+        mb = DEFAULT_MEMORY_MB
+    if not (mb > 0 and np.isfinite(mb)):
+        mb = DEFAULT_MEMORY_MB
+    try:
+        share = max(1, int(os.environ.get("HDRCL_MEMORY_SHARE", "1")))
+    except ValueError:
+        share = 1
+    return int(mb * (1 << 20) / share)
+
+
+def _scratch_dir() -> str:
+    d = os.environ.get("HDRCL_SCRATCH_DIR")
+    return d if d and os.path.isdir(d) else tempfile.gettempdir()
+
+
+class FrameCache:
+    """Every frame's decoded rows (and alpha masks), written once, read back in strips.
+
+    Parameters
+    ----------
+    nframes, height, width, nch : int
+        Shape of the bracket.
+    dtype : numpy.dtype
+        ``uint8`` or ``uint16`` codes.
+    in_memory : bool, optional
+        Force memory (True) or a spill file (False); default: memory when the codes fit
+        half of :func:`memory_budget_bytes`.
+
+    Writers may fill different frames from different threads at once (each frame's rows
+    are a region of their own); :attr:`complete` turns True once :meth:`finish` is called
+    after every row of every frame was written.
+    """
+
+    def __init__(self, nframes: int, height: int, width: int, nch: int, dtype, in_memory: Optional[bool] = None):
+        self.nframes, self.height, self.width, self.nch = nframes, height, width, nch
+        self.dtype = np.dtype(dtype)
+        self.row_bytes = width * nch * self.dtype.itemsize
+        self.frame_bytes = self.row_bytes * height
+        total = self.frame_bytes * nframes
+        if in_memory is None:
+            in_memory = total <= memory_budget_bytes() // 2
+        self.in_memory = bool(in_memory)
+        self._frames: Optional[List[np.ndarray]] = None
+        self._file = None
+        if self.in_memory:
+            self._frames = [np.empty((height, width, nch), self.dtype) for _ in range(nframes)]
+        else:
+            self._file = tempfile.TemporaryFile(dir=_scratch_dir(), prefix=".hdrcl-frames-")
+            self._file.truncate(total)
+        # Alpha masks are rare and one byte a pixel: always in memory, created on first use.
+        self._valid: List[Optional[np.ndarray]] = [None] * nframes
+        self.complete = False
+
+    @property
+    def where(self) -> str:
+        return "memory" if self.in_memory else "a temporary file"
+
+    def put(self, k: int, y0: int, rows: np.ndarray, valid: Optional[np.ndarray] = None) -> None:
+        """Store rows ``y0..y0+len(rows)`` of frame ``k`` (and their alpha mask)."""
+        n = rows.shape[0]
+        if self._frames is not None:
+            self._frames[k][y0:y0 + n] = rows
+        else:
+            data = np.ascontiguousarray(rows, self.dtype)
+            offset = k * self.frame_bytes + y0 * self.row_bytes
+            view = memoryview(data).cast("B")
+            done = 0
+            while done < len(view):  # pwrite may write less than asked
+                done += os.pwrite(self._file.fileno(), view[done:], offset + done)
+        if valid is not None:
+            if self._valid[k] is None:
+                self._valid[k] = np.ones((self.height, self.width), bool)
+            self._valid[k][y0:y0 + n] = valid
+
+    def finish(self) -> None:
+        self.complete = True
+
+    def rows(self, y0: int, y1: int):
+        """Rows ``y0..y1`` of every frame: ``(frames, valid)`` lists (read-only use)."""
+        frames = []
+        for k in range(self.nframes):
+            if self._frames is not None:  # views: the consumers only read them
+                frames.append(self._frames[k][y0:y1])
+                continue
+            out = np.empty((y1 - y0, self.width, self.nch), self.dtype)
+            view = memoryview(out).cast("B")
+            offset = k * self.frame_bytes + y0 * self.row_bytes
+            done = 0
+            while done < len(view):
+                got = os.preadv(self._file.fileno(), [view[done:]], offset + done)
+                if got <= 0:
+                    raise OSError(f"decoded-frame cache: short read at byte {offset + done}")
+                done += got
+            frames.append(out)
+        valid = [None if v is None else v[y0:y1] for v in self._valid]
+        return frames, valid
+
+    def close(self) -> None:
+        self._frames = None
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+        self.complete = False
+
+    def __del__(self):  # pragma: no cover - belt and braces
+        try:
+            self.close()
+        except Exception:
+            pass
