@@ -221,10 +221,11 @@ def batch_merge_options(f):
     f = click.option("--times-file", type=InputFile("times file"),
                      help="Exposure list for frames without EXIF: HDRShop columns or 'file seconds' lines "
                           "[default: image_list.txt or times.txt beside the frames, when there is one].")(f)
-    f = click.option("--fit-exposures", type=click.Choice(["auto", "on", "off"]), default="off",
+    f = click.option("--fit-exposures", type=click.Choice(["auto", "on", "off"]), default="auto",
                      show_default=True,
-                     help="Estimate each frame's exposure from the pixels: auto uses the fitted value only "
-                          "where the metadata is clearly wrong, on always, off never.")(f)
+                     help="Measure each frame's exposure from the pixels through the set's (pooled or given) "
+                          "response: auto uses the measured value only where the metadata is clearly wrong "
+                          "(and says so per frame), on always, off never (as merge).")(f)
     f = click.option("--neutral", metavar="X,Y,W,H",
                      help="White balance every set: make this patch (pixels) neutral grey.")(f)
     f = click.option("--crop", is_flag=True, help="With --align: crop to the area every frame covers.")(f)
@@ -257,8 +258,9 @@ def fit_options(f):
                      help="Report frames whose metadata the pixels contradict by more than this [default: 0.5].")(f)
     f = click.option("--fit-exposures", type=click.Choice(["auto", "on", "off"]), default="auto",
                      show_default=True,
-                     help="Estimate each frame's exposure from the pixels: auto uses the fitted value only "
-                          "where the metadata is clearly wrong, on always, off never.")(f)
+                     help="Estimate each frame's exposure from the pixels (with --response: measured "
+                          "through that curve): auto uses the estimate only where the metadata is clearly "
+                          "wrong, on always, off never.")(f)
     return f
 
 

@@ -94,7 +94,18 @@ def calibrate(
         {"file": os.path.basename(n), "nominal": float(t), "fitted": None if fitted is None else float(f),
          "used": float(u)}
         for n, t, f, u in zip(names, br.times, fitted if fitted is not None else br.times, used)]
-    report_span(resp, warn)
+    from hdrcl.core.exposure_known import untrusted_metadata
+
+    doubt = untrusted_metadata(resp, fit, names)
+    report_span(resp, warn=warn and doubt is None)
+    if doubt is not None:
+        # One warning, naming the frames, says it all (it includes a stretched curve).
+        problem = resp.span_problem()
+        if problem in resp.warnings:
+            resp.warnings.remove(problem)
+        if warn:
+            logger.warning("%s", doubt)
+        resp.warnings.append(doubt)
     return resp
 
 

@@ -276,6 +276,8 @@ def merge_files(
     t1 = _time.perf_counter()
     seconds["open"] = t1 - t0
     shifts = crop_box = None
+    nominal = rel
+    fit_notes: List[str] = []
     if align:  # alignment works on whole frames: they are held in memory
         with BracketReader(paths, infos) as reader:
             frames, valid = reader.read_all()
@@ -291,9 +293,29 @@ def merge_files(
                              fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance)
         source = ArraySource(frames, valid)
         ignore = None
+        if not calibrated and fit_exposures != "off":
+            from hdrcl.core.sampling import grid_stride
+
+            k = grid_stride(h, w)
+            rel, notes = _measured_exposures([f[::k, ::k] for f in frames],
+                                             [None if v is None else v[::k, ::k] for v in valid], rel, resp,
+                                             fit_exposures, weight, exposure_tolerance, paths)
+            fit_notes += notes
     else:
         source = BracketReader(paths, infos)
         ignore = rgb
+        if not calibrated and fit_exposures != "off":
+            # A known curve measures every frame's exposure (no exponential ambiguity):
+            # from the sampling grid of the one decode that also feeds the fusion.
+            try:
+                grid = _grid_bracket(paths, infos, rel, rgb, reader=source, keep=True)
+                seconds["decode"] = source.decode_seconds
+                rel, notes = _measured_exposures(grid.frames, grid.valid, rel, resp, fit_exposures, weight,
+                                                 exposure_tolerance, paths)
+                fit_notes += notes
+            except BaseException:
+                source.close()
+                raise
         if resp is None:
             # --- sample + solve. One streaming pass decodes every frame once: it keeps
             # the sampling grid and the decoded codes (io.framecache), which the fusion
@@ -310,14 +332,13 @@ def merge_files(
             except BaseException:
                 source.close()
                 raise
-    nominal = rel
     rel = exposures_used(resp, rel)
     t2 = _time.perf_counter()
     seconds["calibrate"] = t2 - t1
     warm.join()
     backend = "numpy" if get_processor("fusion", device) is None else "opencl"
     result = MergeResult(radiance=None, response=resp, counts={}, times=rel, paths=paths, backend=backend,
-                         shape=(h, w, nch), warnings=list(resp.warnings), output=output, shifts=shifts,
+                         shape=(h, w, nch), warnings=list(resp.warnings) + fit_notes, output=output, shifts=shifts,
                          nominal=nominal, crop=crop_box)
     # Any per-frame mask (alpha, ignore colour, or pixels an aligned frame lost) must
     # reach the kernel.
@@ -338,7 +359,7 @@ def merge_files(
         if unit == "relative":
             meta["referenceExposure"] = t_ref
         check = None
-        if not calibrated:  # a given response: check the exposures against the pixels
+        if not calibrated and fit_exposures == "off":  # a given response: check the exposures only
             from hdrcl.core.exposure_fit import ExposureCheck
             from hdrcl.core.fusion import fusion_tables
 
@@ -417,6 +438,19 @@ def merge_files(
     result.seconds = {"open": seconds["open"], "calibrate": seconds["calibrate"],
                       "fuse_and_write": _time.perf_counter() - t2}
     return result
+
+
+def _measured_exposures(frames, valid, times, resp, mode, weight, tolerance, paths):
+    """:func:`hdrcl.core.exposure_known.exposures_for_merge` on a set's grid; its notes
+    are logged as warnings (a corrected or doubtful exposure is worth a line)."""
+    from hdrcl.core.exposure_known import exposures_for_merge
+
+    vv = [v for v in valid] if valid is not None else None
+    used, notes = exposures_for_merge(frames, times, resp, mode=mode, valid=vv, weight=weight,
+                                      tolerance_stops=tolerance, names=paths)
+    for note in notes:
+        logger.warning("%s", note)
+    return used, notes
 
 
 def _check_response_fits(resp: Response, source: str, first: str, bits: int, nch: int) -> None:

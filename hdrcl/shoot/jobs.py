@@ -71,9 +71,10 @@ class BatchOptions:
     neutral : str, optional
         ``"x,y,w,h"``: white balance so that this patch (pixels) comes out grey.
     fit_exposures : str
-        ``off`` (the metadata's exposures), ``auto`` (the exposure fitted from the pixels
-        where the metadata is clearly wrong) or ``on`` (fitted for every frame), with the
-        set's pooled response.
+        ``off`` (the metadata's exposures), ``auto`` (the default: the exposure measured
+        from the pixels through the set's pooled or given response where the metadata is
+        clearly wrong, :func:`hdrcl.core.exposure_known.exposures_for_merge`) or ``on``
+        (measured for every frame).
     reference_exposure : float, optional
         Seconds (at the shoot's reference f-number and ISO) that a value of 1.0 in
         every EXR stands for (:mod:`hdrcl.core.encode`); default one per camera, the
@@ -97,7 +98,7 @@ class BatchOptions:
     align: bool = False
     crop: bool = False
     neutral: Optional[str] = None
-    fit_exposures: str = "off"
+    fit_exposures: str = "auto"
     reference_exposure: Optional[float] = None
 
     def output_params(self) -> dict:
@@ -109,7 +110,7 @@ class BatchOptions:
         if self.colorspace != "rec709":  # likewise
             out["colorspace"] = self.colorspace
         for key, value, default in (("align", self.align, False), ("crop", self.crop, False),
-                                    ("neutral", self.neutral, None), ("fit_exposures", self.fit_exposures, "off"),
+                                    ("neutral", self.neutral, None), ("fit_exposures", self.fit_exposures, "auto"),
                                     ("reference_exposure", self.reference_exposure, None)):
             if value != default:
                 out[key] = value

@@ -1,6 +1,6 @@
 """The options ``batch`` shares with ``merge``, applied to one set of a batch:
-exposures fitted from the pixels, hand-held frames aligned (and cropped), white balance
-on a neutral patch. Each is off by default, and then costs nothing.
+exposures measured from the pixels through the known curve (on by default: ``auto``),
+hand-held frames aligned (and cropped), white balance on a neutral patch.
 """
 from __future__ import annotations
 
@@ -15,28 +15,25 @@ from hdrcl.shoot.jobs import BatchOptions, SetJob
 logger = logging.getLogger(__name__)
 
 
-def fitted_times(job: SetJob, opened, opts: BatchOptions, grid=None) -> Tuple[np.ndarray, List[str]]:
+def fitted_times(job: SetJob, opened, opts: BatchOptions, grid=None, resp=None) -> Tuple[np.ndarray, List[str]]:
     """The exposures to merge with under ``opts.fit_exposures`` and notes on them.
 
-    The fit runs on the set's sampling grid (``grid``, a grid :class:`~hdrcl.core.bracket.Bracket`
-    read already, else read here) with the metadata's exposures as the prior
-    (:func:`hdrcl.core.exposure_fit.fit_exposures`); ``auto`` takes the fitted value only
-    for frames whose metadata the pixels clearly contradict.
+    The curve is known (the set's pooled or given response ``resp``), so each frame's
+    exposure is measured from the set's sampling grid (``grid``, a grid
+    :class:`~hdrcl.core.bracket.Bracket` read already from the decode that feeds the
+    fusion, else read here): :func:`hdrcl.core.exposure_known.exposures_for_merge`;
+    ``auto`` takes the measured value only for frames whose metadata the pixels clearly
+    contradict, and says so per frame.
     """
     times = np.asarray(opened.times, np.float64)
-    if opts.fit_exposures == "off" or len(job.files) < 3:
+    if opts.fit_exposures == "off" or len(job.files) < 2 or resp is None:
         return times, []
-    from hdrcl.core.exposure_fit import fit_exposures
+    from hdrcl.core.exposure_known import exposures_for_merge
     from hdrcl.shoot.pooling import _calibration_grid
 
     br = grid if grid is not None else _calibration_grid(job, opened, opts.ignore_color)
-    fit = fit_exposures(br.frames, times, valid=br.valid_all, weight=opts.weight, seed=opts.seed)
-    notes = []
-    for k, (stops, flagged) in enumerate(zip(fit.stops, fit.flagged)):
-        if flagged:
-            notes.append(f"{os.path.basename(job.files[k])}: the pixels put its exposure {stops:+.2f} stops off "
-                         "its metadata; the fitted exposure is used")
-    used = fit.fitted if opts.fit_exposures == "on" else np.where(fit.flagged, fit.fitted, fit.nominal)
+    used, notes = exposures_for_merge(br.frames, times, resp, mode=opts.fit_exposures, valid=br.valid,
+                                      weight=opts.weight, names=job.files)
     return np.asarray(used, np.float64), notes
 
 

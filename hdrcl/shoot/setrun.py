@@ -252,7 +252,7 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
                 seconds["solve"] = _time.perf_counter() - ts
             else:
                 resp = _response_of(entry)
-            times, fit_notes = fitted_times(job, opened, opts, grid=grid)
+            times, fit_notes = fitted_times(job, opened, opts, grid=grid, resp=resp)
             source, shifts = reader, None
             if opts.align:
                 source, shifts, _box = aligned_source(job, opened, opts, times)
