@@ -10,9 +10,13 @@ from PyPI visible to the ICD loader.
 """
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import logging
 import os
+import tempfile
 import threading
+import time
 import warnings
 from typing import Dict, List, Optional, Tuple
 
@@ -20,6 +24,7 @@ import pyopencl as cl
 
 from hdrcl.cl.drivers import (
     DRIVER_ALIASES,
+    cache_root,
     cpu_driver_order,
     driver_rank,
     prepare_icd_environment,
@@ -62,25 +67,170 @@ class DeviceContext:
         with self._lock:
             knl = self._kernels.get(key)
             if knl is None:
-                try:
-                    # Intel's runtime always logs its progress and vectoriser remarks:
-                    # pyopencl's CompilerWarning about them is noise, kept at debug level.
-                    with warnings.catch_warnings(record=True) as caught:
-                        warnings.simplefilter("always", cl.CompilerWarning)
-                        prg = cl.Program(self.context, kernel_source(source)).build(options=list(options))
-                    for w in caught:
-                        if issubclass(w.category, cl.CompilerWarning):
-                            logger.debug("building kernels/%s.cl for %s: %s", source, self.name, w.message)
-                        else:
-                            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-                except cl.Error as exc:
-                    raise HdrclError(
-                        f"building kernels/{source}.cl for {self.name} failed: {_build_error(exc)}"
-                    ) from exc
+                prg = self._program(source, list(options))
                 for k in prg.all_kernels():
                     self._kernels[(source, k.function_name, key[2])] = k
                 knl = self._kernels[key]
             return knl
+
+    def _program(self, source: str, options: List[str]) -> "cl.Program":
+        """``kernels/<source>.cl`` built for this device: from the program cache when it
+        holds a binary the driver accepts, else from source (then stored there)."""
+        text = kernel_source(source)
+        path = _cache_path(self.device, text, options)
+        binary = _load_binary(path) if path else None
+        if binary is not None:
+            try:
+                prg = _quiet_build(lambda: cl.Program(self.context, [self.device], [binary]).build(options=options),
+                                   source, self.name)
+                prg.all_kernels()  # a binary the driver half-accepts fails here, not at first use
+                build_counts["cached"] += 1
+                logger.debug("kernels/%s.cl for %s: loaded from the program cache", source, self.name)
+                return prg
+            except Exception as exc:  # noqa: BLE001 - a stale or foreign binary: build from source
+                build_counts["rejected"] += 1
+                logger.debug("kernels/%s.cl: the driver rejected the cached binary %s (%s); building "
+                             "from source", source, path, str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+        t0 = time.perf_counter()
+        try:
+            # cache_dir=False: with hdrcl's cache on, pyopencl's own would store it twice
+            prg = _quiet_build(lambda: cl.Program(self.context, text).build(
+                options=options, **({"cache_dir": False} if path else {})), source, self.name)
+        except cl.Error as exc:
+            raise HdrclError(
+                f"building kernels/{source}.cl for {self.name} failed: {_build_error(exc)}"
+            ) from exc
+        build_counts["source"] += 1
+        logger.debug("kernels/%s.cl for %s: built from source in %.2f s", source, self.name, time.perf_counter() - t0)
+        if path:
+            _store_binary(path, prg)
+        return prg
+
+
+def _quiet_build(build, source: str, device_name: str):
+    """``build()``, with pyopencl's CompilerWarnings sent to the debug log.
+
+    Intel's runtime always logs its progress and vectoriser remarks: pyopencl's
+    CompilerWarning about them is noise, kept at debug level.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", cl.CompilerWarning)
+        prg = build()
+    for w in caught:
+        if issubclass(w.category, cl.CompilerWarning):
+            logger.debug("building kernels/%s.cl for %s: %s", source, device_name, w.message)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return prg
+
+
+# ---------------------------------------------------------------- program cache
+#
+# Built programs are kept on disk, one file per (kernel source, build options, driver):
+# ``<cache>/programs/<sha256>.bin``, where <cache> is HDRCL_CACHE_DIR, else
+# $XDG_CACHE_HOME/hdrcl, else ~/.cache/hdrcl. A later process loads the binary instead
+# of compiling (PoCL: 0.4-2 s a file cold, still 40-100 ms through its own kernel cache;
+# a binary loads in a few ms). HDRCL_PROGRAM_CACHE=0 turns it off (pyopencl's own cache,
+# which skips PoCL and NVIDIA, then applies as before). A missing, unreadable, corrupt or
+# rejected file only means a build from source; a folder that cannot be written only
+# means nothing is stored.
+
+#: Programs this process built from source and loaded from the cache; cache files found
+#: damaged, binaries the driver rejected, and binaries stored (for tests and ``-vv``).
+build_counts: Dict[str, int] = {"source": 0, "cached": 0, "damaged": 0, "rejected": 0, "stored": 0}
+
+_MAGIC = b"hdrcl-program-1\n"
+#: Files kept in the cache folder; the least recently used go beyond this.
+CACHE_ENTRIES = 256
+#: Environment variables that change what the drivers compile: part of the key.
+_COMPILER_ENV = ("PYOPENCL_BUILD_OPTIONS",)
+_COMPILER_ENV_PREFIXES = ("POCL_", "CL_CONFIG_")
+
+
+def program_cache_dir() -> Optional[str]:
+    """The folder of cached program binaries, or None when HDRCL_PROGRAM_CACHE=0."""
+    if (os.environ.get("HDRCL_PROGRAM_CACHE") or "1").strip().lower() in ("0", "no", "false", "off"):
+        return None
+    return os.path.join(cache_root(), "programs")
+
+
+def _cache_path(device: "cl.Device", text: str, options: List[str]) -> Optional[str]:
+    folder = program_cache_dir()
+    if folder is None:
+        return None
+    try:
+        plat = device.platform
+        ident = [plat.name, plat.version, device.name, device.version, device.driver_version]
+    except cl.Error:
+        return None
+    env = sorted((k, v) for k, v in os.environ.items()
+                 if k in _COMPILER_ENV or k.startswith(_COMPILER_ENV_PREFIXES))
+    h = hashlib.sha256()
+    for part in [_MAGIC.decode(), text, "\0".join(options), *ident, repr(env)]:
+        h.update(part.encode("utf-8", "surrogateescape"))
+        h.update(b"\0\1")
+    return os.path.join(folder, h.hexdigest() + ".bin")
+
+
+def _load_binary(path: str) -> Optional[bytes]:
+    """The binary stored at ``path``, or None if there is none or it is damaged."""
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError:
+        return None
+    head, digest, body = data[:len(_MAGIC)], data[len(_MAGIC):len(_MAGIC) + 32], data[len(_MAGIC) + 32:]
+    if head != _MAGIC or not body or hashlib.sha256(body).digest() != digest:
+        build_counts["damaged"] += 1
+        logger.debug("program cache: %s is damaged; building from source", path)
+        return None
+    try:
+        os.utime(path)  # recently used: pruned last
+    except OSError:
+        pass
+    return body
+
+
+def _store_binary(path: str, prg: "cl.Program") -> None:
+    """Write ``prg``'s binary to ``path`` (temporary file, then rename); never raises."""
+    try:
+        binaries = prg.get_info(cl.program_info.BINARIES)
+        if len(binaries) != 1 or not binaries[0]:
+            return
+        body = bytes(binaries[0])
+        folder = os.path.dirname(path)
+        os.makedirs(folder, mode=0o700, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".bin", dir=folder)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(_MAGIC + hashlib.sha256(body).digest() + body)
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.remove(tmp)
+            raise
+        build_counts["stored"] += 1
+        _prune(folder)
+    except Exception as exc:  # noqa: BLE001 - a cache that cannot be written is no error
+        logger.debug("program cache: not stored (%s)", exc)
+
+
+def _prune(folder: str, keep: int = CACHE_ENTRIES) -> None:
+    """Remove the least recently used binaries beyond ``keep`` (and stale temporaries)."""
+    try:
+        entries = []
+        for e in os.scandir(folder):
+            st = e.stat()
+            if e.name.startswith(".tmp-") and time.time() - st.st_mtime > 3600:
+                os.remove(e.path)
+            elif e.name.endswith(".bin") and not e.name.startswith("."):
+                entries.append((st.st_mtime, e.path))
+        entries.sort(reverse=True)
+        for _, p in entries[keep:]:
+            with contextlib.suppress(OSError):
+                os.remove(p)
+    except OSError:
+        pass
 
 
 def _build_error(exc: Exception) -> str:

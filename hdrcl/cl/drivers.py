@@ -94,7 +94,12 @@ def _system_icds() -> Dict[str, str]:
     return out
 
 
-def _cache_root() -> str:
+def cache_root() -> str:
+    """hdrcl's cache folder: ``HDRCL_CACHE_DIR``, else ``$XDG_CACHE_HOME/hdrcl``, else
+    ``~/.cache/hdrcl`` (the OpenCL vendors list, built kernel binaries)."""
+    own = os.environ.get("HDRCL_CACHE_DIR")
+    if own:
+        return own
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return os.path.join(base, "hdrcl")
 
@@ -102,7 +107,7 @@ def _cache_root() -> str:
 def _write_vendors(files: Dict[str, str]) -> str:
     """A folder holding exactly ``files`` (name -> content), reused across processes."""
     digest = hashlib.sha1(repr(sorted(files.items())).encode()).hexdigest()[:16]
-    for root in (_cache_root(), os.path.join(tempfile.gettempdir(), f"hdrcl-{os.getuid()}")):
+    for root in (cache_root(), os.path.join(tempfile.gettempdir(), f"hdrcl-{os.getuid()}")):
         final = os.path.join(root, f"opencl-vendors-{digest}")
         try:
             if all(_read(os.path.join(final, n)) == c for n, c in files.items()):

@@ -4,7 +4,6 @@
 Errors are one line on stderr (``hdrcl: error: ...``) with the exit code of their
 class: 1 processing failed, 2 usage, 3 unreadable input. ``--debug`` shows tracebacks.
 """
-from hdrcl.cli import core, output, shoot  # noqa: F401,E402  (register the commands)
-from hdrcl.cli.group import main
+from hdrcl.cli.group import main  # the commands' modules load when a command is used
 
 __all__ = ["main"]

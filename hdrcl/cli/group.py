@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import importlib
 import logging
 import os
 import re
@@ -22,6 +23,7 @@ import warnings
 import click
 
 from hdrcl.errors import HdrclError, HdrclWarning, disable_warnings_bridge
+from hdrcl.version import __version__
 
 _GLOBAL_FLAGS = ("-q", "--quiet", "--debug")
 _state = {"verbose": 0, "quiet": False, "debug": False}
@@ -190,10 +192,44 @@ def _sigterm_exits():
                 signal.signal(signal.SIGTERM, old)
 
 
+#: Each command and the module that defines it, imported when the command runs (or
+#: ``--help`` lists them): ``hdrcl --version`` loads none of them, ``hdrcl merge`` only
+#: :mod:`hdrcl.cli.core`, so start-up pays for what the command uses.
+COMMAND_MODULES = {
+    "devices": "hdrcl.cli.core",
+    "calibrate": "hdrcl.cli.core",
+    "merge": "hdrcl.cli.core",
+    "expose": "hdrcl.cli.core",
+    "demo": "hdrcl.cli.core",
+    "tonemap": "hdrcl.cli.output",
+    "scan": "hdrcl.cli.shoot",
+    "batch": "hdrcl.cli.shoot",
+    "sample-shoot": "hdrcl.cli.shoot",
+}
+
+
 class HdrclGroup(click.Group):
-    """Runs a command and turns every failure into one line and an exit code."""
+    """Runs a command and turns every failure into one line and an exit code.
+
+    Commands are registered by importing their module (:data:`COMMAND_MODULES`), which
+    happens the first time one of its commands is asked for.
+    """
 
     command_class = HdrclCommand
+
+    def list_commands(self, ctx):
+        return sorted(set(super().list_commands(ctx)) | set(COMMAND_MODULES))
+
+    def get_command(self, ctx, cmd_name):
+        if cmd_name not in self.commands and cmd_name in COMMAND_MODULES:
+            importlib.import_module(COMMAND_MODULES[cmd_name])  # registers its commands on main
+        return super().get_command(ctx, cmd_name)
+
+    def load_all(self) -> "HdrclGroup":
+        """Import every command module (for code that reads :attr:`commands` itself)."""
+        for mod in sorted(set(COMMAND_MODULES.values())):
+            importlib.import_module(mod)
+        return self
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
         if args is None:
@@ -247,7 +283,7 @@ class HdrclGroup(click.Group):
 
 
 @click.group(cls=HdrclGroup, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(package_name="hdrcl", prog_name="hdrcl")
+@click.version_option(__version__, prog_name="hdrcl")  # not package_name: importlib.metadata costs 30 ms
 @click.option("--max-pixels", type=click.IntRange(min=1), default=None, metavar="N",
               help="Refuse frames of more than N pixels, checked before decoding "
                    "[default: HDRCL_MAX_PIXELS, else 1000000000].")

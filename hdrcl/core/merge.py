@@ -261,8 +261,9 @@ def merge_files(
     t0 = _time.perf_counter()
     # --- read: headers, exposures
     paths, infos, rel = _open_files(paths, times, times_file)
-    warm = _warm_up(device, calibrating=resp is None)
     first = infos[0]
+    work = first.width * first.height * len(paths)  # a small job skips OpenCL's start-up
+    warm = _warm_up(device, calibrating=resp is None, work=work)
     nch = 3 if first.nchannels >= 3 else 1
     h, w = first.height, first.width
     if resp is not None:
@@ -324,7 +325,7 @@ def merge_files(
                 grid = _grid_bracket(paths, infos, rel, rgb, reader=source, keep=True)
                 seconds["decode"] = source.decode_seconds
                 warm.join()
-                source.prefetch(strip_rows(w, device))
+                source.prefetch(strip_rows(w, device, work=work))
                 ts = _time.perf_counter()
                 resp = calibrate(grid, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
                                  fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance)
@@ -336,7 +337,7 @@ def merge_files(
     t2 = _time.perf_counter()
     seconds["calibrate"] = t2 - t1
     warm.join()
-    backend = "numpy" if get_processor("fusion", device) is None else "opencl"
+    backend = "numpy" if get_processor("fusion", device, work=work) is None else "opencl"
     result = MergeResult(radiance=None, response=resp, counts={}, times=rel, paths=paths, backend=backend,
                          shape=(h, w, nch), warnings=list(resp.warnings) + fit_notes, output=output, shifts=shifts,
                          nominal=nominal, crop=crop_box)
@@ -394,7 +395,8 @@ def merge_files(
                                            thumbnail=thumb if first_pass else None,
                                            deghost=deghost, ghost_mask=mask,
                                            ghost_reference=ghost_reference, ghost_threshold=ghost_threshold,
-                                           exposure_check=check if first_pass else None, seconds=seconds)
+                                           exposure_check=check if first_pass else None, seconds=seconds,
+                                           work=work)
             result.backend = backend
             if check is not None and first_pass:
                 _report_exposure_check(check, result, exposure_tolerance)
@@ -503,7 +505,7 @@ def _align(frames, valid, times, device, crop: bool = False):
     return out, masks, shifts, box
 
 
-def _warm_up(device, calibrating: bool):
+def _warm_up(device, calibrating: bool, work=None):
     """Open the OpenCL device (and import the solver) on a helper thread while the
     frames decode: both take a few tenths of a second that need not add up."""
     import threading
@@ -514,7 +516,7 @@ def _warm_up(device, calibrating: bool):
                 import scipy.sparse  # noqa: F401
             from hdrcl.cl.backend import get_processor
 
-            get_processor("fusion", device)
+            get_processor("fusion", device, work=work)
         except Exception:  # the main thread meets the same error and reports it
             pass
 

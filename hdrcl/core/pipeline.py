@@ -67,9 +67,10 @@ class Thumbnail:
         self.array[g0:g0 + rows.shape[0]] = rows
 
 
-def strip_rows(width: int, device: Optional[str] = None) -> int:
-    """Rows per strip :func:`stream_merge` uses for frames ``width`` pixels wide."""
-    proc = get_processor("fusion", device)
+def strip_rows(width: int, device: Optional[str] = None, work: Optional[int] = None) -> int:
+    """Rows per strip :func:`stream_merge` uses for frames ``width`` pixels wide (``work``:
+    the job's pixel-samples, see :func:`hdrcl.cl.backend.get_processor`)."""
+    proc = get_processor("fusion", device, work=work)
     if proc is not None:
         return proc.strip_rows(width)
     return max(1, NUMPY_STRIP_PIXELS // max(width, 1))
@@ -114,6 +115,7 @@ def stream_merge(
     ghost_threshold: Optional[float] = None,
     exposure_check=None,
     seconds: Optional[dict] = None,
+    work: Optional[int] = None,
 ):
     """Fuse every strip of ``source`` and hand it to ``sink.write_rows``.
 
@@ -145,6 +147,9 @@ def stream_merge(
         See :func:`hdrcl.core.deghost.reference_index` and :func:`hdrcl.core.deghost.learn`.
     exposure_check : hdrcl.core.exposure_fit.ExposureCheck, optional
         Given every strip (frames in exposure order) to measure the exposure ratios.
+    work : int, optional
+        The job's pixel-samples (pixels x frames): a small job takes the NumPy path
+        rather than paying for OpenCL's start-up (:func:`hdrcl.cl.backend.get_processor`).
     seconds : dict, optional
         Receives the time spent (added to what it holds): ``fuse`` (the kernel or its
         twin), ``encode`` (the sink, on the writer thread) and, for a decoding source,
@@ -163,7 +168,7 @@ def stream_merge(
     log_t = np.log(np.asarray(times, np.float64)[order])
     nch = source.nch
     tables, wts = fusion_tables(response, source.dtype, nch, weight)
-    proc = get_processor("fusion", device)
+    proc = get_processor("fusion", device, work=work)
     if has_valid is None:
         has_valid = ignore_color is not None or any(
             v is not None for v in getattr(source, "valid", [None]))
@@ -172,7 +177,7 @@ def stream_merge(
         plan = proc.plan(len(order), source.width, nch, source.dtype, log_t, tables, wts, has_valid)
         rows = plan.rows
     else:
-        rows = strip_rows(source.width, device)
+        rows = strip_rows(source.width, device, work=work)
     counts = {"clipped_high": 0, "clipped_low": 0, "no_data": 0}
     ghosts = {"ghost": 0, "ghost_unresolved": 0}
     if deghost:

@@ -258,7 +258,8 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
                 source, shifts, _box = aligned_source(job, opened, opts, times)
                 h, w = source.height, source.width
             factors, units = white_balance(job, opened, source, times, resp, opts, nch, h, w)
-            backend = "numpy" if get_processor("fusion", opts.device) is None else "opencl"
+            work = h * w * len(job.files)  # a small set skips OpenCL's start-up
+            backend = "numpy" if get_processor("fusion", opts.device, work=work) is None else "opencl"
             about = MergeResult(radiance=None, response=resp, counts={}, times=times, paths=list(job.files),
                                 backend=backend, shape=(h, w, nch))
             meta = _provenance(about, os.path.basename(entry.file) if entry.file else entry.group)
@@ -297,7 +298,7 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
                     src.rewind()
                 counts, _ = stream_merge(src, times, resp, sink, weight=opts.weight, ignore_color=opts.ignore_color,
                                          has_valid=has_valid, device=opts.device, deghost=opts.deghost,
-                                         seconds=seconds)
+                                         seconds=seconds, work=work)
                 return counts
 
             # Half floats whenever the merged values fit (measured as they stream), else
