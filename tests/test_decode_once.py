@@ -319,3 +319,26 @@ def test_batch_one_scale_per_camera(tmp_path, cl_device):
     assert res.exit_code == 0, res.output
     for p in sorted(out2.glob("*.exr")):
         assert _spec(p)[1].getattribute("ExposureTime") == pytest.approx(1 / 125)
+
+
+def test_merge_with_a_report_decodes_each_frame_once(bracket, tmp_path, monkeypatch, cl_device):
+    """``merge --report``: the quality report measures the frames the merge decoded
+    (kept in memory) instead of decoding them again."""
+    import hdrcl.io.reader as reader
+    from hdrcl.cli import main
+
+    paths, times = bracket
+    calls = []
+    real = reader.BracketReader._read
+
+    def counting(self, k, y0, y1):
+        calls.append((k, y1 - y0))
+        return real(self, k, y0, y1)
+
+    monkeypatch.setattr(reader.BracketReader, "_read", counting)
+    res = CliRunner().invoke(main, ["merge", *paths, "--times", ",".join(repr(float(t)) for t in times),
+                                    "-o", str(tmp_path / "m.exr"), "--report", str(tmp_path / "rep")])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "rep" / "index.html").exists()
+    for k in range(len(paths)):
+        assert sum(n for kk, n in calls if kk == k) == 96

@@ -169,7 +169,8 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
                       exposure_tolerance=exposure_tolerance, deghost=deghost, ghost_mask=ghost_mask,
                       ghost_threshold=ghost_threshold, ghost_reference=ghost_reference,
                       neutral=neutral, reference_patch=reference_patch, absolute=absolute,
-                      thumbnail=512 if report else 0, align=align, crop=crop, colorspace=colorspace.lower(),
+                      thumbnail=512 if report else 0, keep_frames=bool(report), align=align, crop=crop,
+                      colorspace=colorspace.lower(),
                       owner=owner, save_response=save_response, reference_exposure=reference_exposure)
     h, w_, c = res.shape
     total = sum(res.seconds.values())

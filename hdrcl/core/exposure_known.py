@@ -553,5 +553,8 @@ def exposures_for_merge(frames, times, response: Response, *, mode: str = "auto"
         raise InputError(f"{names[order[-1]]}: the exposure times run in reverse order of the frames' "
                          "brightness with this response; check the times")
     used = fit.used if mode == "auto" else np.where(fit.measured, fit.fitted, fit.nominal)
-    notes = list(fit.notes) + ([fit.scale_note] if fit.scale_note else [])
-    return np.asarray(used, np.float64), notes
+    if fit.scale_note:  # how the scale was pinned: information, not a problem
+        import logging
+
+        logging.getLogger(__name__).info("exposure check: %s", fit.scale_note)
+    return np.asarray(used, np.float64), list(fit.notes)

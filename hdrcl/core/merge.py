@@ -48,6 +48,7 @@ class MergeResult:
     crop: Optional[tuple] = None  # (y0, y1, x0, x1) of the input kept, with align + crop
     storage_note: Optional[str] = None  # how an EXR was stored when half could not hold it
     stored: Optional[object] = None  # hdrcl.core.encode.Stored: type, reference exposure, measured range
+    kept: Optional[tuple] = None  # (frames, valid, is_grid) with keep_frames: for the quality report
     stages: dict = field(default_factory=dict)  # seconds per stage (decode, solve, fuse, encode, write); overlapping
 
     def __post_init__(self):
@@ -134,6 +135,7 @@ def merge_files(
     compression: str = "zip",
     device: Optional[str] = None,
     keep_radiance: bool = False,
+    keep_frames: bool = False,
     thumbnail: int = 0,
     fit_exposures: str = "auto",
     exposure_tolerance: Optional[float] = None,
@@ -163,6 +165,11 @@ def merge_files(
 
     Parameters
     ----------
+    keep_frames : bool
+        Also return the decoded frames the merge had in memory anyway, in
+        ``result.kept = (frames, valid, grid)`` (whole frames, or the sampling grid when
+        they were spilled to the scratch file; aligned frames as merged), so that a
+        quality report needs no second decode; None when the frames only streamed past.
     keep_radiance : bool
         Also return the whole radiance map in ``result.radiance`` (memory grows with the
         image); otherwise it is None.
@@ -278,6 +285,7 @@ def merge_files(
     seconds["open"] = t1 - t0
     shifts = crop_box = None
     nominal = rel
+    grid = None  # the sampling grid, when a streaming pass read it
     fit_notes: List[str] = []
     if align:  # alignment works on whole frames: they are held in memory
         with BracketReader(paths, infos) as reader:
@@ -422,6 +430,8 @@ def merge_files(
             write_ldr(ghost_mask, (mask.astype(np.uint8) * 255)[..., None])
         if staged is not None:
             staged.commit()
+        if keep_frames:
+            result.kept = _kept_frames(source, grid)
     finally:
         if staged is not None:
             staged.discard()
@@ -453,6 +463,20 @@ def _measured_exposures(frames, valid, times, resp, mode, weight, tolerance, pat
     for note in notes:
         logger.warning("%s", note)
     return used, notes
+
+
+def _kept_frames(source, grid):
+    """``(frames, valid, is_grid)`` the merge holds already: an aligned set's frames, the
+    decoded-frame cache when it is in memory, else the sampling grid; None otherwise."""
+    if hasattr(source, "frames"):  # aligned (and cropped): what was merged
+        return list(source.frames), list(source.valid), False
+    cache = getattr(source, "cache", None)
+    if cache is not None and cache.complete and cache.in_memory:
+        frames, valid = cache.rows(0, cache.height)
+        return frames, valid, False
+    if grid is not None:
+        return list(grid.frames), list(grid.valid), True
+    return None
 
 
 def _check_response_fits(resp: Response, source: str, first: str, bits: int, nch: int) -> None:

@@ -26,7 +26,8 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
 
     Writes the set's preview, frame thumbnails, plots and JSON, and an ``index.html``
     contact sheet over every set in ``folder`` (earlier runs' too;
-    :mod:`hdrcl.report.pages`). The frames are read again: whole when they fit
+    :mod:`hdrcl.report.pages`). The frames come from ``result.kept`` when the merge kept
+    them (``keep_frames``), else they are read again: whole when they fit
     :func:`memory_budget`, else as the sampling grid (the clipping and coverage figures
     are then on that grid).
 
@@ -45,13 +46,18 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
     infos = read_infos(paths)
     rgb = _parse_ignore_color(ignore_color)
     h, w, c = result.shape
-    with BracketReader(paths, infos) as reader:
-        if result.shifts is not None or len(paths) * h * w * c * reader.dtype.itemsize <= memory_budget():
-            frames, valid = reader.read_all()
-        else:
-            frames, valid = reader.read_grid(grid_stride(h, w))
+    kept = getattr(result, "kept", None)
+    if kept is not None:  # the merge's own decode (merge_files(keep_frames=True)): none again
+        frames, valid, _grid = kept
+        frames, valid = list(frames), list(valid)
+    else:
+        with BracketReader(paths, infos) as reader:
+            if result.shifts is not None or len(paths) * h * w * c * reader.dtype.itemsize <= memory_budget():
+                frames, valid = reader.read_all()
+            else:
+                frames, valid = reader.read_grid(grid_stride(h, w))
     valid = _with_ignore(frames, valid, rgb)
-    if result.shifts is not None:  # measure what was merged: the aligned (and cropped) frames
+    if result.shifts is not None and kept is None:  # measure what was merged: the aligned (and cropped) frames
         from hdrcl.core.align import apply_shifts
 
         frames, valid, _box = apply_shifts(frames, result.shifts, valid)
