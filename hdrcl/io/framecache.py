@@ -76,8 +76,8 @@ class FrameCache:
         self.in_memory = bool(in_memory)
         self._frames: Optional[List[np.ndarray]] = None
         self._file = None
-        if self.in_memory:
-            self._frames = [np.empty((height, width, nch), self.dtype) for _ in range(nframes)]
+        if self.in_memory:  # allocated on first use, or adopted whole (no copy)
+            self._frames = [None] * nframes
         else:
             self._file = tempfile.TemporaryFile(dir=_scratch_dir(), prefix=".hdrcl-frames-")
             self._file.truncate(total)
@@ -93,6 +93,8 @@ class FrameCache:
         """Store rows ``y0..y0+len(rows)`` of frame ``k`` (and their alpha mask)."""
         n = rows.shape[0]
         if self._frames is not None:
+            if self._frames[k] is None:
+                self._frames[k] = np.empty((self.height, self.width, self.nch), self.dtype)
             self._frames[k][y0:y0 + n] = rows
         else:
             data = np.ascontiguousarray(rows, self.dtype)
@@ -105,6 +107,15 @@ class FrameCache:
             if self._valid[k] is None:
                 self._valid[k] = np.ones((self.height, self.width), bool)
             self._valid[k][y0:y0 + n] = valid
+
+    def adopt(self, k: int, frame: np.ndarray, valid: Optional[np.ndarray] = None) -> None:
+        """Keep a whole decoded frame as it is (memory caches only; no copy)."""
+        if self._frames is None:
+            raise ValueError("adopt() needs an in-memory cache")
+        if frame.shape != (self.height, self.width, self.nch) or frame.dtype != self.dtype:
+            raise ValueError(f"frame {k}: {frame.shape} {frame.dtype} is not a frame of this cache")
+        self._frames[k] = frame
+        self._valid[k] = valid
 
     def finish(self) -> None:
         self.complete = True

@@ -70,7 +70,7 @@ class BracketReader:
         self._first = None  # (rows, _Prefetch) started by prefetch()
         self._grid = None  # (stride, frames, valid) of the last read_grid
         self.cache = None  # FrameCache filled by read_grid(keep=True): strips() reads it back
-        self.decode_seconds = 0.0  # decoding time summed over the decoder threads
+        self.decode_seconds = 0.0  # CPU seconds of decoding, summed over the decoder threads
         self._time_lock = threading.Lock()
         if any(raws):
             from hdrcl.io.raw import camera_white_balance
@@ -105,12 +105,12 @@ class BracketReader:
             self._inputs[k] = None
 
     def _read(self, k: int, y0: int, y1: int):
-        t0 = time.perf_counter()
-        try:
+        t0 = time.thread_time()  # CPU time of this decoder thread: threads that wait for a
+        try:                       # core while others decode do not count
             return self._decode(k, y0, y1)
         finally:
             with self._time_lock:
-                self.decode_seconds += time.perf_counter() - t0
+                self.decode_seconds += time.thread_time() - t0
 
     def _decode(self, k: int, y0: int, y1: int):
         name = self.paths[k]
@@ -263,6 +263,17 @@ class BracketReader:
 
         def frame(k):
             try:
+                if cache is not None and cache.in_memory:
+                    # The frame is kept whole anyway: decode it in one call, straight into
+                    # the array the cache keeps (no strip copies), then take its grid.
+                    if stop.is_set():
+                        return
+                    f, v = self._read(k, 0, self.height)
+                    cache.adopt(k, f, v)
+                    frames[k][...] = f[::stride, ::stride]
+                    if v is not None:
+                        valid[k] = np.ascontiguousarray(v[::stride, ::stride])
+                    return
                 for y0 in range(0, self.height, rows):
                     if stop.is_set():  # the caller is unwinding (an error, SIGTERM, Ctrl-C)
                         return
