@@ -1220,7 +1220,16 @@ def main(argv=None) -> int:
     ap.add_argument("--wait-idle", type=float, default=0.0, metavar="SECONDS",
                     help="before each measured run, wait up to this long for other processes to use "
                          "< 15 %% of the CPU (shared machines) [default: 0, do not wait]")
+    ap.add_argument("--shoot", action="store_true",
+                    help="run the shoot benchmark (scripts/shoot_bench.py: batch throughput on whole shoots) "
+                         "instead; the other options go to it (see shoot_bench.py --help)")
     ap.add_argument("--worker", nargs=2, help=argparse.SUPPRESS)
+    args = sys.argv[1:] if argv is None else [str(x) for x in argv]
+    if "--shoot" in args:
+        sys.path.insert(0, os.path.dirname(SCRIPT))
+        import shoot_bench
+
+        return shoot_bench.main([x for x in args if x != "--shoot"])
     a = ap.parse_args(argv)
     _ensure_importable()
 
