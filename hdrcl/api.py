@@ -74,12 +74,54 @@ def _public(fn):
 
 load_bracket = _public(_bracket.load_bracket)
 calibrate = _public(_calibrate.calibrate)
-expose = _public(_exposure.expose)
-expose_file = _public(_exposure.expose_file)
 merge_bracket = _public(_merge.merge_bracket)
 merge_files = _public(_merge.merge_files)
 tonemap = _public(tonemap)
 tonemap_file = _public(tonemap_file)
+
+
+@_public
+def expose(radiance: np.ndarray, response: Union[Response, str, os.PathLike], time: float, *,
+           bits: Optional[int] = None, device: Optional[str] = None, channel_order: str = "rgb") -> np.ndarray:
+    """Virtual photograph of ``radiance`` at exposure ``time`` seconds through ``response``.
+
+    ``radiance`` is ``(H, W)`` or ``(H, W, C)`` finite linear radiance; ``time`` a number
+    or a string such as ``"1/30"``; ``bits`` 8 or 16 (default the response's).
+    ``channel_order="bgr"`` takes and returns OpenCV's channel order (default RGB).
+    """
+    from hdrcl.core.params import check_options, to_rgb
+
+    check_options(time=time, bits=bits, channel_order=channel_order, device=device)
+    if not isinstance(radiance, np.ndarray):
+        from hdrcl.errors import ParameterTypeError
+
+        raise ParameterTypeError(f"radiance: expected a NumPy array, not {type(radiance).__name__}")
+    resp = _as_response(response)
+    if radiance.ndim == 3:
+        name = os.fspath(response) if isinstance(response, (str, os.PathLike)) else "response"
+        if resp.nchannels not in (1, radiance.shape[2]):
+            raise UsageError(f"{name}: a response with {resp.nchannels} channel(s), but radiance has "
+                             f"{radiance.shape[2]}")
+        (radiance,) = to_rgb([radiance], channel_order)
+    out = _exposure.expose(radiance, resp, time, bits=bits, device=device)
+    return to_rgb([out], channel_order)[0] if out.ndim == 3 else out
+
+
+@_public
+def expose_file(radiance_path, output, response, time, *, bits: Optional[int] = None,
+                device: Optional[str] = None, motion_blur=None) -> np.ndarray:
+    """Render a radiance file as a virtual photograph file (JPEG, PNG or TIFF); see
+    :func:`hdrcl.core.exposure.expose_file`. The options, and whether the response fits
+    the file's channels and the blur its size, are checked from the header first."""
+    from hdrcl.core.params import check_expose, check_options
+
+    o = check_options(time=time, bits=bits, motion_blur=motion_blur, device=device)
+    radiance_path, output = (os.fsdecode(os.fspath(p)) for p in (radiance_path, output))
+    resp = _as_response(response)
+    source = os.fspath(response) if isinstance(response, (str, os.PathLike)) else "response"
+    check_expose(radiance_path, resp, motion_blur=o["motion_blur"], source=source)
+    return _exposure.expose_file(radiance_path, output, resp, o["time"], bits=bits, device=device,
+                                 motion_blur=o["motion_blur"])
 
 
 @_public
@@ -103,6 +145,7 @@ def merge(
     neutral=None,
     reference_patch=None,
     absolute: bool = False,
+    channel_order: str = "rgb",
 ) -> np.ndarray:
     """Merge a bracket into a float32 radiance map ``(H, W, C)``.
 
@@ -124,18 +167,38 @@ def merge(
         Absolute scale: this patch's mean luminance becomes VALUE cd/m^2.
     absolute : bool
         Approximate cd/m^2 from the first frame's f-number and ISO (image files only).
+    channel_order : {"rgb", "bgr"}
+        Channel order of array frames and of the map returned: ``"bgr"`` for OpenCV's
+        (``cv2.imread``). Files are always read as RGB; the default takes arrays as RGB.
+
+    Every option is checked before any file is decoded (:mod:`hdrcl.core.params`), a
+    patch against the frames' size too.
     """
     from types import SimpleNamespace
 
+    from hdrcl.core.params import check_image_size, check_images, check_options, to_rgb
     from hdrcl.core.scale import _radiometric_factors
 
-    if crop and not align:
-        raise UsageError("crop needs align")
-    if absolute and all(isinstance(im, np.ndarray) for im in images):
+    images = check_images(images)
+    o = check_options(frames=len(images), weight=weight, ignore_color=ignore_color, samples=samples,
+                      smoothness=smoothness, seed=seed, fit_exposures=fit_exposures,
+                      exposure_tolerance=exposure_tolerance, deghost=deghost, align=align, crop=crop,
+                      neutral=neutral, reference_patch=reference_patch, absolute=absolute,
+                      channel_order=channel_order, device=device)
+    arrays = bool(images) and all(isinstance(im, np.ndarray) for im in images)
+    if absolute and arrays:
         raise UsageError("absolute needs the frames' f-number and ISO: give image files, not arrays")
+    if neutral is not None or reference_patch is not None:
+        if arrays:
+            size = images[0].shape[1], images[0].shape[0]
+        else:
+            first = read_infos(images[:2])[0]
+            size = first.width, first.height
+        check_image_size(*size, neutral=neutral, reference_patch=reference_patch)
     if isinstance(neutral, (tuple, list)):
-        neutral = ",".join(str(int(v)) for v in neutral)
-    br = _bracket.load_bracket(images, times, times_file=times_file, ignore_color=ignore_color)
+        neutral = ",".join(str(int(v)) for v in o["neutral"])
+    br = _bracket.load_bracket(images, times, times_file=times_file, ignore_color=ignore_color,
+                               channel_order=channel_order)
     resp = _as_response(response)
     if resp is not None and br.frames and resp.bits != 8 * br.frames[0].dtype.itemsize:
         name = os.fspath(response) if isinstance(response, (str, os.PathLike)) else "response"
@@ -154,4 +217,4 @@ def merge(
                                            reference_patch, absolute, h, w)
     if factors is not None:
         radiance = (radiance * np.asarray(factors, np.float32)).astype(np.float32)
-    return radiance
+    return to_rgb([radiance], channel_order)[0]

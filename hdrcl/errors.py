@@ -38,6 +38,12 @@ class InputError(HdrclError):
     exit_code = 3
 
 
+class ParameterTypeError(UsageError, TypeError):
+    """A parameter of the wrong type (a string where a list of paths belongs, a nested
+    list where an array belongs). Both a :class:`UsageError` (exit code 2) and a
+    :class:`TypeError`, so either ``except`` catches it; the message names the parameter."""
+
+
 class HdrclWarning(UserWarning):
     """Category of hdrcl's warnings (a doubtful input, a value clamped, a frame flagged)."""
 

@@ -1,32 +1,64 @@
 /*
  * fusion.cl -- per-pixel fusion of a bracket into a radiance map
- * (Debevec & Malik 1997, eq. 6). NumPy twin: hdrcl.reference.fuse.
+ * (Debevec & Malik 1997, eq. 6). NumPy twin: hdrcl.core.reference.fuse.
  *
  *   ln E = sum_j w(Z_j) (g_c(Z_j) - ln dt_j) / sum_j w(Z_j)
+ *
+ * over the evidence frames of each value (pixel-channel). Frames are ordered by
+ * increasing exposure. Walking them from the shortest: a valid sample at or above ZHI
+ * (clipped) ends the evidence -- it and every longer frame prove only a lower bound; a
+ * valid sample at or below ZLO (noise floor) discards the evidence gathered so far --
+ * it and every shorter frame prove only an upper bound. What remains is the frames
+ * strictly between the longest black and the shortest clipped sample.
+ *
+ * In a consistent bracket a value's black samples all come before its in-range ones
+ * and its clipped ones after: the evidence is then every in-range sample, which the
+ * fast path sums with no per-sample test. Besides the weighted sums it sums a pattern
+ * term that says which frames were clipped and which black -- their bits (up to 12
+ * frames), or their counts and index sums (up to 16) -- and one test per value at the
+ * end (settle) says whether they are the longest and the shortest ones. Values that
+ * fail it (moving or flickering subjects, misregistered edges) go to fuse_fix, which
+ * walks their frames.
  *
  * Three kernels share one strip of codes:
  *
  *   fuse      the fast path. Each work item takes 4 pixels (4*NCH consecutive values,
- *             so every value's channel is known at compile time) and makes one 8-byte
- *             load per sample from a table per frame that folds weight and log
- *             exposure together: lut[p][c][z] = (w(z)(g_c(z) - ln dt_p)/ln 2, w(z)),
- *             accumulated per value in private float2s. One division and one exp2
- *             per value, none per sample. A value whose
- *             weights sum to zero is written as -1 (impossible radiance) and raises a
- *             flag (a plain store of 1: no atomics on the fast path).
- *   fuse_tail the last npix % 4 pixels, one value at a time, same arithmetic.
- *   fuse_fix  run only when fuse raised the flag: one work item per pixel applies
- *             the twin's rule to them. Clipped high (the shortest valid frame reads
- *             2Z >= L) -> g_c(Zmax) - ln dt_shortest; otherwise black ->
- *             g_c(Zmin) - ln dt_longest; valid in no frame -> 0.
- *
- * Frames are ordered by increasing exposure.
+ *             so every value's channel is known at compile time) and makes one
+ *             16-byte load per sample from a table per channel (lut below), multiplied
+ *             by a factor per frame and added to the value's private float4: one
+ *             multiply and one add per sample (written as such: with fma() the
+ *             kernel ran 3 times slower on the PyPI PoCL, measured). One division,
+ *             one exp2 and the order test per value, none per sample. A value whose
+ *             in-range samples weigh nothing, or whose clipped or black samples are
+ *             out of order, is written as -1 (impossible radiance) and raises a flag
+ *             (a plain store of 1: no atomics on the fast path). With more than 16
+ *             frames (or no -DNFRAMES) it walks the rule per sample instead (a gate
+ *             and a reset per value; about twice as slow).
+ *   fuse_tail the last npix % 4 pixels, one value at a time, walking the frames.
+ *   fuse_fix  run only when fuse raised the flag: one work item per pixel walks the
+ *             frames of its flagged values (the evidence as defined above), applies
+ *             the twin's bound rules to those whose evidence weighs nothing, then the
+ *             hue rule across the pixel's channels, and writes the pixel's clip mask:
+ *               clipped high (the shortest valid frame reads >= ZHI): the lower bound
+ *                 ghi_c(Z) - ln dt_shortest (ghi: running maximum of g); clipped_high
+ *               else black (the longest valid frame reads <= ZLO): the upper bound
+ *                 glo_c(Z) - ln dt_longest (glo: running minimum of g from the top);
+ *                 clipped_low
+ *               else (frames contradict each other): the weighted mean over every valid
+ *                 frame reading inside (ZLO, ZHI); none: the first bound if the
+ *                 shortest valid frame reads 2Z >= L, else the second; not counted
+ *               valid in no frame: 0; no_data
+ *             Hue: a channel clipped high takes the largest value among the pixel's
+ *             measured and clipped-high channels; clipped low, the smallest among the
+ *             measured and clipped-low ones.
  *
  * Build options
  *   -DPIXEL_T=uchar|ushort  integer type of the codes (default uchar)
  *   -DNCH=1|3               channels per pixel (default 3)
  *   -DHAS_VALID             per-frame validity masks are given
  *   -DLEVELS=256|65536      code values (must equal the levels argument)
+ *   -DZLO, -DZHI            noise floor and clip codes, hdrcl.core.weights.clip_levels
+ *                           (8-bit 5 and 250, 16-bit 1285 and 64250)
  *   -DNFRAMES=P             optional: frame count fixed at build time (must equal the
  *                           nframes argument): the compiler then unrolls the frame loop
  *
@@ -34,12 +66,19 @@
  *   frames   PIXEL_T [P][plane]  codes of a strip: frame p starts at p*plane, pixels
  *                                row-major, channels interleaved (i*NCH + c)
  *   valid    uchar [P][vplane]   1 where frame p measures pixel i (HAS_VALID only)
- *   lut      float2 [P][NCH][L]  (w(z) (g_c(z) - ln dt_p) / ln 2, w(z)): log2 exposure
- *                                units times weight, and the dimensionless weight
- *   hi, lo   float [P][NCH]      (g_c(L-1) - ln dt_p) / ln 2 and (g_c(0) - ln dt_p) / ln 2
+ *   lut      float4 [NCH][L]     (w(z) g_c(z) / ln 2, w(z), w(z), [z >= ZHI] + K [z <= ZLO]),
+ *                                w = 0 outside (ZLO, ZHI), K = 2^P up to 12 frames, else
+ *                                B: a sample of frame p adds lut * (1, 1, -ln dt_p / ln 2,
+ *                                2^p or A + p), so .x + .z is the weighted log2 exposure,
+ *                                .y the weight, .w the pattern
+ *   lt2      float [P]           ln dt_p / ln 2
+ *   ghi, glo float [NCH][L]      running maximum (from code 0) and running minimum (from
+ *                                the top code) of g_c / ln 2: log2 exposure units
  *   out      float [npix*NCH]    linear relative radiance E, channels interleaved
  *   counts   uint [4]            clipped high, black, valid nowhere (counts); [3] is the
- *                                fast path's zero-weight flag, cleared by the host
+ *                                fast path's flag, cleared by the host
+ *   mask     uchar [npix]        fuse_fix: per pixel, 1 some channel clipped high,
+ *                                2 some channel clipped low (or'ed), 0 otherwise
  *   npix                         pixels in this strip
  *   nframes, levels              P, L
  *   plane, vplane                elements between frames in `frames` and `valid`
@@ -54,59 +93,146 @@
 #ifndef LEVELS
 #define LEVELS 256
 #endif
+/* Noise floor and clip codes: the host passes hdrcl.core.weights.clip_levels; these
+ * defaults, the same for 8 and 16 bits, serve builds without options (device probes). */
+#ifndef ZHI
+#define ZHI ((250 * (LEVELS - 1) + 127) / 255)
+#endif
+#ifndef ZLO
+#define ZLO (LEVELS - 1 - ZHI)
+#endif
+
+/* The pattern term (see the top). Up to 12 frames: frame p's bit 2^p for a clipped
+ * sample, 2^(P + p) for a black one (PAT_POW2; 2P bits, exact below 2^24). Up to 16:
+ * A + p and B (A + p), A above any index sum (120), B above any A n + s (2168), so
+ * B (A n + s) + A n + s stays below 2^24. */
+#define PAT_A 128.0f
+#define PAT_B 4096.0f
 
 /* Frame count: a compile-time constant when the host gives -DNFRAMES (the frame loop
  * then unrolls), else the nframes argument. */
 #ifdef NFRAMES
 #define FRAME_COUNT NFRAMES
+#if NFRAMES <= 16
+#define PATTERNS
+#endif
+#if NFRAMES <= 12
+#define PAT_POW2
+#define PAT_SCALE ((float)(1 << NFRAMES))
+#endif
 #else
 #define FRAME_COUNT nframes
 #endif
 
-/* Value k of a work item's 4 pixels (channel k % NCH, pixel k / NCH, both constants)
- * adds its sample of frame p to its accumulator a<k>; a masked-out sample adds 0. */
-#ifdef HAS_VALID
-#define SAMPLE(k) a##k += m[(k) / NCH] ? l[((k) % NCH) * LEVELS + f[k]] : (float2)(0.0f)
-#else
-#define SAMPLE(k) a##k += l[((k) % NCH) * LEVELS + f[k]]
-#endif
-
-/* exp2(num / den), or -1 (impossible radiance, for fuse_fix) where the weights sum to zero. */
-inline float4 quotient(const float4 num, const float4 den)
-{
-    return select(exp2(num / den), (float4)(-1.0f), den <= 0.0f);
-}
-
-/* Scalar version of one value, for the ragged end of a strip (fuse_tail). */
-inline float one_value(__global const PIXEL_T *frames, __global const uchar *valid,
-                       __global const float2 *lut, __global uint *counts, const int i, const int c,
+/* The evidence of one value, walking its frames from the shortest: (weighted log2
+ * exposure, weight) of the in-range samples after the last black one and before the
+ * first clipped one (the twin's rule, exactly). */
+inline float2 evidence(__global const PIXEL_T *frames, __global const uchar *valid,
+                       __global const float4 *lut, __global const float *lt2, const int i, const int c,
                        const int nframes, const int levels, const int plane, const int vplane)
 {
-    float num = 0.0f, den = 0.0f;
+    float4 a = (float4)(0.0f);
+    int stop = 0;
     for (int p = 0; p < nframes; ++p) {
 #ifdef HAS_VALID
         if (!valid[(size_t)p * vplane + i])
             continue;
 #endif
         const int z = frames[(size_t)p * plane + (size_t)i * NCH + c];
-        const float2 t = lut[(p * NCH + c) * levels + z];
-        num += t.x;
-        den += t.y;
+        stop |= z >= ZHI;
+        if (z <= ZLO)
+            a = (float4)(0.0f);
+        else if (!stop)
+            a += lut[c * levels + z] * (float4)(1.0f, 1.0f, -lt2[p], 0.0f);
     }
-    if (den > 0.0f)
-        return exp2(num / den);
+    return (float2)(a.x + a.z, a.y);
+}
+
+/* One value by the walk: exp2(num / den), or -1 (and the flag) where the evidence
+ * weighs nothing. */
+inline float one_value(__global const PIXEL_T *frames, __global const uchar *valid,
+                       __global const float4 *lut, __global const float *lt2, __global uint *counts,
+                       const int i, const int c, const int nframes, const int levels, const int plane,
+                       const int vplane)
+{
+    const float2 a = evidence(frames, valid, lut, lt2, i, c, nframes, levels, plane, vplane);
+    if (a.y > 0.0f)
+        return exp2(a.x / a.y);
     counts[3] = 1u;
     return -1.0f;
 }
 
-/* The fast path. Per sample: one scalar load of the code, one 8-byte load from the
- * folded table (its index is the code plus a constant), one float2 add into that
- * value's own accumulator. Scalar loads and private accumulators, rather than vector
- * loads and lane shuffles, keep the inner loop at a few instructions per sample on CPU
- * drivers; summation order is that of the frames, as in the twin. */
+/* Value k of a work item's 4 pixels (channel k % NCH, pixel k / NCH, both constants)
+ * adds its sample of frame p, scaled by the frame's factor s, to its accumulator a<k>;
+ * a masked-out sample adds 0. Without PATTERNS each value also keeps a gate g<k> (0 once
+ * a clipped sample was seen) and a black sample resets the sum: the walk, per sample. */
+#ifdef PATTERNS
+#ifdef HAS_VALID
+#define SAMPLE(k) a##k += l[((k) % NCH) * LEVELS + f[k]] * (m[(k) / NCH] ? s : (float4)(0.0f))
+#else
+#define SAMPLE(k) a##k += l[((k) % NCH) * LEVELS + f[k]] * s
+#endif
+#else
+#ifdef HAS_VALID
+#define SAMPLE(k) { const int z_ = m[(k) / NCH] ? (int)f[k] : (ZLO + 1); \
+    g##k = z_ >= ZHI ? 0.0f : g##k; \
+    a##k = z_ <= ZLO ? (float4)(0.0f) \
+                     : a##k + l[((k) % NCH) * LEVELS + z_] * (m[(k) / NCH] ? g##k * s : (float4)(0.0f)); }
+#else
+#define SAMPLE(k) { const int z_ = f[k]; \
+    g##k = z_ >= ZHI ? 0.0f : g##k; \
+    a##k = z_ <= ZLO ? (float4)(0.0f) : a##k + l[((k) % NCH) * LEVELS + z_] * (g##k * s); }
+#endif
+#endif
+
+/* Four values' radiance from their sums a, b, c, d: exp2(num / den) where the sum is
+ * their evidence -- it weighs something, and the pattern term says the clipped frames
+ * are the longest ones and the black frames the shortest -- else -1, and *bad set.
+ * Every step is exact float arithmetic on integers below 2^24. An invalid frame inside
+ * a clipped or black run fails the test: the value goes to fuse_fix needlessly but
+ * harmlessly (it walks the valid frames). */
+inline float4 settle(const float4 a, const float4 b, const float4 c, const float4 d, int *bad)
+{
+    const float4 num = (float4)(a.x + a.z, b.x + b.z, c.x + c.z, d.x + d.z);
+    const float4 den = (float4)(a.y, b.y, c.y, d.y);
+#if !defined(PATTERNS)
+    const int4 order = (int4)(-1); /* the per-sample walk needs no test */
+#elif defined(PAT_POW2)
+    const float4 pat = (float4)(a.w, b.w, c.w, d.w);
+    /* pat = H + 2^P L, H and L the bit patterns of the clipped and black frames: in
+     * order when 2^P - H (H the top bits) and L + 1 (L the bottom bits) are powers of
+     * two, which have no mantissa bits. */
+    const float4 low = floor(pat * (1.0f / PAT_SCALE));
+    const float4 h = PAT_SCALE - (pat - PAT_SCALE * low);
+    const int4 order = ((as_int4(h) | as_int4(low + 1.0f)) & 0x7fffff) == 0;
+#else
+    /* pat = A n_h + s_h + B (A n_l + s_l), n the counts and s the index sums: in order
+     * when s_h is the largest sum n_h indices can have and s_l the smallest. */
+    const float4 pat = (float4)(a.w, b.w, c.w, d.w);
+    const float4 low = floor(pat * (1.0f / PAT_B));
+    const float4 high = pat - PAT_B * low;
+    const float4 nh = floor(high * (1.0f / PAT_A)), sh = high - PAT_A * nh;
+    const float4 nl = floor(low * (1.0f / PAT_A)), sl = low - PAT_A * nl;
+    const int4 order = (2.0f * sh == nh * ((float)(2 * FRAME_COUNT - 1) - nh))
+                       & (2.0f * sl == nl * (nl - 1.0f));
+#endif
+    const int4 ok = (den > 0.0f) & order;
+    *bad |= any(ok == 0);
+    return select((float4)(-1.0f), exp2(num / den), ok);
+}
+
+/* The fast path. Per sample: one scalar load of the code, one 16-byte load from the
+ * channel's table (its index is the code plus a constant) and one multiply and add into
+ * that value's own accumulator -- no test: clipping is settled once per value at the
+ * end (a per-sample test made this kernel 2-3 times slower on CPU drivers). Scalar
+ * loads and private accumulators, rather than vector loads and lane shuffles, keep the
+ * inner loop at a few instructions per sample on CPU drivers; the table is per channel,
+ * not per frame (12 KB at 8 bits: it stays in the L1 cache); summation order is that of
+ * the frames, as in the twin. */
 __kernel void fuse(__global const PIXEL_T *frames,
                    __global const uchar *valid,
-                   __global const float2 *lut,
+                   __global const float4 *lut,
+                   __global const float *lt2,
                    __global float *out,
                    __global uint *counts,
                    const int npix,
@@ -120,13 +246,27 @@ __kernel void fuse(__global const PIXEL_T *frames,
     if (i0 + 4 > npix) /* the last npix % 4 pixels are fuse_tail's */
         return;
     const size_t v0 = (size_t)i0 * NCH;
-    float2 a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, a3 = 0.0f;
+    __global float *o = out + v0;
+    float4 a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, a3 = 0.0f;
 #if NCH == 3
-    float2 a4 = 0.0f, a5 = 0.0f, a6 = 0.0f, a7 = 0.0f, a8 = 0.0f, a9 = 0.0f, a10 = 0.0f, a11 = 0.0f;
+    float4 a4 = 0.0f, a5 = 0.0f, a6 = 0.0f, a7 = 0.0f, a8 = 0.0f, a9 = 0.0f, a10 = 0.0f, a11 = 0.0f;
 #endif
+#ifndef PATTERNS
+    float g0 = 1.0f, g1 = 1.0f, g2 = 1.0f, g3 = 1.0f;
+#if NCH == 3
+    float g4 = 1.0f, g5 = 1.0f, g6 = 1.0f, g7 = 1.0f, g8 = 1.0f, g9 = 1.0f, g10 = 1.0f, g11 = 1.0f;
+#endif
+#endif
+    __global const float4 *l = lut;
     for (int p = 0; p < FRAME_COUNT; ++p) {
         __global const PIXEL_T *f = frames + (size_t)p * plane + v0;
-        __global const float2 *l = lut + p * NCH * LEVELS;
+#if defined(PAT_POW2)
+        const float4 s = (float4)(1.0f, 1.0f, -lt2[p], (float)(1 << p));
+#elif defined(PATTERNS)
+        const float4 s = (float4)(1.0f, 1.0f, -lt2[p], PAT_A + (float)p);
+#else
+        const float4 s = (float4)(1.0f, 1.0f, -lt2[p], 0.0f);
+#endif
 #ifdef HAS_VALID
         __global const uchar *m = valid + (size_t)p * vplane + i0;
 #endif
@@ -135,17 +275,14 @@ __kernel void fuse(__global const PIXEL_T *frames,
         SAMPLE(4); SAMPLE(5); SAMPLE(6); SAMPLE(7); SAMPLE(8); SAMPLE(9); SAMPLE(10); SAMPLE(11);
 #endif
     }
-    /* One flag store per work item at most: values whose weights sum to zero. */
-    __global float *o = out + v0;
-    int4 zero = (float4)(a0.y, a1.y, a2.y, a3.y) <= 0.0f;
-    vstore4(quotient((float4)(a0.x, a1.x, a2.x, a3.x), (float4)(a0.y, a1.y, a2.y, a3.y)), 0, o);
+    /* One flag store per work item at most. */
+    int bad = 0;
+    vstore4(settle(a0, a1, a2, a3, &bad), 0, o);
 #if NCH == 3
-    zero |= (float4)(a4.y, a5.y, a6.y, a7.y) <= 0.0f;
-    zero |= (float4)(a8.y, a9.y, a10.y, a11.y) <= 0.0f;
-    vstore4(quotient((float4)(a4.x, a5.x, a6.x, a7.x), (float4)(a4.y, a5.y, a6.y, a7.y)), 1, o);
-    vstore4(quotient((float4)(a8.x, a9.x, a10.x, a11.x), (float4)(a8.y, a9.y, a10.y, a11.y)), 2, o);
+    vstore4(settle(a4, a5, a6, a7, &bad), 1, o);
+    vstore4(settle(a8, a9, a10, a11, &bad), 2, o);
 #endif
-    if (any(zero))
+    if (bad)
         counts[3] = 1u; /* a flag, not a count: every writer stores the same value */
 }
 
@@ -154,7 +291,8 @@ __kernel void fuse(__global const PIXEL_T *frames,
  * they stop some drivers from vectorising across work items. */
 __kernel void fuse_tail(__global const PIXEL_T *frames,
                         __global const uchar *valid,
-                        __global const float2 *lut,
+                        __global const float4 *lut,
+                        __global const float *lt2,
                         __global float *out,
                         __global uint *counts,
                         const int npix,
@@ -168,15 +306,18 @@ __kernel void fuse_tail(__global const PIXEL_T *frames,
     if (i >= npix)
         return;
     for (int c = 0; c < NCH; ++c)
-        out[(size_t)i * NCH + c] = one_value(frames, valid, lut, counts, i, c, nframes, levels, plane, vplane);
+        out[(size_t)i * NCH + c] = one_value(frames, valid, lut, lt2, counts, i, c, nframes, levels, plane, vplane);
 }
 
 __kernel void fuse_fix(__global const PIXEL_T *frames,
                        __global const uchar *valid,
-                       __global const float *hi,
-                       __global const float *lo,
+                       __global const float4 *lut,
+                       __global const float *lt2,
+                       __global const float *ghi,
+                       __global const float *glo,
                        __global float *out,
                        __global uint *counts,
+                       __global uchar *mask,
                        const int npix,
                        const int nframes,
                        const int levels,
@@ -186,32 +327,82 @@ __kernel void fuse_fix(__global const PIXEL_T *frames,
     const int i = get_global_id(0);
     if (i >= npix)
         return;
+    int first = -1, last = -1;
+    for (int p = 0; p < nframes; ++p) {
+#ifdef HAS_VALID
+        if (!valid[(size_t)p * vplane + i])
+            continue;
+#endif
+        if (first < 0)
+            first = p;
+        last = p;
+    }
+    float e[NCH];
+    int kind[NCH]; /* 0 measured, 1 clipped high, 2 clipped low, 3 other */
     for (int c = 0; c < NCH; ++c) {
         const size_t v = (size_t)i * NCH + c;
-        if (out[v] >= 0.0f)
+        e[c] = out[v];
+        kind[c] = 0;
+        if (e[c] >= 0.0f)
             continue;
-        int first = -1;
-        int last = -1;
-        for (int p = 0; p < nframes; ++p) {
-#ifdef HAS_VALID
-            if (!valid[(size_t)p * vplane + i])
-                continue;
-#endif
-            if (first < 0)
-                first = p;
-            last = p;
+        const float2 ev = evidence(frames, valid, lut, lt2, i, c, nframes, levels, plane, vplane);
+        if (ev.y > 0.0f) { /* out of order, but measured */
+            e[c] = exp2(ev.x / ev.y);
+            continue;
         }
-        float e;
+        kind[c] = 3;
         if (first < 0) {
-            e = 0.0f;
+            e[c] = 0.0f;
             atomic_inc(&counts[2]);
-        } else if (2 * (int)frames[(size_t)first * plane + v] >= levels) {
-            e = exp2(hi[first * NCH + c]);
-            atomic_inc(&counts[0]);
-        } else {
-            e = exp2(lo[last * NCH + c]);
-            atomic_inc(&counts[1]);
+            continue;
         }
-        out[v] = e;
+        const int zf = frames[(size_t)first * plane + v];
+        const int zl = frames[(size_t)last * plane + v];
+        if (zf >= ZHI) {
+            kind[c] = 1;
+            atomic_inc(&counts[0]);
+        } else if (zl <= ZLO) {
+            kind[c] = 2;
+            atomic_inc(&counts[1]);
+        } else {
+            /* Frames that contradict each other: every valid frame's evidence. */
+            float4 a = (float4)(0.0f);
+            for (int p = 0; p < nframes; ++p) {
+#ifdef HAS_VALID
+                if (!valid[(size_t)p * vplane + i])
+                    continue;
+#endif
+                a += lut[c * levels + frames[(size_t)p * plane + v]] * (float4)(1.0f, 1.0f, -lt2[p], 0.0f);
+            }
+            if (a.y > 0.0f) {
+                e[c] = exp2((a.x + a.z) / a.y);
+                continue;
+            }
+        }
+        if (kind[c] == 1 || (kind[c] == 3 && 2 * zf >= levels))
+            e[c] = exp2(ghi[c * levels + zf] - lt2[first]);
+        else
+            e[c] = exp2(glo[c * levels + zl] - lt2[last]);
     }
+    /* Hue: a clipped channel is not darker (high) or brighter (low) than the pixel's
+     * measured channels and those clipped the same way. */
+    float top = -INFINITY, bottom = INFINITY;
+    for (int c = 0; c < NCH; ++c) {
+        if (kind[c] == 0 || kind[c] == 1)
+            top = fmax(top, e[c]);
+        if (kind[c] == 0 || kind[c] == 2)
+            bottom = fmin(bottom, e[c]);
+    }
+    uchar flags = 0;
+    for (int c = 0; c < NCH; ++c) {
+        if (kind[c] == 1) {
+            e[c] = top;
+            flags |= 1;
+        } else if (kind[c] == 2) {
+            e[c] = bottom;
+            flags |= 2;
+        }
+        out[(size_t)i * NCH + c] = e[c];
+    }
+    mask[i] = flags;
 }

@@ -3,12 +3,14 @@
 
 Synthesises a scene with small, very bright lights (far beyond one exposure's range),
 photographs it through an S-shaped camera, merges the bracket with hdrcl, and writes
-``docs/motion-blur.jpg``: left, the middle photograph; centre, that photograph blurred
-(8-bit, as an image editor would); right, the radiance map blurred by the same vector
-and then exposed like the middle photograph (``hdrcl expose --motion-blur``). The lights
-streak brightly only on the right: blurring clipped 8-bit values loses their energy.
+``motion-blur.jpg`` in the current folder: left, the middle photograph; centre, that
+photograph blurred (8-bit, as an image editor would); right, the radiance map blurred by
+the same vector and then exposed like the middle photograph (``hdrcl expose
+--motion-blur``). The lights streak brightly only on the right: blurring clipped 8-bit
+values loses their energy. ``--out docs/motion-blur.jpg`` regenerates the README's
+picture (a tracked file: only on purpose).
 
-    python scripts/motion_blur_demo.py [--out docs/motion-blur.jpg] [--blur 40,0]
+    python scripts/motion_blur_demo.py [--out motion-blur.jpg] [--blur 40,0]
 """
 import argparse
 import sys
@@ -23,7 +25,8 @@ from hdrcl.io.writers import write_ldr
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="docs/motion-blur.jpg")
+    ap.add_argument("--out", default="motion-blur.jpg",
+                    help="picture to write [motion-blur.jpg; docs/motion-blur.jpg is the README's]")
     ap.add_argument("--blur", default="40,0")
     a = ap.parse_args(argv)
     dx, dy = (float(v) for v in a.blur.split(","))

@@ -26,7 +26,8 @@ def cl_device():
     want = (os.environ.get("HDRCL_REQUIRE_DRIVER") or "").strip()
     if proc is None:
         if opencl_required() or want:
-            pytest.fail("HDRCL_REQUIRE_OPENCL/HDRCL_REQUIRE_DRIVER is set but no OpenCL device could be used")
+            pytest.fail("HDRCL_REQUIRE_OPENCL/HDRCL_REQUIRE_DRIVER is set but no OpenCL device could be used: "
+                        + _why_no_device())
         pytest.skip("no usable OpenCL device (set HDRCL_REQUIRE_OPENCL=1 to make this an error)")
     if want:
         from hdrcl.cl.drivers import DRIVER_ALIASES
@@ -35,6 +36,26 @@ def cl_device():
         if platform.lower() not in proc.ctx.device.platform.name.lower():
             pytest.fail(f"HDRCL_REQUIRE_DRIVER={want}, but the kernels would run on {proc.ctx.name}")
     return proc.ctx
+
+
+def _why_no_device() -> str:
+    """The reason OpenCL could not be used, e.g. PoCL's "unknown target CPU 'generic'"
+    on a processor the PyPI PoCL (LLVM 14) does not know."""
+    from hdrcl.cl.backend import opencl_enabled
+
+    if not opencl_enabled():
+        return "OpenCL is disabled (HDRCL_OPENCL=0)"
+    try:
+        from hdrcl.cl.context import get_context
+
+        get_context(None)
+    except Exception as exc:  # the reason is the point
+        why = " ".join(str(exc).split()) or type(exc).__name__
+        if "unknown target CPU" in why:
+            why += (" -- the PyPI PoCL (LLVM 14) cannot compile for this processor; run the kernel tests on "
+                    "Intel's CPU runtime only (CI reports the PoCL run as not done)")
+        return why
+    return "the device opened on a second try (a transient failure?)"
 
 
 @pytest.fixture(scope="session")

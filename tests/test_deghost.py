@@ -42,7 +42,9 @@ def test_no_double_image(moving, cl_device):
     plain = fuse_frames(frames, times, resp)
     clean = fuse_frames(frames, times, resp, deghost=True)
     # without: the object shows, faded, at other frames' positions
-    assert sum(_ratio(plain.radiance, rad, k) > 1.5 for k in range(5)) >= 2
+    # (at one of them the shortest frame reads mid-grey where the next reads black: the
+    # noise-floor rule of issue 17 drops that contradicting frame, so >= 1, not >= 2)
+    assert sum(_ratio(plain.radiance, rad, k) > 1.5 for k in range(5)) >= 1
     # with: only at the reference (middle exposure) position; background elsewhere
     for k in range(5):
         r = _ratio(clean.radiance, rad, k)

@@ -147,7 +147,7 @@ CASES = [
     ("times-count", lambda x: ["merge", *x["f8"], "--times", "1,2", "-o", "{o}/a.exr"], 2,
      r"--times: 2 exposure time\(s\) given for 3 files", ["a.exr"], None),
     ("samples-0", lambda x: ["calibrate", *x["f8"], "--times-file", x["t8"], "--samples", "0", "-o", "{o}/r.json"],
-     2, r"--samples: 0 is not in the range", ["r.json"], None),
+     2, r"--samples: 0 is out of range \(1 <= samples", ["r.json"], None),
     ("missing-option", lambda x: ["merge", *x["f8"], "--times-file", x["t8"]], 2, r"-o/--output: missing", [],
      None),
     ("unknown-option", lambda x: _merge8(x, "--bogus", "-o", "{o}/a.exr"), 2, r"--bogus: no such option",
@@ -200,7 +200,7 @@ CASES = [
     ("tonemap-ldr-as-radiance", lambda x: ["tonemap", x["f8"][1], "-o", "{o}/p.jpg"], 3,
      r"f1.png: an 8-bit photograph, not a radiance map", ["p.jpg"], None),
     ("tonemap-exposure-nan", lambda x: ["tonemap", x["rad"], "--exposure", "nan", "-o", "{o}/p.jpg"], 2,
-     r"--exposure: expected a finite number", ["p.jpg"], None),
+     r"--exposure: nan is not a finite number of stops", ["p.jpg"], None),
     *[(f"tonemap-exposure-{v}", (lambda v: lambda x: ["tonemap", x["rad"], "--exposure", v, "-o", "{o}/p.jpg"])(v),
        2, r"^hdrcl: error: --exposure: .* out of range \(at most 64 either way\)", ["p.jpg"], None)
       for v in ("2000", "1e308", "-65")],
@@ -478,7 +478,7 @@ def test_api_takes_times_as_the_cli_does(fx):
     (lambda h, fx: h.expose(np.ones((4, 4, 3), np.float32), fx["r8"], "soon"), r"^time: 'soon' is not"),
     (lambda h, fx: h.tonemap(np.ones((4, 4, 3), np.float32), exposure=2000), r"^exposure: 2000 stops is out of"),
     (lambda h, fx: h.tonemap(np.ones((4, 4, 3), np.float32), exposure=float("nan")), r"^exposure: nan is not a"),
-    (lambda h, fx: h.tonemap_file(fx["rad"], fx["dir"] / "never.jpg", exposure=-1e308), r"^exposure: -1e\+308"),
+    (lambda h, fx: h.tonemap_file(fx["rad"], fx["dir"] / "never.jpg", exposure=-1e308), r"^exposure: -1e\+?308"),
 ])
 def test_api_errors_name_parameters(fx, call, message):
     import hdrcl

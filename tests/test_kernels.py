@@ -165,3 +165,123 @@ def test_kernel_matches_twin_on_memorial(cl_device, memorial_bracket):
     lum = got.mean(axis=2)
     lo, hi = np.percentile(lum[lum > 0], [0.1, 99.9])
     assert hi / lo > 1e4
+
+
+# --- issue 17: clipping consistent across exposures (rule: hdrcl.core.reference.fuse) -----
+
+def _messy_bracket(bits, nch, nframes, h=23, w=37, seed=0):
+    """Every case of the clipping rule: clipped and black runs, codes at and around the
+    noise floor and the clip level, frames out of order (flicker, motion: codes anywhere),
+    invalid samples, a pixel valid nowhere."""
+    rng = np.random.default_rng(seed)
+    cam = s.Camera(a=1.0, x0=(1.0, 1.3, 0.7)[:nch], bits=bits)
+    rad = s.radiance_field(h, w, decades=6.0, channels=nch, seed=seed)
+    times = s.stops(nframes, 1.0 if nframes > 8 else 2.0, centre=1.0 / float(np.median(rad)))
+    frames = s.bracket(rad, times, cam, noise=1.5, seed=seed + 1)
+    top = (1 << bits) - 1
+    zc = int(round(250 * top / 255))
+    lo = top - zc
+    edges = np.array([0, 1, lo - 1, lo, lo + 1, zc - 1, zc, zc + 1, top - 1, top])
+    for f in frames:
+        m = rng.random(f.shape) < 0.08
+        f[m] = rng.choice(edges, int(m.sum()))
+        m = rng.random(f.shape) < 0.03
+        f[m] = rng.integers(0, top + 1, int(m.sum()))
+    valid = [rng.random((h, w)) > 0.1 for _ in frames]
+    for v in valid:
+        v[0, 1] = False
+    return frames, np.log(times), _tables(cam, nch, bits), valid
+
+
+@pytest.mark.parametrize("bits,nch,nframes", [(8, 3, 2), (8, 3, 5), (8, 1, 3), (16, 3, 4), (8, 3, 12),
+                                              (8, 3, 13), (8, 3, 16), (8, 3, 17), (16, 1, 14), (8, 1, 20)])
+def test_fusion_kernel_matches_twin_on_clipped_brackets(cl_device, bits, nch, nframes):
+    """Up to 12 frames the fast path tests clip order by bit patterns, up to 16 by counts
+    and index sums, beyond that it walks per sample; values out of order go to fuse_fix:
+    every path equals the twin, clip mask included."""
+    from hdrcl.cl.fusion import FusionProcessor
+
+    frames, log_t, tables, valid = _messy_bracket(bits, nch, nframes)
+    w = weight_table(1 << bits, "gaussian")
+    proc = FusionProcessor(ctx=cl_device, strip_pixels=300)  # several strips, ragged ends
+    for vv in (None, valid):
+        mask_k = np.full(frames[0].shape[:2], 7, np.uint8)
+        mask_t = np.full(frames[0].shape[:2], 7, np.uint8)
+        got, gc = proc.fuse(frames, log_t, tables, w, vv, clip_mask=mask_k)
+        want, wc = ref.fuse(frames, log_t, tables, w, vv, clip_mask=mask_t)
+        np.testing.assert_allclose(got, want, rtol=RTOL, atol=0)
+        assert gc == wc
+        np.testing.assert_array_equal(mask_k, mask_t)
+        assert wc["clipped_high"] > 0 and wc["clipped_low"] > 0
+        assert (mask_t & 1).any() and (mask_t & 2).any() and mask_t.max() <= 3
+        assert np.all(np.isfinite(got))
+
+
+def test_fusion_clip_levels(cl_device):
+    """Codes 5 / 250 (8-bit) and 1285 / 64250 (16-bit) are the floor and the clip: a
+    shortest frame reading 249 is measured, 250 is a bound; a longest frame reading 6 is
+    measured, 5 is a bound -- the same in kernel and twin."""
+    from hdrcl.cl.fusion import FusionProcessor, clip_codes
+    from hdrcl.core.weights import clip_levels
+
+    for levels in (256, 1024, 65536):
+        assert clip_codes(levels) == clip_levels(levels)
+    for bits in (8, 16):
+        levels = 1 << bits
+        lo, hi = clip_levels(levels)
+        cam = s.Camera(a=1.0, x0=(1.0,), bits=bits)
+        tables = _tables(cam, 1, bits)
+        dt = np.uint8 if bits == 8 else np.uint16
+        times = np.array([0.01, 0.1, 1.0])
+        mid = levels // 2
+        short = np.array([hi - 1, hi, hi + 1, levels - 1, mid, mid, mid, mid], dt)
+        long_ = np.array([levels - 1] * 4 + [lo - 1, lo, lo + 1, mid], dt)
+        f = [short.reshape(1, 8, 1), np.full((1, 8, 1), 0, dt), long_.reshape(1, 8, 1)]
+        f[1][0, :4, 0] = levels - 1
+        f[1][0, 4:, 0] = np.array([0, 0, 0, mid])
+        w = weight_table(levels)
+        want, wc = ref.fuse(f, np.log(times), tables, w)
+        got, gc = FusionProcessor(ctx=cl_device).fuse(f, np.log(times), tables, w)
+        np.testing.assert_allclose(got, want, rtol=RTOL)
+        assert gc == wc == {"clipped_high": 3, "clipped_low": 2, "no_data": 0}
+        np.testing.assert_allclose(want[0, 0, 0], np.exp(tables[0, hi - 1] - np.log(0.01)))  # measured
+        np.testing.assert_allclose(want[0, 1:4, 0], np.exp(tables[0, [hi, hi + 1, levels - 1]] - np.log(0.01)))
+        np.testing.assert_allclose(want[0, 4:6, 0], np.exp(tables[0, [lo - 1, lo]] - np.log(1.0)))
+        np.testing.assert_allclose(want[0, 6, 0], np.exp(tables[0, lo + 1] - np.log(1.0)))  # measured
+
+
+def test_fusion_strip_api_with_and_without_clip_mask(cl_device):
+    from hdrcl.cl.fusion import FusionProcessor
+
+    frames, log_t, tables, _ = _messy_bracket(8, 3, 4, h=5, w=9)
+    plan = FusionProcessor(ctx=cl_device).plan(len(frames), 9, 3, np.uint8, log_t, tables, weight_table(256), False)
+    out = np.empty((5, 9, 3), np.float32)
+    plan.fuse_strip(frames, None, out)  # the signature before issue 17
+    out2 = np.empty((5, 9, 3), np.float32)
+    mask = np.full((5, 9), 9, np.uint8)
+    plan.fuse_strip(frames, None, out2, clip_mask=mask)
+    np.testing.assert_array_equal(out, out2)
+    tmask = np.zeros((5, 9), np.uint8)
+    want, _ = ref.fuse(frames, log_t, tables, weight_table(256), clip_mask=tmask)
+    np.testing.assert_allclose(out, want, rtol=RTOL)
+    np.testing.assert_array_equal(mask, tmask)
+    # a strip with nothing to fix still clears the mask
+    calm = [np.full((5, 9, 3), 128, np.uint8) for _ in frames]
+    plan.fuse_strip(calm, None, out, clip_mask=mask)
+    assert not mask.any()
+
+
+def test_fusion_twin_keeps_highlight_hue():
+    """A channel clipped in every frame is not darker than the pixel's measured channels,
+    and a pixel clipped in every channel is neutral (hdrcl.core.reference.fuse)."""
+    cam = s.Camera(a=1.0, x0=(1.0, 1.3, 0.7))
+    tables = _tables(cam, 3, 8)
+    times = np.array([0.01, 0.1])
+    f = [np.array([[[255, 120, 60], [255, 254, 252]]], np.uint8), np.array([[[255, 250, 200], [255, 255, 255]]], np.uint8)]
+    out, counts = ref.fuse(f, np.log(times), tables, weight_table(256))
+    assert counts["clipped_high"] == 4
+    g_meas = np.exp(tables[1, 120] - np.log(0.01))
+    assert out[0, 0, 0] == pytest.approx(max(np.exp(tables[0, 255] - np.log(0.01)), g_meas, out[0, 0, 2]))
+    assert out[0, 0, 0] >= out[0, 0, 1] >= out[0, 0, 2]
+    bounds = np.exp(tables[[0, 1, 2], [255, 254, 252]] - np.log(0.01))
+    np.testing.assert_allclose(out[0, 1], bounds.max())

@@ -11,6 +11,16 @@ from hdrcl.cl.processing import OpenCLProcessor, round_up
 
 _PIXEL_T = {np.dtype(np.uint8): "uchar", np.dtype(np.uint16): "ushort"}
 _LOG2E = 1.0 / math.log(2.0)
+#: PAT_B of kernels/fusion.cl: a black sample's scale in the pattern term beyond 12
+#: frames (up to 12 it is 2^P, PAT_SCALE).
+_PAT_B = 4096.0
+
+
+def clip_codes(levels: int) -> tuple:
+    """``(low, high)``: the noise-floor and clip codes, :func:`hdrcl.core.weights.clip_levels`
+    written again (this layer does not import ``core``; a test holds the two equal)."""
+    high = int(round(250 * (levels - 1) / 255.0))
+    return levels - 1 - high, high
 
 
 class FusionPlan:
@@ -27,21 +37,33 @@ class FusionPlan:
             raise ValueError(f"fusion handles 1 or 3 channels, not {nch}")
         self.levels = tables.shape[1]
         self.has_valid = has_valid
-        opts = (f"-DPIXEL_T={_PIXEL_T[self.dtype]}", f"-DNCH={nch}", f"-DLEVELS={self.levels}", f"-DNFRAMES={nframes}") + (
-            ("-DHAS_VALID",) if has_valid else ())
+        zlo, zhi = clip_codes(self.levels)
+        opts = (f"-DPIXEL_T={_PIXEL_T[self.dtype]}", f"-DNCH={nch}", f"-DLEVELS={self.levels}", f"-DNFRAMES={nframes}",
+                f"-DZLO={zlo}", f"-DZHI={zhi}") + (("-DHAS_VALID",) if has_valid else ())
         self.knl = proc.ctx.kernel("fusion", "fuse", opts)
         self.tail = proc.ctx.kernel("fusion", "fuse_tail", opts)
         self.fix = proc.ctx.kernel("fusion", "fuse_fix", opts)
         log_t = np.asarray(log_times, np.float64)
-        wt = np.asarray(weights, np.float64)
-        # Folded table, log2 units (exp2(num / den) = exp(ln E)), interleaved with the
-        # weight so that each sample costs one 8-byte gather.
-        lut = np.empty((len(log_t), nch, self.levels, 2), np.float32)
-        lut[..., 0] = wt[None, None, :] * (tables[None, :, :] - log_t[:, None, None]) * _LOG2E
-        lut[..., 1] = wt[None, None, :]
+        tables = np.asarray(tables, np.float64)
+        code = np.arange(self.levels)
+        wt = np.where((code > zlo) & (code < zhi), np.asarray(weights, np.float64), 0.0)
+        # Table per channel (kernels/fusion.cl, "lut"): weight times g in log2 units, the
+        # weight twice (times 1 and times -ln dt_p / ln 2 per frame in the kernel), and
+        # the clipped / black pattern term (times 2^p, or A + p beyond 12 frames); the
+        # weight is 0 outside (zlo, zhi). One 16-byte gather per sample.
+        lut = np.empty((nch, self.levels, 4), np.float32)
+        lut[..., 0] = wt[None, :] * tables * _LOG2E
+        lut[..., 1] = wt[None, :]
+        lut[..., 2] = wt[None, :]
+        lut[..., 3] = (code >= zhi) + (2.0 ** nframes if nframes <= 12 else _PAT_B) * (code <= zlo)
         self.lut = proc.constant("lut", lut)
-        self.hi = proc.constant("hi", ((tables[None, :, -1] - log_t[:, None]) * _LOG2E).astype(np.float32))
-        self.lo = proc.constant("lo", ((tables[None, :, 0] - log_t[:, None]) * _LOG2E).astype(np.float32))
+        self.lt2 = proc.constant("lt2", (log_t * _LOG2E).astype(np.float32))
+        # Bound tables (hdrcl.core.reference.bound_tables): running max of g from code 0,
+        # running min from the top code.
+        ghi = np.maximum.accumulate(tables, axis=1)
+        glo = np.minimum.accumulate(tables[:, ::-1], axis=1)[:, ::-1]
+        self.ghi = proc.constant("ghi", (ghi * _LOG2E).astype(np.float32))
+        self.glo = proc.constant("glo", (glo * _LOG2E).astype(np.float32))
         self.counts = np.zeros(4, np.uint32)
         self.counts_b = proc.constant("counts", self.counts)
         self.rows = proc.strip_rows(width)
@@ -50,13 +72,16 @@ class FusionPlan:
         self.frames_b = proc.buffer("frames", nframes * self.plane * self.dtype.itemsize, cl.mem_flags.READ_ONLY)
         self.valid_b = proc.buffer("valid", nframes * self.spix if has_valid else 4, cl.mem_flags.READ_ONLY)
         self.out_b = proc.buffer("out", self.plane * 4, cl.mem_flags.READ_WRITE)
+        self.mask_b = proc.buffer("clipmask", self.spix, cl.mem_flags.READ_WRITE)
         self._ones = np.ones(self.spix, np.uint8) if has_valid else None
         self._zero = np.zeros(1, np.uint32)
 
     def fuse_strip(self, frames: Sequence[np.ndarray], valid: Optional[Sequence[Optional[np.ndarray]]],
-                   out: np.ndarray) -> None:
+                   out: np.ndarray, clip_mask: Optional[np.ndarray] = None) -> None:
         """Fuse one strip: ``frames`` are ``(rows, W, C)`` slices, ``out`` the matching
-        float32 ``(rows, W, C)`` destination (contiguous)."""
+        float32 ``(rows, W, C)`` destination (contiguous). ``clip_mask``, a contiguous
+        uint8 ``(rows, W)`` array, receives the pixels' clip flags (1 some channel clipped
+        high, 2 clipped low; see :func:`hdrcl.core.reference.fuse`)."""
         q = self.proc.queue
         npix = frames[0].shape[0] * self.w
         if npix > self.spix:
@@ -69,16 +94,22 @@ class FusionPlan:
                 v = self._ones[:npix] if valid[j] is None else np.ascontiguousarray(valid[j], dtype=np.uint8)
                 cl.enqueue_copy(q, self.valid_b, v, dst_offset=j * self.spix, is_blocking=False)
         args = (np.int32(npix), np.int32(self.p), np.int32(self.levels), np.int32(self.plane), np.int32(self.spix))
-        bufs = (self.frames_b, self.valid_b, self.lut, self.out_b, self.counts_b)
+        bufs = (self.frames_b, self.valid_b, self.lut, self.lt2, self.out_b, self.counts_b)
         if npix >= 4:
             self.knl(q, (round_up(npix // 4),), None, *bufs, *args)
         if npix % 4:
             self.tail(q, (round_up(npix % 4),), None, *bufs, *args, np.int32(npix - npix % 4))
         cl.enqueue_copy(q, self.counts, self.counts_b, is_blocking=True)
-        if self.counts[3]:  # the fast path flagged values that need the zero-weight rule
-            self.fix(q, (round_up(npix),), None, self.frames_b, self.valid_b, self.hi, self.lo, self.out_b,
-                     self.counts_b, *args)
+        fixed = bool(self.counts[3])
+        if fixed:  # the fast path flagged values that need the bound rules
+            self.fix(q, (round_up(npix),), None, self.frames_b, self.valid_b, self.lut, self.lt2, self.ghi, self.glo,
+                     self.out_b, self.counts_b, self.mask_b, *args)
             cl.enqueue_copy(q, self.counts_b, self._zero, dst_offset=12, is_blocking=False)
+        if clip_mask is not None:
+            if fixed:
+                cl.enqueue_copy(q, clip_mask, self.mask_b, is_blocking=False)
+            else:
+                clip_mask[...] = 0
         cl.enqueue_copy(q, out, self.out_b, is_blocking=True)
 
     def result_counts(self) -> dict:
@@ -107,11 +138,13 @@ class FusionProcessor(OpenCLProcessor):
         weights: np.ndarray,
         valid: Optional[Sequence[Optional[np.ndarray]]] = None,
         out: Optional[np.ndarray] = None,
+        clip_mask: Optional[np.ndarray] = None,
     ):
         """Fuse whole in-memory ``frames`` (ordered by increasing exposure).
 
-        Parameters are those of :func:`hdrcl.core.reference.fuse`; ``out`` may be a
-        preallocated ``(H, W, C)`` float32 array.
+        Parameters are those of :func:`hdrcl.core.reference.fuse` (``clip_mask``: an
+        ``(H, W)`` uint8 array to fill); ``out`` may be a preallocated ``(H, W, C)``
+        float32 array.
 
         Returns
         -------
@@ -127,7 +160,7 @@ class FusionProcessor(OpenCLProcessor):
             r1 = min(h, r0 + plan.rows)
             plan.fuse_strip([f[r0:r1] for f in frames],
                             [None if v is None else v[r0:r1] for v in valid] if has_valid else None,
-                            out[r0:r1])
+                            out[r0:r1], None if clip_mask is None else clip_mask[r0:r1])
         return out, plan.result_counts()
 
 
@@ -148,8 +181,8 @@ def profile_kernel(proc: FusionProcessor, frames, log_times, tables, weights, re
     ob = cl.Buffer(ctx.context, mf.READ_WRITE, npix * c * 4)
     best = float("inf")
     for _ in range(max(1, repeats)):
-        ev = plan.knl(q, (round_up(npix // 4),), None, fb, plan.valid_b, plan.lut, ob, plan.counts_b, np.int32(npix), np.int32(len(frames)), np.int32(plan.levels),
-                      np.int32(npix * c), np.int32(npix))
+        ev = plan.knl(q, (round_up(npix // 4),), None, fb, plan.valid_b, plan.lut, plan.lt2, ob, plan.counts_b,
+                      np.int32(npix), np.int32(len(frames)), np.int32(plan.levels), np.int32(npix * c), np.int32(npix))
         ev.wait()
         best = min(best, (ev.profile.end - ev.profile.start) * 1e-9)
     return best

@@ -2,13 +2,13 @@
 from __future__ import annotations
 
 import json
-import math
 import os
 
 import click
 
 from hdrcl.cli.group import main, say
 from hdrcl.cli.options import (
+    Checked,
     InputFile,
     OutputFile,
     OutputFolder,
@@ -135,9 +135,13 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
 @deghost_option
 @click.option("--ghost-mask", type=OutputFile((".png", ".tif", ".tiff"), "ghost mask"),
               help="With --deghost: write the ghost mask (PNG).")
+@click.option("--clip-mask", type=OutputFile((".png", ".tif", ".tiff"), "clip mask"),
+              help="Write the pixels clipped in every frame (PNG): 255 clipped high (the value is the "
+                   "lower bound the shortest frame proves), 128 black in every frame.")
 @ghost_options
-@click.option("--neutral", metavar="X,Y,W,H", help="White balance: make this patch (pixels) neutral grey.")
-@click.option("--reference-patch", metavar="X,Y,W,H=VALUE",
+@click.option("--neutral", type=Checked("neutral"), metavar="X,Y,W,H",
+              help="White balance: make this patch (pixels) neutral grey.")
+@click.option("--reference-patch", type=Checked("reference_patch"), metavar="X,Y,W,H=VALUE",
               help="Absolute scale: this patch's mean luminance is VALUE cd/m^2.")
 @click.option("--absolute", is_flag=True,
               help="Approximate absolute scale (cd/m^2) from f-number and ISO (meter constant K = 12.5).")
@@ -154,19 +158,26 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
               help="Owner / copyright recorded in the file [default: the frames' EXIF Copyright].")
 @device_option
 def merge(images, output, response, save_response, times, times_file, ignore_color, samples, smoothness,
-          seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, ghost_threshold, ghost_reference,
+          seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, clip_mask, ghost_threshold,
+          ghost_reference,
           neutral, reference_patch, absolute, align, crop, report, dtype, compression, reference_exposure,
           colorspace, owner, device):
     """Merge one bracket set into a radiance map."""
     from hdrcl.core.merge import merge_files
+    from hdrcl.core.params import check_options
     from hdrcl.io.metadata import format_time
 
-    check_inputs_not_outputs(list(images) + [response, times_file], output, save_response, ghost_mask)
+    # Everything the option types could not see alone (a frame number against the images
+    # given, options that need each other), before any warning or decoding.
+    check_options(frames=len(images), ghost_reference=ghost_reference, ghost_threshold=ghost_threshold,
+                  deghost=deghost, align=align, crop=crop, absolute=absolute, reference_patch=reference_patch)
+    check_inputs_not_outputs(list(images) + [response, times_file], output, save_response, ghost_mask, clip_mask)
     warn_inapplicable(output, dtype=dtype, compression=compression)
     res = merge_files(list(images), output, times=times, times_file=times_file, response=response,
                       weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness, seed=seed,
                       dtype=dtype, compression=compression, device=device, fit_exposures=fit_exposures,
                       exposure_tolerance=exposure_tolerance, deghost=deghost, ghost_mask=ghost_mask,
+                      clip_mask=clip_mask,
                       ghost_threshold=ghost_threshold, ghost_reference=ghost_reference,
                       neutral=neutral, reference_patch=reference_patch, absolute=absolute,
                       thumbnail=512 if report else 0, keep_frames=bool(report), align=align, crop=crop,
@@ -211,33 +222,28 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
               help="Exposure time of the virtual photograph, e.g. 1/30.")
 @click.option("--bits", type=click.Choice(["8", "16"]), default=None,
               help="Output depth [default: the response's; JPEG is always 8].")
-@click.option("--motion-blur", metavar="DX,DY", default=None,
+@click.option("--motion-blur", type=Checked("motion_blur"), metavar="DX,DY", default=None,
               help="Blur the radiance along this vector (pixels) before the exposure, as a moving camera would.")
 @device_option
 def expose(radiance, output, response, time_, bits, motion_blur, device):
     """Render a virtual photograph from a radiance map."""
     from hdrcl.core.exposure import expose_file
-    from hdrcl.errors import UsageError
+    from hdrcl.core.params import check_expose
+    from hdrcl.core.response import Response
 
-    blur = None
-    if motion_blur is not None:
-        try:
-            blur = tuple(float(v) for v in motion_blur.split(","))
-        except ValueError:
-            blur = ()
-        if len(blur) != 2 or not all(math.isfinite(v) for v in blur):
-            raise UsageError(f"--motion-blur: expected DX,DY in pixels, not '{motion_blur}'")
     check_inputs_not_outputs([radiance, response], output)
-    img = expose_file(radiance, output, response, time_, bits=int(bits) if bits else None, device=device,
-                      motion_blur=blur)
+    resp = Response.load(response)
+    check_expose(radiance, resp, motion_blur=motion_blur, source=response)  # headers only, before decoding
+    img = expose_file(radiance, output, resp, time_, bits=int(bits) if bits else None, device=device,
+                      motion_blur=motion_blur)
     say(f"wrote {output}: {img.shape[1]}x{img.shape[0]}, {8 * img.dtype.itemsize}-bit")
 
 
 @main.command()
 @click.argument("folder", type=OutputFolder("demo folder"))
-@click.option("--size", default="768x512", show_default=True, metavar="WxH")
-@click.option("--frames", type=click.IntRange(min=2, max=32), default=7, show_default=True)
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--size", "size", type=Checked("size"), default="768x512", show_default=True, metavar="WxH")
+@click.option("--frames", type=Checked("frames"), default=7, show_default=True, help="2 to 32.")
+@click.option("--seed", type=Checked("seed"), default=0, show_default=True)
 @click.option("--no-shoot", is_flag=True, help="Skip the sample shoot and its batch.")
 @device_option
 def demo(folder, size, frames, seed, no_shoot, device):
@@ -249,15 +255,9 @@ def demo(folder, size, frames, seed, no_shoot, device):
     to the truth. Then writes a small shoot of JPEGs with EXIF to FOLDER/shoot, runs
     the batch into FOLDER/batch and writes its quality report (FOLDER/batch/report).
     """
-    from hdrcl.errors import UsageError
     from hdrcl.shoot.demo import run_demo
 
-    try:
-        w, h = (int(v) for v in size.lower().split("x"))
-    except ValueError:
-        raise UsageError(f"--size: expected WxH, not '{size}'") from None
-    if w < 16 or h < 16:
-        raise UsageError("--size: at least 16x16")
+    w, h = (int(v) for v in size.lower().split("x"))  # checked by the option's type
     rep = run_demo(folder, width=w, height=h, frames=frames, seed=seed, device=device, shoot=not no_shoot,
                    handle_signals=True)
     say(f"synthetic bracket: {len(rep.frames)} frames in {os.path.join(folder, 'frames')} "

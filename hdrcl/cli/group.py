@@ -29,10 +29,17 @@ _GLOBAL_FLAGS = ("-q", "--quiet", "--debug")
 _state = {"verbose": 0, "quiet": False, "debug": False}
 
 
+def one_line(text) -> str:
+    """``text`` on one line, nothing cut: a line break (a file name may hold one) is
+    written as ``\\n``, other control characters as ``\\xNN``."""
+    text = str(text).strip().replace("\r\n", "\n")
+    return "".join(ch if ch.isprintable() or ch == "\t" else
+                   {"\n": "\\n", "\r": "\\r"}.get(ch, f"\\x{ord(ch):02x}") for ch in text)
+
+
 class _OneLine(logging.Formatter):
     def format(self, record):
-        msg = record.getMessage().splitlines()[0] if record.getMessage() else ""
-        return f"hdrcl: {record.levelname.lower()}: {msg}"
+        return f"hdrcl: {record.levelname.lower()}: {one_line(record.getMessage())}"
 
 
 def _setup_logging() -> None:
@@ -156,8 +163,11 @@ def _first_line(text: str) -> str:
     return lines[0].strip() if lines else ""
 
 
-def _fail(message: str, code: int):
-    click.echo(f"hdrcl: error: {_first_line(message)}", err=True)
+def _fail(message: str, code: int, whole: bool = False):
+    """The one error line. ``whole``: hdrcl's own messages are one line by construction,
+    so a line break in them is part of a file name and is shown escaped, not cut; other
+    exceptions' text is cut to its first line."""
+    click.echo(f"hdrcl: error: {one_line(message) if whole else _first_line(message)}", err=True)
     sys.exit(code)
 
 
@@ -262,9 +272,9 @@ class HdrclGroup(click.Group):
             exc.show()
             sys.exit(exc.exit_code)
         if isinstance(exc, HdrclError):
-            _fail(str(exc) or type(exc).__name__, exc.exit_code)
+            _fail(str(exc) or type(exc).__name__, exc.exit_code, whole=True)
         if isinstance(exc, click.UsageError):
-            _fail(_usage_message(exc), 2)
+            _fail(_usage_message(exc), 2, whole=True)
         if isinstance(exc, click.exceptions.Abort):
             click.echo("hdrcl: interrupted", err=True)
             sys.exit(130)
@@ -282,17 +292,29 @@ class HdrclGroup(click.Group):
         sys.exit(1)
 
 
+class _MaxPixels(click.ParamType):
+    """``--max-pixels``, checked by the shared option table (imported only when given)."""
+
+    name = "integer"
+
+    def convert(self, value, param, ctx):
+        from hdrcl.core.params import check
+
+        return check("max_pixels", value)
+
+
 @click.group(cls=HdrclGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="hdrcl")  # not package_name: importlib.metadata costs 30 ms
-@click.option("--max-pixels", type=click.IntRange(min=1), default=None, metavar="N",
+@click.option("--max-pixels", type=_MaxPixels(), default=None, metavar="N",
               help="Refuse frames of more than N pixels, checked before decoding "
                    "[default: HDRCL_MAX_PIXELS, else 1000000000].")
 @click.pass_context
 def main(ctx, max_pixels):
     """Merge bracketed photographs into HDR radiance maps (Debevec & Malik 1997).
 
-    Fusion and virtual exposures run as OpenCL kernels (any OpenCL device; PoCL on
-    CPU-only machines); the response curve is solved on the CPU.
+    Fusion and virtual exposures run as OpenCL kernels on the first GPU, else on the
+    first CPU driver that builds them (Intel's CPU runtime, then PoCL); the response
+    curve is solved on the CPU.
 
     \b
     Errors: one line on stderr, 'hdrcl: error: FILE: problem'.

@@ -13,6 +13,23 @@ from hdrcl.core.response import DEFAULT_SMOOTHNESS
 from hdrcl.core.weights import DEFAULT_WEIGHT, WEIGHTS
 
 
+class Checked(click.ParamType):
+    """An option checked by the shared table (:mod:`hdrcl.core.params`): the same rule and
+    words as the library's parameter, one line and exit 2, before any file is decoded."""
+
+    def __init__(self, option: str):
+        from hdrcl.core.params import TABLE
+
+        self.option = option
+        kind = TABLE[option].kind
+        self.name = {"int": "integer", "float": "float"}.get(kind, "text")
+
+    def convert(self, value, param, ctx):
+        from hdrcl.core.params import check
+
+        return check(self.option, value)
+
+
 class InputFile(click.ParamType):
     """A file the command reads: missing, a folder or unreadable is an input error (3)."""
 
@@ -122,13 +139,9 @@ def _times(ctx, param, value):
 def _seconds(ctx, param, value):
     if value is None:
         return None
-    from hdrcl.errors import UsageError
-    from hdrcl.io.metadata import parse_times
+    from hdrcl.core.params import check
 
-    vals = parse_times(value, "--time")
-    if len(vals) != 1:
-        raise UsageError(f"--time: one exposure time expected, not '{value}'")
-    return vals[0]
+    return check("time", value)
 
 
 def check_inputs_not_outputs(inputs, *outputs) -> None:
@@ -141,7 +154,7 @@ def check_inputs_not_outputs(inputs, *outputs) -> None:
 
 
 def exposure_options(f):
-    f = click.option("--ignore-color", metavar="R,G,B",
+    f = click.option("--ignore-color", type=Checked("ignore_color"), metavar="R,G,B",
                      help="Treat pixels of exactly this colour (8-bit units) as invalid, e.g. 0,0,255.")(f)
     f = click.option("--times-file", type=InputFile("times file"),
                      help="Exposure list: HDRShop columns (file, seconds, 1/shutter, f-stop, gain dB, ND) "
@@ -153,11 +166,13 @@ def exposure_options(f):
 
 
 def solve_options(f):
-    f = click.option("--seed", type=int, default=0, show_default=True, help="Seed of the sample choice.")(f)
-    f = click.option("--smoothness", type=float, default=None,
+    f = click.option("--seed", type=Checked("seed"), default=0, show_default=True,
+                     help="Seed of the sample choice (0 or more).")(f)
+    f = click.option("--smoothness", type=Checked("smoothness"), default=None,
                      help="Smoothness lambda of the response solve [default: "
-                          + ", ".join(f"{v:g} with --weight {k}" for k, v in DEFAULT_SMOOTHNESS.items()) + "].")(f)
-    f = click.option("--samples", type=click.IntRange(min=1), default=None,
+                          + ", ".join(f"{v:g} with --weight {k}" for k, v in DEFAULT_SMOOTHNESS.items())
+                          + "; 0.001 to 1e6].")(f)
+    f = click.option("--samples", type=Checked("samples"), default=None,
                      help="Calibration pixels [default: enough for the bit depth, at least 1000].")(f)
     return f
 
@@ -171,11 +186,13 @@ def weight_option(f):
 def device_option(f):
     return click.option("--device", default=None, metavar="ID|NAME",
                         help="OpenCL device: 'P:D' from 'hdrcl devices', or part of its name "
-                             "[default: PYOPENCL_CTX, else the first GPU, else the first device].")(f)
+                             "[default: PYOPENCL_CTX, else the first GPU, else the first CPU driver that "
+                             "builds the kernels: Intel's CPU runtime, then PoCL (HDRCL_CPU_DRIVERS "
+                             "changes the order)].")(f)
 
 
 def output_options(f):
-    f = click.option("--compression", default="zip", show_default=True,
+    f = click.option("--compression", type=Checked("compression"), default="zip", show_default=True,
                      help="EXR compression: none, zip, zips, piz, pxr24, b44, b44a, dwaa, dwab (dwaa:45 sets a level).")(f)
     f = click.option("--dtype", type=click.Choice(["auto", "half", "float"]), default="auto", show_default=True,
                      help="EXR sample type. auto: half when every merged value fits half floats "
@@ -185,17 +202,9 @@ def output_options(f):
     return f
 
 
-def _reference_seconds(ctx, param, value):
-    if value is None:
-        return None
-    from hdrcl.core.encode import check_reference_exposure
-
-    return check_reference_exposure(value, "--reference-exposure")
-
-
 def reference_exposure_option(f):
     """What 1.0 means in the output (``merge`` and ``batch``)."""
-    return click.option("--reference-exposure", default=None, metavar="SECONDS", callback=_reference_seconds,
+    return click.option("--reference-exposure", type=Checked("reference_exposure"), default=None, metavar="SECONDS",
                         help="A value of 1.0 in the output is what a frame of this exposure (at the first "
                              "frame's f-number and ISO; batch: the shoot's) records as white [default: the "
                              "power of two nearest the middle exposure; batch: one per camera for the "
@@ -207,10 +216,10 @@ seconds_callback = _seconds
 
 def grouping_options(f):
     """How a folder is grouped into bracket sets (``scan``, and ``batch`` given a folder)."""
-    f = click.option("--gap", type=click.FloatRange(min=0), default=None, metavar="SECONDS",
+    f = click.option("--gap", type=Checked("gap"), default=None, metavar="SECONDS",
                      help="Largest end-to-start gap within a set [default: 8 s, plus the exposure time "
                           "after exposures of 1 s or more].")(f)
-    f = click.option("--frames-per-set", type=click.IntRange(min=1), default=None, metavar="N",
+    f = click.option("--frames-per-set", type=Checked("frames_per_set"), default=None, metavar="N",
                      help="Cut the frames, in capture order, into sets of exactly N.")(f)
     f = click.option("-r", "--recursive", is_flag=True, help="Include subfolders.")(f)
     return f
@@ -226,7 +235,7 @@ def batch_merge_options(f):
                      help="Measure each frame's exposure from the pixels through the set's (pooled or given) "
                           "response: auto uses the measured value only where the metadata is clearly wrong "
                           "(and says so per frame), on always, off never (as merge).")(f)
-    f = click.option("--neutral", metavar="X,Y,W,H",
+    f = click.option("--neutral", type=Checked("neutral"), metavar="X,Y,W,H",
                      help="White balance every set: make this patch (pixels) neutral grey.")(f)
     f = click.option("--crop", is_flag=True, help="With --align: crop to the area every frame covers.")(f)
     f = click.option("--align", is_flag=True,
@@ -234,27 +243,14 @@ def batch_merge_options(f):
     return f
 
 
-def _ignore_color(ctx, param, value):
-    if value is None:
-        return None
-    parts = [p.strip() for p in str(value).split(",")]
-    try:
-        vals = tuple(int(p) for p in parts)
-    except ValueError:
-        vals = ()
-    if len(vals) != 3 or not all(0 <= v <= 255 for v in vals):
-        raise click.BadParameter(f"expected R,G,B with values 0-255, not '{value}'")
-    return vals
-
-
 def ignore_color_option(f):
     """``--ignore-color`` alone (commands without --times), parsed to an (R, G, B) tuple."""
-    return click.option("--ignore-color", callback=_ignore_color, metavar="R,G,B",
+    return click.option("--ignore-color", type=Checked("ignore_color"), metavar="R,G,B",
                         help="Treat pixels of exactly this colour (8-bit units) as invalid, e.g. 0,0,255.")(f)
 
 
 def fit_options(f):
-    f = click.option("--exposure-tolerance", type=click.FloatRange(min=0.0), default=None, metavar="STOPS",
+    f = click.option("--exposure-tolerance", type=Checked("exposure_tolerance"), default=None, metavar="STOPS",
                      help="Report frames whose metadata the pixels contradict by more than this [default: 0.5].")(f)
     f = click.option("--fit-exposures", type=click.Choice(["auto", "on", "off"]), default="auto",
                      show_default=True,
@@ -275,10 +271,11 @@ def ghost_options(f):
     """``--ghost-threshold`` and ``--ghost-reference`` (with ``--deghost``)."""
     from hdrcl.core.deghost import THRESHOLD
 
-    f = click.option("--ghost-threshold", type=click.FloatRange(min=0, min_open=True), default=None,
+    f = click.option("--ghost-threshold", type=Checked("ghost_threshold"), default=None,
                      help="With --deghost: departure, in robust spreads of the set's own frame-to-frame "
                           f"residuals, that makes a ghost [default: {THRESHOLD:g}].")(f)
-    f = click.option("--ghost-reference", metavar="middle|shortest|longest|N", default=None,
+    f = click.option("--ghost-reference", type=Checked("ghost_reference"), metavar="middle|shortest|longest|N",
+                     default=None,
                      help="With --deghost: the frame ghost pixels are taken from; N counts the images "
                           "as given, from 0 [default: middle].")(f)
     return f

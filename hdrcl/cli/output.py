@@ -1,24 +1,10 @@
 """Commands that turn a radiance map into a picture for people: tonemap."""
 from __future__ import annotations
 
-import math
-
 import click
 
 from hdrcl.cli.group import main, say
-from hdrcl.cli.options import InputFile, OutputFile, check_inputs_not_outputs, device_option
-
-
-def _finite(ctx, param, value):
-    if value is not None and not math.isfinite(value):
-        from hdrcl.errors import UsageError
-
-        raise UsageError(f"--{param.name}: expected a finite number of stops, not {value}")
-    if value is not None:
-        from hdrcl.report.tonemap import check_exposure
-
-        check_exposure(value, f"--{param.name}")
-    return value
+from hdrcl.cli.options import Checked, InputFile, OutputFile, check_inputs_not_outputs, device_option
 
 
 @main.command()
@@ -30,7 +16,7 @@ def _finite(ctx, param, value):
               default="reinhard", show_default=True,
               help="Tone-mapping operator: Reinhard 2002 global or local (dodging and burning), "
                    "Drago 2003 adaptive logarithmic, or Hable's filmic curve.")
-@click.option("--exposure", type=float, default=0.0, show_default=True, metavar="EV", callback=_finite,
+@click.option("--exposure", type=Checked("exposure"), default=0.0, show_default=True, metavar="EV",
               help="Brighten (+) or darken (-) the scene by this many stops before the operator.")
 @click.option("--bits", type=click.Choice(["8", "16"]), default="8", show_default=True,
               help="Output depth (JPEG holds 8 bits only).")

@@ -16,6 +16,7 @@ import click
 from hdrcl.cli.group import main, say
 from hdrcl.cli.group import quiet as is_quiet
 from hdrcl.cli.options import (
+    Checked,
     InputFile,
     InputPath,
     OutputFile,
@@ -160,11 +161,11 @@ class _Progress:
 @click.option("--sets", "sets", metavar="A-B[,C...]", callback=sets_callback,
               help="Only these manifest indices (ranges are clamped to the sets that exist), "
                    "e.g. a farm chunk #START#-#END#.")
-@click.option("-j", "--jobs", type=click.IntRange(min=1), default=1, show_default=True,
+@click.option("-j", "--jobs", type=Checked("jobs"), default=1, show_default=True,
               help="Worker processes (1: one process, reading, fusing and writing overlapped).")
 @click.option("--scheduler", metavar="ADDRESS",
               help="Run the sets on this Dask cluster, e.g. tcp://head:8786 (pip install 'hdrcl[dask]').")
-@click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
+@click.option("--retries", type=Checked("retries"), default=2, show_default=True,
               help="With --scheduler: retries of a task that failed unexpectedly.")
 @click.option("--force", is_flag=True, help="Rebuild outputs that are already up to date.")
 @click.option("--calibrate-only", is_flag=True,
@@ -177,7 +178,7 @@ class _Progress:
 @click.option("--json", "as_json", is_flag=True, help="Print the report JSON on stdout.")
 @click.option("--preview/--no-preview", default=True, show_default=True,
               help="Write a tone-mapped JPEG beside each EXR.")
-@click.option("--preview-size", type=click.IntRange(min=16), default=512, show_default=True, metavar="PIXELS",
+@click.option("--preview-size", type=Checked("preview_size"), default=512, show_default=True, metavar="PIXELS",
               help="Long side of the previews.")
 @click.option("--tonemap", type=click.Choice(["reinhard", "reinhard-local", "drago", "filmic"]), default="reinhard",
               show_default=True, help="Tone-mapping operator of the previews (as 'hdrcl tonemap').")
@@ -239,15 +240,13 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
                         gap=gap, progress=progress, times_file=times_file, handle_signals=True)
     except Cancelled as exc:  # before any set ran (scanning, calibrating): nothing to report
         progress.close()
-        click.echo(f"hdrcl: {exc}", err=True)
+        click.echo(f"hdrcl: {_stopped(exc.signum)}", err=True)
         ctx.exit(exc.exit_code)
     finally:
         progress.close()
-    if rep.cancelled:
-        from hdrcl.shoot.jobs import signal_name
-
-        click.echo(f"hdrcl: cancelled by {signal_name(rep.cancelled)}: {len(rep.results)} set(s) finished; "
-                   f"report: {rep.path}", err=True)
+    if rep.cancelled:  # the one line, in the words of every command (README: exit codes)
+        click.echo(f"hdrcl: {_stopped(rep.cancelled)} ({len(rep.results)} set(s) finished; report: {rep.path})",
+                   err=True)
     if as_json:
         click.echo(json.dumps(rep.to_dict(), indent=1))
     elif calibrate_only:
@@ -259,6 +258,13 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
     if calibrate_only:
         ctx.exit(1 if any(r.error for r in rep.responses) else 0)
     ctx.exit(rep.exit_code)
+
+
+def _stopped(signum: int) -> str:
+    """``terminated`` (SIGTERM) or ``interrupted`` (Ctrl-C), as the other commands say it."""
+    import signal
+
+    return "interrupted" if signum == signal.SIGINT else "terminated"
 
 
 def _summary(rep) -> None:
@@ -294,21 +300,18 @@ def _summary(rep) -> None:
 
 @main.command("sample-shoot")
 @click.argument("folder", type=OutputFolder("folder"))
-@click.option("--size", default="192x128", show_default=True, metavar="WxH", help="Size of each photograph.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--size", type=Checked("size"), default="192x128", show_default=True, metavar="WxH",
+              help="Size of each photograph.")
+@click.option("--seed", type=Checked("seed"), default=0, show_default=True)
 def sample_shoot(folder, size, seed):
     """Write a small sample shoot of JPEGs with EXIF to try scan and batch on.
 
     \b
     hdrcl sample-shoot shoot/ && hdrcl batch shoot/ -o out/
     """
-    from hdrcl.errors import UsageError
     from hdrcl.shoot.sample import write_sample_shoot
 
-    try:
-        w, h = (int(v) for v in size.lower().split("x"))
-    except ValueError:
-        raise UsageError(f"--size: expected WxH, not '{size}'") from None
+    w, h = (int(v) for v in size.lower().split("x"))  # checked by the option's type
     paths = write_sample_shoot(folder, width=w, height=h, seed=seed)
     say(f"wrote {len(paths)} photographs to {folder} (3 bracket sets and a stray frame)")
     say(f"next: hdrcl scan {folder}   or   hdrcl batch {folder} -o hdr/")

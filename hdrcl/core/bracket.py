@@ -71,6 +71,7 @@ def load_bracket(
     times_file=None,
     ignore_color=None,
     valid: Optional[Sequence[Optional[np.ndarray]]] = None,
+    channel_order: str = "rgb",
 ) -> Bracket:
     """Read (or wrap) a bracket set and resolve its exposures.
 
@@ -88,10 +89,15 @@ def load_bracket(
         Pixels of exactly this colour (8-bit units) are invalid in that frame.
     valid : sequence of (H, W) bool arrays, optional
         Extra per-frame validity masks.
+    channel_order : {"rgb", "bgr"}
+        The channel order of array frames: ``"bgr"`` for OpenCV's (``cv2.imread``),
+        turned into RGB here. Files are always read as RGB.
     """
+    from hdrcl.core.params import check_images, check_options, to_rgb
     from hdrcl.io import metadata
 
-    images = list(images)
+    check_options(ignore_color=ignore_color, channel_order=channel_order)
+    images = check_images(images)
     if len(images) < 2:
         name = os.fspath(images[0]) if images and not isinstance(images[0], np.ndarray) else "input"
         raise InputError(f"{name}: a bracket set needs at least two exposures")
@@ -109,6 +115,7 @@ def load_bracket(
             if a.shape != np.shape(frames[0] if frames else a):
                 raise InputError(f"image {k}: size {a.shape} differs from image 0 {frames[0].shape}")
             frames.append(np.ascontiguousarray(a))
+        frames = to_rgb(frames, channel_order)
         exposures = metadata.resolve_exposures([f"image {k}" for k in range(len(frames))], times=times)
         masks: List[Optional[np.ndarray]] = [None] * len(frames)
         paths: List[str] = []
@@ -118,9 +125,12 @@ def load_bracket(
     else:
         from hdrcl.io.reader import BracketReader
 
+        from hdrcl.io.frames import check_orientation
+
         paths = [os.fspath(p) for p in images]
         infos = read_infos(paths)
         exposures = metadata.resolve_exposures(paths, infos, times=times, times_file=times_file)
+        check_orientation(infos)
         with BracketReader(paths, infos) as reader:
             frames, masks = reader.read_all()
     if rgb is not None:
@@ -183,12 +193,13 @@ def _all_raw(paths) -> bool:
 
 def _open_files(paths, times, times_file):
     from hdrcl.io import metadata
-    from hdrcl.io.frames import check_compatible
+    from hdrcl.io.frames import check_compatible, check_orientation
 
     paths = [os.fspath(p) for p in paths]
     infos = read_infos(paths)
     exposures = metadata.resolve_exposures(paths, infos, times=times, times_file=times_file)
     check_compatible(infos)
+    check_orientation(infos)
     return paths, infos, np.asarray(metadata.relative_exposures(exposures), np.float64)
 
 

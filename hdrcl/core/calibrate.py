@@ -19,6 +19,7 @@ from hdrcl.core.bracket import (
 from hdrcl.core.response import SPAN_BODY, Response
 from hdrcl.core.solve import recover_response
 from hdrcl.core.weights import DEFAULT_WEIGHT
+from hdrcl.errors import InputError
 
 logger = logging.getLogger(__name__)
 
@@ -36,6 +37,7 @@ def calibrate(
     fit_exposures: str = "auto",
     exposure_tolerance: Optional[float] = None,
     warn: bool = True,
+    channel_order: str = "rgb",
 ) -> Response:
     """Recover the camera response from a bracket set.
 
@@ -52,6 +54,10 @@ def calibrate(
     (``nominal``, ``fitted``, ``used``) and a merge of the same set uses them.
     ``warn=False`` keeps the curve's problems out of the log (they stay in
     ``Response.warnings``): for re-solves the user did not ask for.
+    ``channel_order="bgr"`` reads arrays in OpenCV's channel order (the default, and
+    files, are RGB). Every option is checked (:mod:`hdrcl.core.params`) before any
+    file is decoded; frames with nothing to measure (black, white or transparent
+    everywhere) raise InputError before the exposure check warns about them.
 
     Returns
     -------
@@ -63,6 +69,15 @@ def calibrate(
     >>> resp = hdrcl.calibrate(paths, times_file="image_list.txt", ignore_color=(0, 0, 255))
     >>> resp.save("memorial.json")
     """
+    from hdrcl.core.params import check_images, check_options
+
+    opts = check_options(samples=samples, smoothness=smoothness, weight=weight, seed=seed,
+                         fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance,
+                         ignore_color=ignore_color, channel_order=channel_order)
+    samples, smoothness, seed, exposure_tolerance = (opts[k] for k in ("samples", "smoothness", "seed",
+                                                                       "exposure_tolerance"))
+    if not isinstance(images, Bracket):
+        images = check_images(images)
     if isinstance(images, Bracket):
         br = images
     elif len(images) and not any(isinstance(im, np.ndarray) for im in images):
@@ -79,10 +94,12 @@ def calibrate(
             return resp
         br = _grid_bracket(paths, infos, rel, _parse_ignore_color(ignore_color))
     else:
-        br = load_bracket(images, times, times_file=times_file, ignore_color=ignore_color)
+        br = load_bracket(images, times, times_file=times_file, ignore_color=ignore_color,
+                          channel_order=channel_order)
     from hdrcl.core.exposure_fit import verify_exposures
 
     names = br.paths or [f"image {k}" for k in range(len(br.frames))]
+    check_measurable(br.frames, br.valid_all, names, decimate=not br.grid)
     used, fit = verify_exposures(br.frames, br.times, names, mode=fit_exposures, valid=br.valid_all,
                                  samples=samples, seed=seed, tolerance=exposure_tolerance, decimate=not br.grid,
                                  warn=warn)
@@ -107,6 +124,42 @@ def calibrate(
             logger.warning("%s", doubt)
         resp.warnings.append(doubt)
     return resp
+
+
+def check_measurable(frames, valid, names, decimate: bool = True) -> None:
+    """InputError, one line naming the frames, when too few pixels measure anything for
+    a solve: every frame black, white (clipped) or transparent everywhere. Checked before
+    the exposure check, whose warnings (identical frames, exposures the pixels
+    contradict) would only describe the same failure."""
+    from hdrcl.core.response import knot_positions
+    from hdrcl.core.sampling import grid_stride
+
+    h, w = frames[0].shape[:2]
+    k = grid_stride(h, w) if decimate else 1
+    subs = [f[::k, ::k] for f in frames]
+    subs = [s.reshape(s.shape[0], s.shape[1], -1) for s in subs]
+    top = int(np.iinfo(frames[0].dtype).max)
+    ok = np.ones(subs[0].shape[:2], bool) if valid is None else np.asarray(valid)[::k, ::k].copy()
+    lo = np.zeros(ok.shape, bool)
+    hi = np.zeros(ok.shape, bool)
+    for s in subs:
+        lo |= (s > 0).any(axis=2)
+        hi |= (s < top).any(axis=2)
+    usable = ok & lo & hi
+    need = knot_positions(8 * frames[0].dtype.itemsize).size // 4
+    if int(usable.sum()) * (len(frames) - 1) > need:
+        return
+    what = (f"{os.path.basename(names[0])} .. {os.path.basename(names[-1])} ({len(names)} frames)"
+            if len(names) > 3 else ", ".join(os.path.basename(n) for n in names))
+    if not ok.any():
+        why = "no pixel is valid in every frame (transparent, or the --ignore-color, everywhere)"
+    elif not (ok & lo).any():
+        why = "every frame is black (code 0) wherever it is valid"
+    elif not (ok & hi).any():
+        why = f"every frame is white (clipped at {top}) wherever it is valid"
+    else:
+        why = "almost every pixel is black, clipped or masked in every frame"
+    raise InputError(f"{what}: {why}; nothing to calibrate from (give frames with detail, or --response)")
 
 
 def report_span(resp: Response, warn: bool = True) -> float:

@@ -313,6 +313,10 @@ def verify_exposures(frames, times, names, *, mode: str = "auto", valid=None, sa
 
     if mode not in ("auto", "on", "off"):
         raise UsageError(f"--fit-exposures: '{mode}' is not one of auto, on, off")
+    kinds = {np.asarray(f).dtype for f in frames}
+    if len(kinds) > 1:  # a 16-bit frame among 8-bit ones: codes index tables of the wrong size
+        raise UsageError(f"frames of mixed bit depth ({', '.join(sorted(k.name for k in kinds))}); "
+                         "give frames of one bit depth")
     nominal = np.asarray(times, np.float64)
     tol = EXPOSURE_TOLERANCE_STOPS if tolerance is None else float(tolerance)
     level = logging.WARNING if warn else logging.DEBUG

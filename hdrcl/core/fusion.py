@@ -16,9 +16,11 @@ from hdrcl.core.weights import weight_table
 class FusionResult:
     """A radiance map and what happened making it.
 
-    ``counts`` are pixel-channel samples: ``clipped_high`` (clipped in every frame,
-    value taken from the shortest exposure at the top code), ``clipped_low`` (black in
-    every frame, from the longest exposure), ``no_data`` (invalid in every frame; 0).
+    ``counts`` are pixel-channel samples: ``clipped_high`` (the shortest valid frame
+    reads at or above the clip level, :func:`hdrcl.core.weights.clip_levels`: no frame is
+    evidence, the value is the lower bound that frame proves), ``clipped_low`` (the
+    longest valid frame at the noise floor: its upper bound), ``no_data`` (invalid in
+    every frame; 0). The rule is :func:`hdrcl.core.reference.fuse`'s.
     """
 
     radiance: np.ndarray
@@ -53,8 +55,12 @@ def fuse_frames(
     deghost: bool = False,
     ghost_threshold: Optional[float] = None,
     ghost_reference=None,
+    clip_mask: Optional[np.ndarray] = None,
 ) -> FusionResult:
     """Radiance map of ``frames`` with exposures ``times`` (any order) and ``response``.
+
+    ``clip_mask``, an ``(H, W)`` uint8 array, receives each pixel's clip flags (1: some
+    channel clipped high, 2: clipped low; :func:`hdrcl.core.reference.fuse`).
 
     ``deghost`` replaces pixels where the frames disagree beyond the set's own learnt
     residuals (``ghost_threshold`` spreads) by the reference exposure's own estimate
@@ -69,10 +75,10 @@ def fuse_frames(
     tables, wts = fusion_tables(response, frames[0].dtype, frames[0].shape[2], weight)
     proc = get_processor("fusion", device)
     if proc is None:
-        rad, counts = reference.fuse(frames, log_t, tables, wts, vals)
+        rad, counts = reference.fuse(frames, log_t, tables, wts, vals, clip_mask=clip_mask)
         res = FusionResult(rad.astype(np.float32), counts, "numpy")
     else:
-        rad, counts = proc.fuse(frames, log_t, tables, wts, vals)
+        rad, counts = proc.fuse(frames, log_t, tables, wts, vals, clip_mask=clip_mask)
         res = FusionResult(rad, counts, "opencl")
     if deghost:
         from hdrcl.core import deghost as dg
@@ -89,9 +95,11 @@ def fuse_frames(
 def radiance_bounds(response: Response, times: Sequence[float], nch: int) -> tuple:
     """Smallest and largest radiance a fusion of frames at ``times`` can produce.
 
-    Every value is ``exp`` of a weighted mean of ``g(Z_j) - ln dt_j`` (or of the
-    clipping rule's single term), so it lies within ``exp(min g - max ln dt)`` and
-    ``exp(max g - min ln dt)``. Used to decide the storage before any strip is written.
+    Every value is ``exp`` of a weighted mean of ``g(Z_j) - ln dt_j``, of a bound rule's
+    single term (``g`` at some code, or its running maximum or minimum, minus one
+    ``ln dt_j``), or, by the hue rule, another channel's value of the same pixel, so it
+    lies within ``exp(min g - max ln dt)`` and ``exp(max g - min ln dt)``. Used to decide
+    the storage before any strip is written.
     """
     tables = response.table_for(nch)
     lt = np.log(np.asarray(times, np.float64))

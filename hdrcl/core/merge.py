@@ -76,7 +76,12 @@ def merge_bracket(
     ``deghost``, ``ghost_threshold`` and ``ghost_reference`` as
     :func:`hdrcl.core.fusion.fuse_frames`."""
     from hdrcl.core.fusion import fuse_frames
+    from hdrcl.core.params import check_options
 
+    o = check_options(frames=len(bracket.frames), weight=weight, samples=samples, smoothness=smoothness, seed=seed,
+                      fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance, deghost=deghost,
+                      ghost_threshold=ghost_threshold, ghost_reference=ghost_reference)
+    samples, smoothness, seed, exposure_tolerance = o["samples"], o["smoothness"], o["seed"], o["exposure_tolerance"]
     t0 = _time.perf_counter()
     if response is None:
         response = calibrate(bracket, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
@@ -141,6 +146,7 @@ def merge_files(
     exposure_tolerance: Optional[float] = None,
     deghost: bool = False,
     ghost_mask: Union[str, os.PathLike, None] = None,
+    clip_mask: Union[str, os.PathLike, None] = None,
     ghost_threshold: Optional[float] = None,
     ghost_reference=None,
     neutral=None,
@@ -182,6 +188,10 @@ def merge_files(
         ``result.counts["ghost"]`` counts them.
     ghost_mask : path, optional
         With ``deghost``, also write the ghost mask as an 8-bit PNG/TIFF (255 = ghost).
+    clip_mask : path, optional
+        Also write the pixels clipped in every frame as an 8-bit PNG/TIFF: 255 where a
+        channel was clipped high in every frame (its value is the lower bound the
+        shortest frame proves), 128 where one was black in every frame (an upper bound).
     ghost_threshold : float, optional
         With ``deghost``: departure, in robust spreads of the set's residuals, that makes
         a ghost (default :data:`hdrcl.core.deghost.THRESHOLD`).
@@ -234,19 +244,32 @@ def merge_files(
     from hdrcl.io.outmeta import camera_from_infos
     from hdrcl.io.reader import BracketReader
     from hdrcl.io.atomic import check_output, stage_text
+    from hdrcl.core.params import check_image_size, check_images, check_options, check_response_fits
     from hdrcl.io.writers import RADIANCE_EXTENSIONS, RadianceWriter
 
+    # Every option, before any file is opened (hdrcl.core.params: the CLI's table too).
+    paths = check_images(paths, "paths", arrays=False)
+    o = check_options(frames=len(paths), weight=weight, ignore_color=ignore_color, samples=samples,
+                      smoothness=smoothness, seed=seed, dtype=dtype, compression=compression,
+                      fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance, deghost=deghost,
+                      ghost_threshold=ghost_threshold, ghost_reference=ghost_reference, neutral=neutral,
+                      reference_patch=reference_patch, absolute=absolute, align=align, crop=crop,
+                      colorspace=colorspace, reference_exposure=reference_exposure)
+    samples, smoothness, seed, exposure_tolerance = o["samples"], o["smoothness"], o["seed"], o["exposure_tolerance"]
+    if isinstance(output, bytes):
+        output = os.fsdecode(output)
     colorspace = check_space(colorspace)
     reference_exposure = check_reference_exposure(reference_exposure)
     output = os.fspath(output)
     ext = os.path.splitext(output)[1].lower()
     if ext not in RADIANCE_EXTENSIONS:
         raise UsageError(f"{output}: unsupported output type '{ext}'; use one of {', '.join(RADIANCE_EXTENSIONS)}")
-    for target in (output, ghost_mask):
+    for target in (output, ghost_mask, clip_mask):
         if target is not None and not os.path.isdir(os.path.dirname(os.path.abspath(os.fspath(target)))):
             raise UsageError(f"{os.fspath(target)}: output folder does not exist")
     inputs = [p for p in paths if isinstance(p, (str, os.PathLike))]
-    for target, what in ((output, "radiance map"), (ghost_mask, "ghost mask"), (save_response, "response")):
+    for target, what in ((output, "radiance map"), (ghost_mask, "ghost mask"), (clip_mask, "clip mask"),
+                         (save_response, "response")):
         if target is not None:
             check_output(target, inputs + ([response] if isinstance(response, (str, os.PathLike)) else []),
                          what=what)
@@ -273,8 +296,9 @@ def merge_files(
     warm = _warm_up(device, calibrating=resp is None, work=work)
     nch = 3 if first.nchannels >= 3 else 1
     h, w = first.height, first.width
+    check_image_size(w, h, neutral=neutral, reference_patch=reference_patch)  # from the headers
     if resp is not None:
-        _check_response_fits(resp, source_name, paths[0], first.bits, nch)
+        check_response_fits(resp, source_name, paths[0], first.bits, nch)
     if resp is None and _all_raw(paths):
         from hdrcl.core.response import linear_response
 
@@ -356,6 +380,7 @@ def merge_files(
     thumb = Thumbnail(h, w, nch, thumbnail) if thumbnail else None
     keep = ArraySink(h, w, nch) if keep_radiance else None
     mask = np.zeros((h, w), bool) if ghost_mask is not None else None
+    clips = np.zeros((h, w), np.uint8) if clip_mask is not None else None
     # A second output is staged first: a full disk fails here, before the radiance exists.
     staged = stage_text(save_response, resp.to_json()) if save_response is not None else None
     try:
@@ -404,7 +429,7 @@ def merge_files(
                                            deghost=deghost, ghost_mask=mask,
                                            ghost_reference=ghost_reference, ghost_threshold=ghost_threshold,
                                            exposure_check=check if first_pass else None, seconds=seconds,
-                                           work=work)
+                                           work=work, clip_mask=clips)
             result.backend = backend
             if check is not None and first_pass:
                 _report_exposure_check(check, result, exposure_tolerance)
@@ -428,6 +453,11 @@ def merge_files(
             from hdrcl.io.writers import write_ldr
 
             write_ldr(ghost_mask, (mask.astype(np.uint8) * 255)[..., None])
+        if clips is not None:
+            from hdrcl.io.writers import write_ldr
+
+            img = np.where(clips & 1, 255, np.where(clips & 2, 128, 0)).astype(np.uint8)
+            write_ldr(clip_mask, img[..., None])
         if staged is not None:
             staged.commit()
         if keep_frames:
@@ -477,17 +507,6 @@ def _kept_frames(source, grid):
     if grid is not None:
         return list(grid.frames), list(grid.valid), True
     return None
-
-
-def _check_response_fits(resp: Response, source: str, first: str, bits: int, nch: int) -> None:
-    """A response for other frames (16-bit curve, 8-bit photographs) is an input error
-    naming the response and a frame, found before any decoding."""
-    from hdrcl.errors import InputError
-
-    if resp.bits != bits:
-        raise InputError(f"{source}: a response for {resp.bits}-bit frames, but {first} is {bits}-bit")
-    if resp.nchannels not in (1, nch):
-        raise InputError(f"{source}: a response with {resp.nchannels} channel(s), but {first} has {nch}")
 
 
 def _report_exposure_check(check, result, tolerance):

@@ -116,6 +116,7 @@ def stream_merge(
     exposure_check=None,
     seconds: Optional[dict] = None,
     work: Optional[int] = None,
+    clip_mask: Optional[np.ndarray] = None,
 ):
     """Fuse every strip of ``source`` and hand it to ``sink.write_rows``.
 
@@ -147,6 +148,9 @@ def stream_merge(
         See :func:`hdrcl.core.deghost.reference_index` and :func:`hdrcl.core.deghost.learn`.
     exposure_check : hdrcl.core.exposure_fit.ExposureCheck, optional
         Given every strip (frames in exposure order) to measure the exposure ratios.
+    clip_mask : numpy.ndarray, optional
+        ``(H, W)`` uint8, C-contiguous: receives each pixel's clip flags (1: a channel
+        clipped high in every frame, 2: clipped low; :func:`hdrcl.core.reference.fuse`).
     work : int, optional
         The job's pixel-samples (pixels x frames): a small job takes the NumPy path
         rather than paying for OpenCL's start-up (:func:`hdrcl.cl.backend.get_processor`).
@@ -237,10 +241,11 @@ def stream_merge(
             buffers.rotate(-1)
             out = buf[: y1 - y0]
             tf = time.perf_counter()
+            cm = None if clip_mask is None else clip_mask[y0:y1]
             if plan is not None:
-                plan.fuse_strip(frames, valid if has_valid else None, out)
+                plan.fuse_strip(frames, valid if has_valid else None, out, clip_mask=cm)
             else:
-                rad, c = reference.fuse(frames, log_t, tables, wts, valid)
+                rad, c = reference.fuse(frames, log_t, tables, wts, valid, clip_mask=cm)
                 out[...] = rad
                 for k in counts:
                     counts[k] += c[k]

@@ -16,6 +16,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from hdrcl.core.weights import clip_levels, evidence_weights
+
 
 def fuse(
     frames: Sequence[np.ndarray],
@@ -23,18 +25,43 @@ def fuse(
     tables: np.ndarray,
     weights: np.ndarray,
     valid: Optional[Sequence[Optional[np.ndarray]]] = None,
+    clip_mask: Optional[np.ndarray] = None,
 ):
-    """Radiance map of a bracket (kernel: ``kernels/fusion.cl``, ``fuse``).
+    """Radiance map of a bracket (kernel: ``kernels/fusion.cl``, ``fuse`` and ``fuse_fix``).
 
     For each pixel i and channel c::
 
         ln E = sum_j w(Z_j) (g_c(Z_j) - ln dt_j) / sum_j w(Z_j)
 
-    over the frames j where the pixel is valid. Where the weights sum to zero (every
-    valid sample clipped), the rule is: if the shortest valid exposure reads in the upper
-    half of the codes (``2 Z >= L``) the pixel is clipped high and
-    ``ln E = g_c(Zmax) - ln dt_shortest``; otherwise it is black and
-    ``ln E = g_c(Zmin) - ln dt_longest``. A pixel valid in no frame is 0.
+    over the *evidence* frames j of that pixel-channel. With ``(lo, hi)`` =
+    :func:`hdrcl.core.weights.clip_levels` (8-bit: 5 and 250), among the frames where the
+    pixel is valid, in order of exposure: the shortest frame reading ``Z >= hi`` and every
+    longer one give no evidence (the light clipped there, so a longer frame's 253 is no
+    measurement), and neither do the longest frame reading ``Z <= lo`` and every shorter
+    one (the noise floor). The evidence is what lies strictly between; codes outside
+    ``(lo, hi)`` weigh 0 (:func:`hdrcl.core.weights.evidence_weights`).
+
+    Where the evidence weighs nothing, the value is a bound its frames prove:
+
+    * clipped high (the shortest valid frame reads ``Z >= hi``): the lower bound
+      ``G_c(Z) - ln dt_shortest``, with ``G`` = running maximum of ``g``
+      (:func:`bound_tables`); counted in ``clipped_high``;
+    * else black (the longest valid frame reads ``Z <= lo``): the upper bound
+      ``G'_c(Z) - ln dt_longest``, ``G'`` = running minimum of ``g`` from the top;
+      counted in ``clipped_low``;
+    * else (frames that contradict each other, or a bracket with a gap: a shorter frame
+      black and the next one clipped) the weighted mean over every valid frame reading
+      inside ``(lo, hi)``, or when there is none, the first rule if the shortest valid
+      frame reads in the upper half (``2 Z >= L``), the second otherwise; counted in
+      neither.
+    * valid in no frame: 0, counted in ``no_data``.
+
+    Hue: a camera renders a clipped channel white, not darker than the others. So a
+    channel clipped high takes the largest value among the pixel's channels that are
+    measured or clipped high (a pixel clipped high in every channel comes out neutral at
+    its largest bound; a red light whose red alone is clipped keeps red the largest
+    channel, not cyan). Mirror: a channel clipped low takes the smallest value among the
+    measured and clipped-low channels. Both only move a value further inside its bound.
 
     Parameters
     ----------
@@ -45,9 +72,12 @@ def fuse(
     tables : ndarray (C, L)
         Response ``g`` per channel at every code.
     weights : ndarray (L,)
-        ``w(z)``.
+        ``w(z)`` (codes outside ``(lo, hi)`` are zeroed here).
     valid : sequence of (H, W) bool or None, optional
         Per frame; None means every pixel is valid.
+    clip_mask : ndarray (H, W) uint8, optional
+        Filled per pixel: bit 0 (1) some channel clipped high, bit 1 (2) some channel
+        clipped low; 0 otherwise.
 
     Returns
     -------
@@ -60,41 +90,80 @@ def fuse(
     p = len(frames)
     h, w, c = frames[0].shape
     log_t = np.asarray(log_times, np.float64)
+    tables = np.asarray(tables, np.float64)
+    levels = tables.shape[1]
+    zlo, zhi = clip_levels(levels)
+    wts = evidence_weights(levels, weights)
     num = np.zeros((h, w, c))
     den = np.zeros((h, w, c))
+    num_all = np.zeros((h, w, c))  # over every valid frame: the contradiction rule
+    den_all = np.zeros((h, w, c))
+    done = np.zeros((h, w, c), bool)
     first_z = np.full((h, w, c), -1, np.int64)
+    last_z = np.full((h, w, c), -1, np.int64)
     first_p = np.full((h, w), -1, np.int64)
     last_p = np.full((h, w), -1, np.int64)
     chan = np.arange(c)
     for j in range(p):
         z = frames[j].astype(np.int64)
         ok = np.ones((h, w), bool) if valid is None or valid[j] is None else np.asarray(valid[j], bool)
-        wz = np.where(ok[..., None], weights[z], 0.0)
-        num += wz * (tables[chan, z] - log_t[j])
-        den += wz
+        ok3 = ok[..., None]
+        black = ok3 & (z <= zlo)
+        num[black] = 0.0  # this frame and every shorter one: no evidence
+        den[black] = 0.0
+        wz = np.where(ok3, wts[z], 0.0)
+        term = wz * (tables[chan, z] - log_t[j])
+        num_all += term
+        den_all += wz
+        take = ~done
+        num += np.where(take, term, 0.0)
+        den += np.where(take, wz, 0.0)
+        done |= ok3 & (z >= zhi)  # every longer frame: no evidence
         newly = ok & (first_p < 0)
         first_p[newly] = j
         first_z[newly] = z[newly]
         last_p[ok] = j
+        last_z[ok] = z[ok]
     out = np.zeros((h, w, c))
     pos = den > 0
     out[pos] = np.exp(num[pos] / den[pos])
     anyv = (first_p >= 0)[..., None] & np.ones((1, 1, c), bool)
     zero = ~pos & anyv
-    levels = tables.shape[1]
-    high = zero & (2 * first_z >= levels)
-    low = zero & ~high
+    high = zero & (first_z >= zhi)
+    low = zero & ~high & (last_z <= zlo)
+    other = zero & ~high & ~low
+    mixed = other & (den_all > 0)
+    out[mixed] = np.exp(num_all[mixed] / den_all[mixed])
+    high_like = high | (other & ~mixed & (2 * first_z >= levels))
+    low_like = (low | other) & ~mixed & ~high_like
     cc = np.broadcast_to(chan, (h, w, c))
     fp = np.broadcast_to(first_p[..., None], (h, w, c))
     lp = np.broadcast_to(last_p[..., None], (h, w, c))
-    out[high] = np.exp(tables[cc[high], levels - 1] - log_t[fp[high]])
-    out[low] = np.exp(tables[cc[low], 0] - log_t[lp[low]])
+    ghi, glo = bound_tables(tables)
+    out[high_like] = np.exp(ghi[cc[high_like], first_z[high_like]] - log_t[fp[high_like]])
+    out[low_like] = np.exp(glo[cc[low_like], last_z[low_like]] - log_t[lp[low_like]])
+    if c > 1:  # hue: see the docstring
+        top = np.where(pos | high, out, -np.inf).max(axis=2, keepdims=True)
+        out = np.where(high, top, out)
+        bottom = np.where(pos | low, out, np.inf).min(axis=2, keepdims=True)
+        out = np.where(low, bottom, out)
+    if clip_mask is not None:
+        clip_mask[...] = high.any(axis=2).astype(np.uint8) | (2 * low.any(axis=2)).astype(np.uint8)
     counts = {
         "clipped_high": int(high.sum()),
         "clipped_low": int(low.sum()),
         "no_data": int((~anyv).sum()),
     }
     return out, counts
+
+
+def bound_tables(tables: np.ndarray) -> tuple:
+    """``(G, G')`` for the bound rules of :func:`fuse`: the running maximum of ``g`` from
+    code 0 (a lower bound never below a smaller code's) and the running minimum from the
+    top code (an upper bound never above a larger code's). Equal to ``g`` where ``g``
+    increases."""
+    t = np.asarray(tables, np.float64)
+    return np.maximum.accumulate(t, axis=1), np.minimum.accumulate(t[:, ::-1], axis=1)[:, ::-1]
 
 
 def monotone_tables(tables: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ import numpy as np
 
 from hdrcl.core.response import Response, _check_smoothness, _segments, knot_positions
 from hdrcl.core.weights import weight_values
-from hdrcl.errors import InputError, UsageError
+from hdrcl.errors import InputError, ProcessingError, UsageError
 
 logger = logging.getLogger(__name__)
 
@@ -118,7 +118,14 @@ def solve_curve(
     dinv = sp.diags(1.0 / d)
     schur = ata[:k, :k].toarray() - (gb @ dinv @ gb.T).toarray()
     rhs = atb[:k] - gb @ (atb[k:] / d)
-    g = _small_solve(schur, rhs)
+    try:
+        g = _small_solve(schur, rhs)
+    except np.linalg.LinAlgError:
+        raise ProcessingError("the response solve is singular (the samples leave some code levels free); "
+                              "give more --smoothness or frames with more detail") from None
+    if not np.all(np.isfinite(g)):
+        raise ProcessingError("the response solve did not converge (non-finite curve); "
+                              "give a --smoothness between 0.001 and 1e6")
     # Re-anchor exactly at Zmid = levels // 2 (equal to a knot for 8-bit data).
     zmid = levels // 2
     i, f = _segments(np.array([float(zmid)]), knots)
@@ -163,6 +170,10 @@ def recover_response(
     """
     from hdrcl.core.sampling import default_sample_count, select_samples
 
+    from hdrcl.core.params import check_options
+
+    o = check_options(samples=samples, smoothness=smoothness, seed=seed, weight=weight)
+    samples, smoothness, seed = o["samples"], o["smoothness"], o["seed"]
     if len(frames) < 2:
         raise UsageError("calibration needs at least two exposures")
     smoothness = _check_smoothness(smoothness, weight)
@@ -276,6 +287,10 @@ def recover_response_pooled(
     """
     from hdrcl.core.sampling import default_sample_count, select_samples
 
+    from hdrcl.core.params import check_options
+
+    o = check_options(samples=samples, smoothness=smoothness, seed=seed, weight=weight)
+    samples, smoothness, seed = o["samples"], o["smoothness"], o["seed"]
     brackets = [b for b in brackets if len(b[0]) >= 2]
     if not brackets:
         raise UsageError("calibration needs at least one set of two or more exposures")

@@ -17,6 +17,13 @@ WEIGHTS = ("hat", "gaussian")
 #: stays available as ``--weight hat``.
 DEFAULT_WEIGHT = "gaussian"
 
+#: 8-bit code at and above which a sample is clipped: it proves only that the scene is at
+#: least that bright, so fusion takes no evidence from it nor from any longer exposure of
+#: the same pixel-channel (:func:`hdrcl.core.reference.fuse`). JPEG cameras put the
+#: highlights of a clipped area anywhere in 250..255 (ringing, per-channel processing),
+#: so 255 alone is not enough. The noise floor mirrors it (8-bit: codes 0..5).
+CLIP_HIGH_8BIT = 250
+
 
 def weight_values(z, levels: int, kind: str = "hat") -> np.ndarray:
     """Weight of code value(s) ``z`` for an image with ``levels`` code values.
@@ -55,3 +62,22 @@ def weight_values(z, levels: int, kind: str = "hat") -> np.ndarray:
 def weight_table(levels: int, kind: str = "hat") -> np.ndarray:
     """Weights of every code value ``0 .. levels-1`` (float64, length ``levels``)."""
     return weight_values(np.arange(levels), levels, kind)
+
+
+def clip_levels(levels: int) -> tuple:
+    """``(low, high)`` codes for images with ``levels`` code values: a sample at or below
+    ``low`` is at the noise floor, at or above ``high`` clipped (:data:`CLIP_HIGH_8BIT`
+    scaled to the depth, the floor its mirror): 8-bit ``(5, 250)``, 16-bit
+    ``(1285, 64250)``. Codes strictly between them are evidence in fusion."""
+    high = int(round(CLIP_HIGH_8BIT * (levels - 1) / 255.0))
+    return levels - 1 - high, high
+
+
+def evidence_weights(levels: int, weights: np.ndarray) -> np.ndarray:
+    """``weights`` with the codes outside ``clip_levels(levels)`` set to 0: the weights
+    fusion gives each code (float64, length ``levels``)."""
+    low, high = clip_levels(levels)
+    w = np.array(weights, np.float64)
+    w[: low + 1] = 0.0
+    w[high:] = 0.0
+    return w

@@ -75,15 +75,16 @@ def _name(path) -> str:
 
 
 def _clean_error(text: str, path: str) -> str:
-    """First meaningful line of an OIIO error, without the quoted file name it repeats."""
-    lines = [ln.strip() for ln in (text or "").splitlines() if ln.strip()]
-    if not lines:
-        return ""
-    msg = lines[0]
+    """First meaningful line of an OIIO error, without the quoted file name it repeats
+    (removed first: a file name may hold a line break)."""
+    text = text or ""
     base = os.path.basename(path)
     for p in (path, base):
-        msg = msg.replace(f' ("{p}")', "").replace(f'"{p}"', "")
-    return " ".join(msg.split()).rstrip(".")
+        text = text.replace(f' ("{p}")', "").replace(f'"{p}"', "")
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    if not lines:
+        return ""
+    return " ".join(lines[0].split()).rstrip(".")
 
 
 _FORMAT_NAMES = {"openexr": "EXR", "jpeg": "JPEG", "png": "PNG", "tiff": "TIFF", "hdr": "HDR"}
@@ -516,6 +517,32 @@ def check_compatible(infos: Sequence[FrameInfo]) -> None:
             raise InputError(
                 f"{info.path}: {info.bits}-bit samples but {first.path} has {first.bits}-bit"
             )
+
+
+def check_orientation(infos: Sequence[FrameInfo]) -> Optional[str]:
+    """Say what happens to EXIF Orientation: hdrcl merges the pixels as stored and never
+    rotates them. Frames whose tags differ (some rotated by a tool, some only tagged)
+    are warned about, naming two of them; the warning is also returned. A tag shared
+    by every frame is only logged at info level (the map keeps the stored layout)."""
+    tags = []
+    for info in infos:
+        try:
+            tags.append(int(info.extra.get("Orientation", 1) or 1))
+        except (TypeError, ValueError):
+            tags.append(1)
+    if not tags:
+        return None
+    odd = next((k for k, t in enumerate(tags) if t != tags[0]), None)
+    if odd is not None:
+        msg = (f"{infos[odd].path}: EXIF Orientation {tags[odd]}, but {infos[0].path} has {tags[0]}; "
+               "orientation is not applied: the frames are merged as stored (rotate the files alike "
+               "if their pixels do not line up)")
+        logger.warning("%s", msg)
+        return msg
+    if tags[0] != 1:
+        logger.info("EXIF Orientation %d of every frame is not applied: the radiance map keeps the stored "
+                    "layout", tags[0])
+    return None
 
 
 def _channel_layout_counts(info: FrameInfo):

@@ -184,6 +184,11 @@ def coerce_times(times, name: str = "--times") -> list:
     """
     if isinstance(times, (str, bytes)):
         return parse_times(times.decode() if isinstance(times, bytes) else times, name)
+    if isinstance(times, (Mapping, set, frozenset)):  # keys, or no order: never one time per frame
+        from hdrcl.errors import ParameterTypeError
+
+        raise ParameterTypeError(f"{name}: expected a list of exposure times, one per image in their order, "
+                                 f"not a {type(times).__name__}")
     try:
         items = list(times)
     except TypeError:

@@ -41,11 +41,13 @@ from typing import Optional
 
 import numpy as np
 
+from hdrcl.core.params import MAX_EXPOSURE_EV, OPERATORS
+
 __all__ = ["OPERATORS", "ToneParams", "statistics", "apply_global", "reinhard_local", "srgb_encode",
            "quantize", "tone_map_array", "tonemap", "tonemap_file"]
 
-#: Operator names; ``OP_CODES`` numbers the global ones for the kernel.
-OPERATORS = ("reinhard", "reinhard-local", "drago", "filmic")
+#: Operator names (:data:`OPERATORS`, from the shared option table
+#: :mod:`hdrcl.core.params`); ``OP_CODES`` numbers the global ones for the kernel.
 OP_CODES = {"reinhard": 0, "drago": 1, "filmic": 2}
 #: Reinhard's "key": the log-average luminance is mapped to this.
 KEY = 0.18
@@ -95,25 +97,22 @@ def stats_stride(h: int, w: int, max_pixels: int = STATS_MAX_PIXELS) -> int:
     return max(1, int(math.ceil(math.sqrt(h * w / max(int(max_pixels), 1)))))
 
 
-#: Largest exposure change (EV) accepted: a factor of 1.8e19 either way is far beyond any
-#: useful brightening or darkening (and ``2.0 ** 2000`` overflows).
-MAX_EXPOSURE_EV = 64.0
+#: Largest exposure change (EV) accepted, :data:`hdrcl.core.params.MAX_EXPOSURE_EV`: a
+#: factor of 1.8e19 either way is far beyond any useful brightening or darkening (and
+#: ``2.0 ** 2000`` overflows).
 
 
 def check_exposure(exposure, name: str = "exposure") -> float:
     """``exposure`` as a float; UsageError naming ``name`` unless it is a finite number
     of stops within +-:data:`MAX_EXPOSURE_EV` (``2.0 ** 2000`` overflows)."""
-    from hdrcl.errors import UsageError
+    from hdrcl.core.params import check
 
     try:
-        ev = float(exposure)
-    except (TypeError, ValueError):
-        raise UsageError(f"{name}: {exposure!r} is not a number of stops") from None
-    if not math.isfinite(ev):
-        raise UsageError(f"{name}: {exposure} is not a finite number of stops")
-    if abs(ev) > MAX_EXPOSURE_EV:
-        raise UsageError(f"{name}: {exposure:g} stops is out of range (at most {MAX_EXPOSURE_EV:g} either way)")
-    return ev
+        return float(check("exposure", exposure))
+    except Exception as exc:  # the table's words, with the caller's name for the option
+        if exc.args and isinstance(exc.args[0], str) and exc.args[0].startswith("--exposure"):
+            exc.args = (name + exc.args[0][len("--exposure"):],) + exc.args[1:]
+        raise
 
 
 def statistics(radiance: np.ndarray, operator: str = "reinhard", exposure: float = 0.0) -> ToneParams:
@@ -234,13 +233,32 @@ def tone_map_array(radiance: np.ndarray, operator: str = "reinhard", exposure: f
     return apply_global(radiance, params, bits)
 
 
-def _check(operator: str, bits: int) -> None:
-    from hdrcl.errors import UsageError
+def _check(operator: str, bits: int) -> int:
+    """The operator and depth, by the shared option table; the depth as an int."""
+    from hdrcl.core.params import check
 
-    if operator not in OPERATORS:
-        raise UsageError(f"--operator: '{operator}' is not one of {', '.join(OPERATORS)}")
-    if bits not in (8, 16):
-        raise UsageError(f"--bits: {bits} is not 8 or 16")
+    check("operator", operator)
+    return check("bits", bits)
+
+
+def _check_radiance(radiance) -> np.ndarray:
+    """``radiance`` as an (H, W[, C]) array of finite numbers, C = 1 or 3 (UsageError
+    naming the parameter otherwise), as :func:`hdrcl.core.exposure.render` wants it."""
+    from hdrcl.errors import ParameterTypeError, UsageError
+
+    try:
+        rad = np.asarray(radiance)
+    except Exception:  # ragged nested lists
+        rad = None
+    if rad is None or rad.dtype.kind not in "fiu":
+        raise ParameterTypeError(f"radiance: expected an (H, W[, C]) array of numbers, not {type(radiance).__name__}")
+    if rad.ndim not in (2, 3) or (rad.ndim == 3 and rad.shape[2] not in (1, 3)) or rad.size == 0:
+        raise UsageError(f"radiance: expected a non-empty (H, W), (H, W, 1) or (H, W, 3) array, "
+                         f"not shape {rad.shape}")
+    bad = int(np.count_nonzero(~np.isfinite(rad)))
+    if bad:
+        raise UsageError(f"radiance: {bad} NaN or infinite value(s); a radiance map must be finite")
+    return rad
 
 
 def tonemap(radiance: np.ndarray, operator: str = "reinhard", *, exposure: float = 0.0, bits: int = 8,
@@ -250,7 +268,8 @@ def tonemap(radiance: np.ndarray, operator: str = "reinhard", *, exposure: float
     Parameters
     ----------
     radiance : ndarray, (H, W, C) or (H, W)
-        C = 1 (grey) or 3. NaN, infinite and negative values count as 0.
+        C = 1 (grey) or 3; finite (NaN or infinite values raise UsageError, as
+        ``expose`` does); negative values count as 0.
     operator : {"reinhard", "reinhard-local", "drago", "filmic"}
         See the module notes.
     exposure : float
@@ -268,14 +287,12 @@ def tonemap(radiance: np.ndarray, operator: str = "reinhard", *, exposure: float
     """
     from hdrcl.cl.backend import get_processor
 
-    _check(operator, int(bits))
-    check_exposure(exposure)
-    rad = np.asarray(radiance)
+    bits = _check(operator, bits)
+    exposure = check_exposure(exposure)
+    rad = _check_radiance(radiance)
     squeeze = rad.ndim == 2
     if squeeze:
         rad = rad[:, :, None]
-    if rad.ndim != 3 or rad.shape[2] not in (1, 3):
-        raise ValueError(f"radiance must be (H, W), (H, W, 1) or (H, W, 3), got {np.shape(radiance)}")
     params = statistics(rad, operator, exposure)
     if operator == "reinhard-local":
         out = quantize(srgb_encode(reinhard_local(rad, exposure, params)), bits)
@@ -302,16 +319,15 @@ def tonemap_file(radiance_path, output, operator: str = "reinhard", *, exposure:
     from hdrcl.io.radiance import read_radiance_colorspace
     from hdrcl.io.writers import LDR_EXTENSIONS, write_ldr
 
-    output = os.fspath(output)
+    output, radiance_path = os.fsdecode(os.fspath(output)), os.fsdecode(os.fspath(radiance_path))
     ext = os.path.splitext(output)[1].lower()
     if ext not in LDR_EXTENSIONS:
         raise UsageError(f"{output}: unsupported output type '{ext or '(none)'}'; "
                          f"use one of {', '.join(LDR_EXTENSIONS)}")
-    bits = 8 if bits is None else int(bits)
+    bits = _check(operator, 8 if bits is None else bits)
+    exposure = check_exposure(exposure)
     if ext in (".jpg", ".jpeg") and bits == 16:
         raise UsageError(f"{output}: JPEG holds 8 bits; use .png or .tif for 16-bit output")
-    _check(operator, bits)
-    check_exposure(exposure)
     rad, space = read_radiance_colorspace(radiance_path, require_float=True)  # no photo as radiance
     if space != "rec709":
         from hdrcl.io.colorspace import convert

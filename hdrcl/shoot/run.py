@@ -73,7 +73,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
 
-from hdrcl.errors import UsageError
+from hdrcl.errors import ProcessingError, UsageError
 from hdrcl.shoot.claims import Cancelled, cancel_signals, remove_orphan_temps
 from hdrcl.shoot.jobs import (
     REPORT_NAME,
@@ -215,6 +215,10 @@ def run_batch(
         The folder or manifest cannot be read, or the response file is unreadable.
     UsageError
         Conflicting options or an unusable output folder.
+    ProcessingError
+        Nothing to merge: the folder holds no photographs, or no bracket set (the
+        message names the frames and why), or the manifest lists no set. Raised before
+        the output folder is created (exit code 1 on the command line).
     """
     t_start = _time.perf_counter()
     options = options or BatchOptions()
@@ -243,6 +247,8 @@ def run_batch(
             options = replace(options, report_dir=report_dir)
         manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap,
                                exclude=[out_dir] + ([report_dir] if report_dir else []), times_file=times_file)
+        if not manifest.sets:  # one error line, and no output folder or report
+            raise ProcessingError(nothing_to_merge(source, manifest, recursive))
         for folder, what in ((out_dir, "output"), (report_dir, "report")):
             if folder is None:
                 continue
@@ -299,7 +305,8 @@ def run_batch(
                 _run_pipelined(plan.selected, ctx, emit)
         except Cancelled as exc:
             rep.cancelled = exc.signum
-            logger.warning("%s: %d of %d set(s) finished; stopping", exc, len(results), total)
+            # Said once, by the caller (the CLI's one line; rep.cancelled for the API).
+            logger.info("%s: %d of %d set(s) finished; stopping", exc, len(results), total)
             # The workers are dead and their claims released: their temporary files go.
             remove_orphan_temps(out_dir, stems)
         except BaseException:
@@ -321,3 +328,47 @@ def run_batch(
         rep.path = report_path
         rep.seconds = _time.perf_counter() - t_start
         return rep
+
+
+def nothing_to_merge(source, manifest, recursive: bool = False) -> str:
+    """Why a source yields no bracket set, in one line naming it: no photographs (and
+    what the folder holds instead), or the groups it did find and why each is not a set
+    (a single frame without an exposure time says so)."""
+    name = os.fspath(source) if isinstance(source, (str, os.PathLike)) else "manifest"
+    if not os.path.isdir(name):
+        return f"{name}: the manifest lists no bracket set"
+    if manifest.unmerged:
+        parts = []
+        for u in manifest.unmerged[:3]:
+            reason = u.reason
+            if reason == "single frame" and _lacks_exposure(u.files[0]):
+                reason = "single frame, without an exposure time (EXIF ExposureTime or a times file)"
+            more = f" (+{len(u.files) - 1} more)" if len(u.files) > 1 else ""
+            parts.append(f"{os.path.basename(u.files[0])}{more}: {reason}")
+        rest = f"; {len(manifest.unmerged) - 3} more group(s)" if len(manifest.unmerged) > 3 else ""
+        return f"{name}: no bracket sets to merge ({'; '.join(parts)}{rest})"
+    from hdrcl.shoot.scan import DEFAULT_EXTENSIONS
+
+    try:
+        entries = sorted(os.scandir(name), key=lambda e: e.name)
+    except OSError:
+        entries = []
+    files = [e.name for e in entries if not e.name.startswith(".") and e.is_file()]
+    folders = [e.name for e in entries if not e.name.startswith(".") and e.is_dir()]
+    kinds = ", ".join(e.lstrip(".").upper() for e in DEFAULT_EXTENSIONS[:5])
+    if files:
+        what = f"{len(files)} other file(s), such as {files[0]}"
+    elif folders and not recursive:
+        what = f"only subfolders ({folders[0]}{', ...' if len(folders) > 1 else ''}): add --recursive"
+    else:
+        what = "it is empty"
+    return f"{name}: no photographs to merge ({kinds} or camera RAW); {what}"
+
+
+def _lacks_exposure(path) -> bool:
+    try:
+        from hdrcl.io.frames import read_info
+
+        return read_info(path).exposure_time is None
+    except Exception:  # unreadable: the scan said so already
+        return False
