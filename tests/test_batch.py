@@ -301,21 +301,21 @@ def test_parameters_are_part_of_the_identity(clean, tmp_path):
     res = run("batch", folder, "-o", out)
     assert res.exit_code == 0 and "3 skipped" in res.stdout
     assert exr.stat().st_mtime_ns == stamp
-    res = run("batch", folder, "-o", out, "--compression", "piz")
+    res = run("batch", folder, "-o", out, "--compression", "zip")
     assert res.exit_code == 0 and "3 done" in res.stdout
-    res = run("batch", folder, "-o", out, "--compression", "piz", "--force")
+    res = run("batch", folder, "-o", out, "--compression", "zip", "--force")
     assert res.exit_code == 0 and "3 done" in res.stdout
-    res = run("batch", folder, "-o", out, "--compression", "piz", "--weight", "gaussian", "--deghost")
+    res = run("batch", folder, "-o", out, "--compression", "zip", "--weight", "gaussian", "--deghost")
     assert "3 done" in res.stdout  # new response, fusion weights and deghosting
     assert set(report_of(out)["sets"][0]["counts"]) >= {"ghost", "ghost_unresolved"}
-    res = run("batch", folder, "-o", out, "--compression", "piz", "--weight", "gaussian")
+    res = run("batch", folder, "-o", out, "--compression", "zip", "--weight", "gaussian")
     assert "3 done" in res.stdout
     # A lost preview is rebuilt from its EXR; the EXR stays.
     preview = out / f"{os.path.splitext(groups[1][0])[0]}.jpg"
     preview.unlink()
     exr1 = preview.with_suffix(".exr")
     stamp = exr1.stat().st_mtime_ns
-    res = run("batch", folder, "-o", out, "--compression", "piz", "--weight", "gaussian")
+    res = run("batch", folder, "-o", out, "--compression", "zip", "--weight", "gaussian")
     assert res.exit_code == 0 and "3 skipped" in res.stdout
     assert preview.is_file() and exr1.stat().st_mtime_ns == stamp
     entry = report_of(out)["sets"][1]

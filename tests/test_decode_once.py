@@ -342,3 +342,45 @@ def test_merge_with_a_report_decodes_each_frame_once(bracket, tmp_path, monkeypa
     assert (tmp_path / "rep" / "index.html").exists()
     for k in range(len(paths)):
         assert sum(n for kk, n in calls if kk == k) == 96
+
+
+def test_lost_response_of_a_one_set_camera_is_solved_again(tmp_path, cl_device):
+    """The response file of a camera whose only set is up to date is written again on a
+    rerun (report.json names it), and the set is still skipped."""
+    from hdrcl.cli import main
+
+    _shoot(tmp_path / "shoot")
+    out = tmp_path / "out"
+    args = ["batch", str(tmp_path / "shoot"), "-r", "-o", str(out), "--no-preview"]
+    assert CliRunner().invoke(main, args).exit_code == 0
+    (resp,) = out.glob("*.response.json")
+    first = resp.read_bytes()
+    resp.unlink()
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 0, res.output
+    assert resp.read_bytes() == first
+    rep = json.loads((out / "report.json").read_text())
+    assert [e["status"] for e in rep["sets"]] == ["skipped"]
+
+
+def test_warm_up_opens_the_device_while_the_frames_decode(monkeypatch):
+    """The warm-up thread hands the job's size to get_processor (it used to hand itself)."""
+    import hdrcl.cl.backend as backend
+    from hdrcl.core.merge import _warm_up
+
+    seen = []
+    monkeypatch.setattr(backend, "get_processor", lambda kind, device=None, work=None: seen.append(work))
+    _warm_up(None, False, work=12345).join()
+    assert seen == [12345]
+
+
+def test_range_meter_never_lets_nan_or_inf_through_to_half():
+    got = []
+
+    class Sink:
+        def write_rows(self, y0, y1, data):
+            got.append(data)
+
+    m = RangeMeter(Sink(), 1.0, check=True)
+    m.write_rows(0, 1, np.array([[[np.nan, 1e6, 1.0]]], np.float32))
+    assert m.overflow and not got

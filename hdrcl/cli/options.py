@@ -192,7 +192,7 @@ def device_option(f):
 
 
 def output_options(f):
-    f = click.option("--compression", type=Checked("compression"), default="zip", show_default=True,
+    f = click.option("--compression", type=Checked("compression"), default="piz", show_default=True,
                      help="EXR compression: none, zip, zips, piz, pxr24, b44, b44a, dwaa, dwab (dwaa:45 sets a level).")(f)
     f = click.option("--dtype", type=click.Choice(["auto", "half", "float"]), default="auto", show_default=True,
                      help="EXR sample type. auto: half when every merged value fits half floats "

@@ -96,11 +96,14 @@ class RangeMeter:
     def write_rows(self, y0: int, y1: int, data: np.ndarray) -> None:
         values = data * self.scale if self.scale != 1 else data
         if values.size:
-            lo = float(values.min())
+            lo, hi = float(values.min()), float(values.max())
+            if not (math.isfinite(lo) and math.isfinite(hi)):  # never expected; never hidden
+                finite = values[np.isfinite(values)]
+                lo = float(finite.min()) if finite.size else math.inf
+                hi = math.inf  # NaN or Inf cannot be written as half: float keeps what there is
             if lo <= 0:  # pixels without data are 0; ignore them
                 pos = values[values > 0]
                 lo = float(pos.min()) if pos.size else math.inf
-            hi = float(values.max())
             self.lo, self.hi = min(self.lo, lo), max(self.hi, hi)
         if self.check and not self.overflow and (self.hi > halfrange.HALF_MAX or self.lo < halfrange.HALF_FLOOR):
             self.overflow = True

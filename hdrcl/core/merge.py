@@ -137,7 +137,7 @@ def merge_files(
     smoothness: Optional[float] = None,
     seed: int = 0,
     dtype: str = "auto",
-    compression: str = "zip",
+    compression: str = "piz",
     device: Optional[str] = None,
     keep_radiance: bool = False,
     keep_frames: bool = False,
@@ -553,7 +553,7 @@ def _warm_up(device, calibrating: bool, work=None):
     frames decode: both take a few tenths of a second that need not add up."""
     import threading
 
-    def work():
+    def warm():
         try:
             if calibrating:
                 import scipy.sparse  # noqa: F401
@@ -563,7 +563,7 @@ def _warm_up(device, calibrating: bool, work=None):
         except Exception:  # the main thread meets the same error and reports it
             pass
 
-    t = threading.Thread(target=work, name="hdrcl-warm-up", daemon=True)
+    t = threading.Thread(target=warm, name="hdrcl-warm-up", daemon=True)
     t.start()
     return t
 

@@ -7,13 +7,16 @@ leaves a half-written file under the real name and never destroys the previous o
 Formats, chosen by extension:
 
 ========  ==============================================================
-``.exr``  OpenEXR, half (default) or float, any OpenEXR compression;
+``.exr``  OpenEXR, half (default) or float, any OpenEXR compression
+          (:data:`DEFAULT_EXR_COMPRESSION`), on all the cores OpenImageIO's
+          ``exr_threads`` allows (:class:`hdrcl.io.encoders.ExrBatch`);
           metadata as ``hdrcl:*`` header attributes plus the standard ones
           (``Software``, ``owner``, ``capDate``, camera, lens, reference
           exposure: :mod:`hdrcl.io.outmeta`), the colour space's
           ``chromaticities`` (Rec.709 or ACEScg AP1) and ``oiio:ColorSpace``
 ``.hdr``  Radiance RGBE (shared 8-bit exponent: about 1% precision;
-          grey is written as RGB); header lines SOFTWARE, EXPOSURE,
+          grey is written as RGB), run-length encoded by hdrcl's NumPy
+          encoder (:mod:`hdrcl.io.encoders`); header lines SOFTWARE, EXPOSURE,
           PRIMARIES, CAPDATE; no ``hdrcl:*`` metadata
 ``.tif``  32-bit float TIFF; metadata as JSON in ImageDescription
 ``.pfm``  Portable float map (1 or 3 channels); no metadata
@@ -34,6 +37,7 @@ from hdrcl.errors import ProcessingError, UsageError
 from hdrcl.io import halfrange
 from hdrcl.io.atomic import atomic_output
 from hdrcl.io.frames import _clean_error
+from hdrcl.io.encoders import ExrBatch, RGBEFile, exr_batch_rows, exr_threads, write_rgbe
 
 logger = logging.getLogger(__name__)
 
@@ -46,6 +50,11 @@ LDR_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 
 # OIIO silently falls back to zip for names it does not know, so names are checked here.
 EXR_COMPRESSIONS = ("none", "rle", "zips", "zip", "piz", "pxr24", "b44", "b44a", "dwaa", "dwab")
+
+
+#: Lossless EXR compression for radiance maps: for half the fastest and smallest of zip,
+#: zips, piz, pxr24; for float the smallest, slower than zip (scripts/compression_bench.py).
+DEFAULT_EXR_COMPRESSION = "piz"
 
 
 TIFF_COMPRESSIONS = ("none", "zip", "lzw")
@@ -114,9 +123,8 @@ def _description(metadata: Optional[Mapping]) -> Optional[str]:
     return json.dumps({"hdrcl": plain}, default=str, sort_keys=True)
 
 
-def _write(path: str, pixels: np.ndarray, fmt: str, attributes: list, channelnames=None, hdr_lines=None):
-    """Write ``pixels`` (H, W, C) to ``path`` atomically with OIIO in the given format;
-    ``hdr_lines`` are added to a Radiance header before the file is moved into place."""
+def _write(path: str, pixels: np.ndarray, fmt: str, attributes: list, channelnames=None):
+    """Write ``pixels`` (H, W, C) to ``path`` atomically with OIIO in the given format."""
     oiio = _oiio()
     h, w, c = pixels.shape
     spec = oiio.ImageSpec(w, h, c, fmt)
@@ -137,10 +145,6 @@ def _write(path: str, pixels: np.ndarray, fmt: str, attributes: list, channelnam
         if not (ok and closed) or out.has_error:
             detail = _clean_error(out.geterror() or oiio.geterror(), tmp)
             raise ProcessingError(f"{path}: cannot write ({detail or 'unknown error'})")
-        if hdr_lines:
-            from hdrcl.io.outmeta import patch_hdr_header
-
-            patch_hdr_header(tmp, hdr_lines)
 
 
 def _hdr_lines(ext, camera, colorspace, timestamp):
@@ -208,7 +212,8 @@ def _radiance_header(path, nch: int, dtype: str, compression: str, metadata, tim
     elif ext in (".tif", ".tiff"):
         comp = str(compression).strip().lower()
         if comp not in TIFF_COMPRESSIONS:
-            warnings.append(f"{target}: TIFF has no '{compression}' compression; used zip")
+            if comp != DEFAULT_EXR_COMPRESSION:  # the EXR default was not asked of TIFF
+                warnings.append(f"{target}: TIFF has no '{compression}' compression; used zip")
             comp = "zip"
         attrs = [a for a in attrs if not a[0].startswith(METADATA_PREFIX)]
         desc = _description(metadata)
@@ -226,7 +231,7 @@ def _radiance_header(path, nch: int, dtype: str, compression: str, metadata, tim
     return target, ext, fmt, attrs, channelnames, warnings
 
 
-def write_radiance(path, image, *, dtype="half", compression="zip", metadata=None,
+def write_radiance(path, image, *, dtype="half", compression=DEFAULT_EXR_COMPRESSION, metadata=None,
                    timestamp=None, colorspace="rec709", camera=None) -> list:
     """Write a floating-point radiance map; the format follows the extension.
 
@@ -241,7 +246,8 @@ def write_radiance(path, image, *, dtype="half", compression="zip", metadata=Non
         float) and ignore it.
     compression : str
         EXR: one of :data:`EXR_COMPRESSIONS`, optionally with a level (``"dwaa:45"``).
-        TIFF: ``none``, ``zip`` or ``lzw`` (others fall back to zip with a warning).
+        TIFF: ``none``, ``zip`` or ``lzw`` (others fall back to zip, with a warning
+        unless it is the EXR default).
         Ignored for HDR and PFM.
     metadata : mapping, optional
         Short keys (``hdrcl:`` + key at most 31 characters) to str, int or float values
@@ -272,7 +278,7 @@ def write_radiance(path, image, *, dtype="half", compression="zip", metadata=Non
     UsageError
         Unknown extension, dtype or compression; missing output folder.
     ProcessingError
-        OpenImageIO failed to write the file.
+        OpenImageIO (or, for ``.hdr``, the file system) failed to write the file.
     ValueError
         ``image`` has the wrong shape or a metadata key is too long (caller bugs).
     """
@@ -298,9 +304,11 @@ def write_radiance(path, image, *, dtype="half", compression="zip", metadata=Non
     if ext == ".hdr":
         if np.any(img[finite] < 0):
             warnings.append(f"{target}: negative values are written as 0 in RGBE")
-        if img.shape[2] == 1:
-            img = np.ascontiguousarray(np.repeat(img, 3, axis=2))
-    _write(target, img, fmt, attrs, channelnames, _hdr_lines(ext, camera, colorspace, timestamp))
+        write_rgbe(target, img, _hdr_lines(ext, camera, colorspace, timestamp))
+    else:
+        if ext == ".exr":
+            exr_threads(_oiio())
+        _write(target, img, fmt, attrs, channelnames)
     for w in warnings:
         logger.warning("%s", w)
     return warnings
@@ -422,15 +430,18 @@ class RadianceWriter:
     The file is written to a hidden temporary name beside ``path`` and renamed onto it
     by :meth:`close` only when every row has been written; :meth:`abort` (or leaving a
     ``with`` block by an exception) deletes it. Memory use is one strip, whatever the
-    image size, except for PFM, whose rows are stored bottom to top and so are collected
-    whole before writing.
+    image size, with two exceptions: EXR strips are gathered into two batches of a few
+    blocks per OpenEXR thread (at most 64 MB each, :class:`hdrcl.io.encoders.ExrBatch`)
+    so that OpenEXR compresses on every thread, and PFM, whose rows are stored bottom to
+    top, is collected whole before writing. Radiance ``.hdr`` strips are encoded as they
+    come (:class:`hdrcl.io.encoders.RGBEFile`).
 
     Parameters are those of :func:`write_radiance` plus the image size; ``write_rows``
     takes float32 ``(rows, width, nch)`` strips.
     """
 
     def __init__(self, path, width: int, height: int, nch: int, *, dtype: str = "half",
-                 compression: str = "zip", metadata=None, timestamp=None, colorspace: str = "rec709",
+                 compression: str = DEFAULT_EXR_COMPRESSION, metadata=None, timestamp=None, colorspace="rec709",
                  camera=None):
         if nch not in (1, 3):
             raise ValueError(f"radiance must have 1 or 3 channels, not {nch}")
@@ -440,25 +451,28 @@ class RadianceWriter:
         self._hdr_lines = _hdr_lines(ext, camera, colorspace, timestamp)
         self.path, self.ext = target, ext
         self.width, self.height, self.nch = int(width), int(height), int(nch)
-        self.dtype = dtype
-        self.warnings: list = warnings
-        self._nonfinite = 0
-        self._over_half = 0
-        self._negative = 0
+        self.dtype, self.warnings = dtype, list(warnings)
+        self._nonfinite = self._over_half = self._negative = 0
         self._next_row = 0
-        self._expand = ext == ".hdr" and nch == 1  # RGBE has no grey
         self._attrs, self._fmt, self._channelnames = attrs, fmt, channelnames
         self._whole = np.empty((height, width, nch), np.float32) if ext == ".pfm" else None
+        self._rgbe = self._batch = None
         self._ctx = atomic_output(target)
         self._tmp = self._ctx.__enter__()
         self._out = None
-        if self._whole is None:
+        if ext == ".hdr":
+            self._rgbe = self._guarded(lambda: RGBEFile(self._tmp, width, height, self._hdr_lines, name=target))
+        elif self._whole is None:
             self._open()
+            if ext == ".exr":
+                threads = exr_threads(_oiio())
+                rows = min(self.height, exr_batch_rows(compression, self.width, self.nch, threads))
+                if threads > 1:
+                    self._batch = ExrBatch(self._out, rows, self.width, self.nch, fmt == "half")
 
     def _open(self):
         oiio = _oiio()
-        c = 3 if self._expand else self.nch
-        spec = oiio.ImageSpec(self.width, self.height, c, self._fmt)
+        spec = oiio.ImageSpec(self.width, self.height, self.nch, self._fmt)
         if self._channelnames is not None:
             spec.channelnames = tuple(self._channelnames)
         for attr in self._attrs:
@@ -471,15 +485,34 @@ class RadianceWriter:
         self._out = out
 
     def _check(self, data: np.ndarray) -> np.ndarray:
-        """Count problems; for half, clamp values it cannot hold (:func:`halfrange.clamp`)."""
-        finite = np.isfinite(data)
-        self._nonfinite += data.size - int(np.count_nonzero(finite))
-        if self.ext == ".exr" and self.dtype == "half":
+        """Count problems; for half, clamp values it cannot hold (:func:`halfrange.clamp`).
+        Min and max (NaN propagates through both) settle the usual strip in two passes."""
+        lo, hi = data.min(), data.max()
+        finite_all = bool(np.isfinite(lo) and np.isfinite(hi))
+        if not finite_all:
+            finite = np.isfinite(data)
+            self._nonfinite += data.size - int(np.count_nonzero(finite))
+        if self.ext == ".exr" and self.dtype == "half" and not (
+                finite_all and lo >= halfrange.HALF_MIN and hi <= HALF_MAX):
             data, n = halfrange.clamp(data)
             self._over_half += n
-        if self.ext == ".hdr":
-            self._negative += int(np.count_nonzero(data[finite] < 0))
+        if self.ext == ".hdr" and not lo >= 0:
+            self._negative += int(np.count_nonzero(data < 0 if finite_all else data[finite] < 0))
         return data
+
+    def _guarded(self, call):
+        """``call()``, dropping the temporary file first if it raises."""
+        try:
+            return call()
+        except BaseException:
+            self.abort()
+            raise
+
+    def _fail(self, y0: int, y1: int, error: str = "") -> ProcessingError:
+        """Abort and describe OpenImageIO's failure to write rows ``y0 .. y1``."""
+        detail = _clean_error(error or self._out.geterror() or _oiio().geterror(), self._tmp)
+        self.abort()
+        return ProcessingError(f"{self.path}: cannot write rows {y0}-{y1} ({detail or 'unknown error'})")
 
     def write_rows(self, y0: int, y1: int, data: np.ndarray) -> None:
         """Write rows ``y0 .. y1`` (in order) from a float32 ``(rows, W, C)`` array."""
@@ -492,13 +525,13 @@ class RadianceWriter:
         data = self._check(np.ascontiguousarray(data, dtype=np.float32))
         if self._whole is not None:
             self._whole[y0:y1] = data
-        else:
-            if self._expand:
-                data = np.ascontiguousarray(np.repeat(data, 3, axis=2))
-            if not self._out.write_scanlines(y0, y1, 0, data):
-                detail = _clean_error(self._out.geterror() or _oiio().geterror(), self._tmp)
-                self.abort()
-                raise ProcessingError(f"{self.path}: cannot write rows {y0}-{y1} ({detail or 'unknown error'})")
+        elif self._rgbe is not None:  # grey is written as RGB: RGBE has no grey
+            self._guarded(lambda: self._rgbe.write(np.broadcast_to(data, (y1 - y0, self.width, 3))))
+        elif self._batch is not None:
+            if not self._batch.add(data):
+                raise self._fail(*self._batch.failed)
+        elif not self._out.write_scanlines(y0, y1, 0, data):
+            raise self._fail(y0, y1)
         self._next_row = y1
 
     def close(self) -> list:
@@ -508,21 +541,18 @@ class RadianceWriter:
             raise ValueError(f"{self.path}: only {self._next_row} of {self.height} rows were written")
         if self._whole is not None:
             _write(self._tmp, self._whole, self._fmt, self._attrs, self._channelnames)
+        elif self._rgbe is not None:
+            self._guarded(self._rgbe.close)
+            self._rgbe = None
         else:
+            if self._batch is not None and not self._batch.flush():
+                raise self._fail(*self._batch.failed)
             ok = self._out.close()
             if not ok:
                 detail = _clean_error(self._out.geterror() or _oiio().geterror(), self._tmp)
                 self.abort()
                 raise ProcessingError(f"{self.path}: cannot write ({detail or 'unknown error'})")
             self._out = None
-            if self._hdr_lines:
-                from hdrcl.io.outmeta import patch_hdr_header
-
-                try:
-                    patch_hdr_header(self._tmp, self._hdr_lines)
-                except BaseException:
-                    self.abort()
-                    raise
         total = self.width * self.height * self.nch
         if self._nonfinite:
             self.warnings.append(f"{self.path}: {self._nonfinite} value(s) are NaN or infinite")
@@ -541,12 +571,18 @@ class RadianceWriter:
 
     def abort(self) -> None:
         """Drop the temporary file; the target is left as it was."""
+        if self._batch is not None:
+            self._batch.cancel()  # before closing: a batch may be being written
+            self._batch = None
         if self._out is not None:
             try:
                 self._out.close()
             except Exception:  # the file is deleted anyway
                 pass
             self._out = None
+        if self._rgbe is not None:
+            self._rgbe.abort()
+            self._rgbe = None
         if self._ctx is not None:
             ctx, self._ctx = self._ctx, None
             try:

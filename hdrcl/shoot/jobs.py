@@ -88,7 +88,7 @@ class BatchOptions:
     ignore_color: Optional[Tuple[int, int, int]] = None
     deghost: bool = False
     dtype: str = "auto"
-    compression: str = "zip"
+    compression: str = "piz"  # measured: lossless, least CPU and smallest for half (scripts/compression_bench.py)
     preview: bool = True
     preview_size: int = 512
     tonemap: str = "reinhard"

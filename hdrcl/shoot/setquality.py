@@ -137,10 +137,12 @@ def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context, radiance=None) 
     from hdrcl.io.reader import BracketReader
     from hdrcl.report.preview import downscale
 
+    from hdrcl.shoot.setopts import fitted_times
+
     opts = ctx.options
     try:
         opened = _open_set(job)
-        resp = _response_of(ctx.responses[job.group])
+        entry = ctx.responses[job.group]
         first = opened.infos[0]
         h, w = first.height, first.width
         with BracketReader(job.files, opened.infos) as reader:
@@ -148,6 +150,14 @@ def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context, radiance=None) 
             frames, valid = reader.read_all() if stride == 1 else reader.read_grid(stride)
         bracket = Bracket(frames=frames, times=opened.times, valid=_with_ignore(frames, valid, opts.ignore_color),
                           paths=list(job.files), infos=opened.infos, grid=stride > 1)
+        if entry.deferred:  # its camera's only set, skipped: its response file was lost
+            from hdrcl.shoot.pooling import solve_deferred
+
+            resp = solve_deferred(entry, job, opened.infos, (bracket.frames, bracket.times, bracket.valid_all), opts)
+        else:
+            resp = _response_of(entry)
+        # the exposures the merge used (measured through the curve where the labels are wrong)
+        times, _notes = fitted_times(job, opened, opts, grid=bracket, resp=resp)
         rad = radiance if radiance is not None else read_radiance(job.output)[0]
         small = downscale(rad, opts.preview_size if job.preview is not None else REPORT_IMAGE_SIZE)
         del rad
@@ -155,7 +165,7 @@ def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context, radiance=None) 
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         res.warnings.append(f"quality report not written: {first}")
         return
-    _quality_for(res, job, bracket, resp, opened.times, small, opts)
+    _quality_for(res, job, bracket, resp, times, small, opts)
 
 
 def _contact_sheet(plan: "_Plan", entries: List[dict], folder: str, unmerged: Optional[List[dict]] = None) -> str:

@@ -131,6 +131,14 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
                 logger.warning("%s: damaged output (its pixels cannot be read): merging the set again",
                                job.output)
                 exr_ok = False
+            if exr_ok and entry.deferred:
+                # Up to date, but its camera's response file (this set alone calibrates it)
+                # is gone: solve and save it again, as report.json names it.
+                from hdrcl.shoot.pooling import _calibration_grid, solve_deferred
+
+                opened = _open_set(job)
+                grid = _calibration_grid(job, opened, ctx.options.ignore_color)
+                solve_deferred(entry, job, opened.infos, (grid.frames, grid.times, grid.valid_all), ctx.options)
             if exr_ok:
                 res = SetResult(index=job.index, files=list(job.files), status=STATUS_SKIPPED, output=job.output,
                                 preview=job.preview, seconds=seconds, digest=digest, response=job.group,

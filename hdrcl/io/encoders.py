@@ -1,0 +1,515 @@
+"""Fast encoders for :mod:`hdrcl.io.writers`: Radiance RGBE in NumPy, OpenEXR on all cores.
+
+**Radiance RGBE** (``.hdr``), encoded strip by strip. A Radiance picture is a text header
+(``#?RADIANCE``, ``FORMAT=32-bit_rle_rgbe``, other ``NAME=value`` lines, a blank line), a
+resolution line (``-Y H +X W``: rows top to bottom, columns left to right) and H scanlines
+of W pixels of four bytes: three 8-bit mantissas sharing an exponent byte, value =
+mantissa x 2^(exponent - 136).
+
+The conversion is Greg Ward's (Radiance's ``setcolr``, OpenImageIO's ``float2rgbe``): with
+``m, e = frexp(max(r, g, b))`` the mantissas are ``floor(c x 2^(8 - e))`` and the exponent
+byte is ``e + 128``, so the largest channel's mantissa lies in 128..255 (readers add half
+a step, or not: OpenImageIO's does not). The scaling is exact here (a power of two built
+from the float's exponent bits, no division), so the bytes are OpenImageIO's wherever
+OpenImageIO's are defined; they differ only where OpenImageIO's are undefined or lose
+values:
+
+* a pixel is 0 0 0 0 only when its largest channel is below :data:`RGBE_MIN` = 2^-128,
+  the smallest value RGBE holds (OpenImageIO writes everything below 1e-32 as 0);
+* negative channels and NaN are written as 0, ``+inf`` and values beyond
+  :data:`RGBE_MAX` (255 x 2^119, about 1.7e38) as RGBE_MAX.
+
+Scanlines 8..32767 pixels wide are run-length encoded the new way, each of the four byte
+planes (R, G, B, E) of a scanline on its own, as every Radiance writer does; other widths
+cannot be, and are written flat (four bytes a pixel). The run-length encoder is
+vectorised: runs of 4 or more equal bytes become run packets (2 bytes for up to 127),
+everything else literal packets of up to 128 bytes. A plane-row whose runs would save
+less than a third of it (the mantissas of a photograph) is cut into literal packets by
+reshaping alone: bookkeeping of many short runs would cost more time than they save bytes.
+
+**OpenEXR** compresses scanline blocks (:data:`EXR_BLOCK_LINES`) on OpenImageIO's
+``exr_threads`` threads, but only the blocks of one ``write_scanlines`` call at a time:
+each call waits for all of its blocks. A strip of a few dozen rows is one to three
+blocks, so :class:`ExrBatch` gathers strips into batches of :data:`EXR_BLOCKS_PER_THREAD`
+blocks per thread (:func:`exr_batch_rows`). It takes OpenImageIO objects from its
+caller: only :mod:`hdrcl.io.writers` and :mod:`hdrcl.io.frames` import OpenImageIO.
+"""
+from __future__ import annotations
+
+import errno
+import math
+import os
+from typing import Iterable, Optional, Sequence
+
+import numpy as np
+
+from hdrcl.errors import ProcessingError
+
+__all__ = ["RGBE_MAX", "RGBE_MIN", "MIN_RLE_WIDTH", "MAX_RLE_WIDTH", "header", "to_rgbe",
+           "RGBEEncoder", "RGBEFile", "write_rgbe", "EXR_BLOCK_LINES", "EXR_BLOCKS_PER_THREAD",
+           "EXR_BATCH_BYTES", "exr_threads", "exr_batch_rows", "ExrBatch"]
+
+#: Largest value RGBE holds: mantissa 255 at exponent byte 255.
+RGBE_MAX = float(255 * 2.0 ** 119)
+#: Smallest value RGBE holds (largest channel of a pixel): mantissa 128 at exponent byte 1.
+RGBE_MIN = float(2.0 ** -128)
+#: Widths run-length encoding is defined for; others are written flat.
+MIN_RLE_WIDTH, MAX_RLE_WIDTH = 8, 0x7FFF
+
+_MIN_RUN = 4            # equal bytes worth a run packet
+_RUN_MAX = 127          # bytes one run packet repeats
+_LIT_MAX = 128          # bytes one literal packet holds
+_PLAIN_SHARE = 3        # rows whose runs would save under 1/3 of them stay literal
+# Float32 biased exponent (bits 23..30) of the largest channel: below _LOW_EXP the value
+# is under 2^-120 and 2^(8 - e) is no normal float32; those pixels take a float64 path.
+_LOW_EXP = 7
+_F32_MAX_RGBE = np.float32(RGBE_MAX)
+_CHUNK_PIXELS = 1 << 18  # pixels per strip of write_rgbe
+
+
+def header(width: int, height: int, lines: Iterable[str] = ()) -> bytes:
+    """The header and resolution line of a ``width`` x ``height`` picture, top row first.
+
+    ``lines`` (without newlines) follow ``FORMAT=``, as OpenImageIO's header followed by
+    the lines hdrcl inserts into it (:func:`hdrcl.io.outmeta.hdr_header_lines`).
+    """
+    text = "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n"
+    for line in lines:
+        line = str(line)
+        if "\n" in line or "\r" in line:
+            raise ValueError(f"Radiance header lines cannot hold newlines: {line!r}")
+        text += line + "\n"
+    return (text + f"\n-Y {int(height)} +X {int(width)}\n").encode("utf-8")
+
+
+class _Buffers:
+    """Work arrays kept from one strip to the next: fresh memory for every strip would
+    cost page faults that take as long as the arithmetic."""
+
+    def __init__(self):
+        self._arrays = {}
+        self._views = {}
+
+    def get(self, name: str, shape: tuple, dtype) -> np.ndarray:
+        """An uninitialised ``shape`` array of ``dtype``, the same memory on every call."""
+        view = self._views.get((name, shape))
+        if view is not None:
+            return view
+        size = math.prod(shape)
+        arr = self._arrays.get(name)
+        if arr is None or arr.size < size or arr.dtype != np.dtype(dtype):
+            arr = self._arrays[name] = np.empty(max(size, 1), dtype)
+            self._views = {k: v for k, v in self._views.items() if k[0] != name}
+        view = self._views[(name, shape)] = arr[:size].reshape(shape)
+        return view
+
+
+def _fill_rgbe(rgb: np.ndarray, planes: Sequence[np.ndarray], buf: _Buffers) -> None:
+    """Write the R, G, B mantissas and the exponent of ``rgb`` (float32 ``(n, W, 3)``)
+    into the four uint8 ``(n, W)`` views ``planes``."""
+    n, w, _ = rgb.shape
+    lo, hi = rgb.min(), rgb.max()
+    # One transposing copy makes every later pass contiguous (3x faster than strided).
+    x = buf.get("x", (3, n, w), np.float32)
+    if lo >= 0 and hi <= _F32_MAX_RGBE:  # NaN fails both tests
+        np.copyto(x, rgb.transpose(2, 0, 1))
+    else:
+        np.fmax(rgb.transpose(2, 0, 1), np.float32(0), out=x)  # negatives and NaN -> 0
+        np.minimum(x, _F32_MAX_RGBE, out=x)  # inf and beyond -> RGBE_MAX
+    v = buf.get("v", (n, w), np.float32)
+    np.maximum(x[0], x[1], out=v)
+    np.maximum(v, x[2], out=v)
+    b = buf.get("b", (n, w), np.uint32)
+    np.right_shift(v.view(np.uint32), 23, out=b)
+    np.bitwise_and(b, 0xFF, out=b)  # -0.0 has the sign bit set
+    # frexp(v) = (m, B - 126) for the biased exponent B, so 2^(8 - e) = 2^(134 - B): a
+    # float32 with biased exponent 261 - B.
+    scale_bits = buf.get("s", (n, w), np.uint32)
+    np.subtract(np.uint32(261), b, out=scale_bits)
+    np.left_shift(scale_bits, 23, out=scale_bits)
+    scale = scale_bits.view(np.float32)
+    low = buf.get("low", (n, w), bool)
+    np.less(b, _LOW_EXP, out=low)
+    any_low = bool(low.any())
+    if any_low:
+        np.copyto(scale, 0, where=low)
+    m = buf.get("m", (n, w), np.float32)
+    for c in range(3):
+        np.multiply(x[c], scale, out=m)  # exact: a power of two, result < 256
+        planes[c][...] = m  # the cast truncates, as Ward's (unsigned char) does
+    np.add(b, 2, out=planes[3], casting="unsafe")  # e + 128 = B + 2 (B <= 253 here)
+    if any_low:
+        np.copyto(planes[3], 0, where=low)
+        tiny = low & (v >= np.float32(RGBE_MIN))
+        if tiny.any():  # 2^-128 <= v < 2^-120: exact in float64
+            iy, ix = np.nonzero(tiny)
+            _, e = np.frexp(v[iy, ix].astype(np.float64))
+            s = np.ldexp(1.0, 8 - e)
+            for c in range(3):
+                planes[c][iy, ix] = (x[c][iy, ix].astype(np.float64) * s).astype(np.uint8)
+            planes[3][iy, ix] = (e + 128).astype(np.uint8)
+
+
+def to_rgbe(rgb) -> np.ndarray:
+    """RGBE bytes of float radiance: ``(..., 3)`` -> uint8 ``(..., 4)`` (R, G, B, E).
+
+    See the module's description for the conversion and its edge cases.
+    """
+    x = np.asarray(rgb, dtype=np.float32)
+    if x.shape[-1:] != (3,):
+        raise ValueError(f"RGBE needs 3 channels, got shape {x.shape}")
+    lead = x.shape[:-1]
+    x = np.ascontiguousarray(x.reshape(1, -1, 3))
+    out = np.empty((1, x.shape[1], 4), np.uint8)
+    _fill_rgbe(x, [out[..., c] for c in range(4)], _Buffers())
+    return out.reshape(lead + (4,))
+
+
+class RGBEEncoder:
+    """Encodes strips of a ``width``-pixel-wide picture into Radiance scanlines.
+
+    Keeps its work arrays between strips. ``rle=False`` writes flat scanlines whatever
+    the width (also valid Radiance; a third larger for photographs).
+    """
+
+    def __init__(self, width: int, *, rle: bool = True):
+        self.width = int(width)
+        if self.width < 1:
+            raise ValueError(f"width must be at least 1, got {width}")
+        self.rle = bool(rle) and MIN_RLE_WIDTH <= self.width <= MAX_RLE_WIDTH
+        self._buf = _Buffers()
+
+    def encode(self, rgb) -> bytes:
+        """The bytes of the scanlines of float32 ``(rows, width, 3)`` radiance."""
+        x = np.asarray(rgb, dtype=np.float32)
+        if x.ndim != 3 or x.shape[1:] != (self.width, 3):
+            raise ValueError(f"expected (rows, {self.width}, 3) pixels, got {x.shape}")
+        n = x.shape[0]
+        if n == 0:
+            return b""
+        if not self.rle:
+            flat = self._buf.get("flat", (n, self.width, 4), np.uint8)
+            _fill_rgbe(x, [flat[..., c] for c in range(4)], self._buf)
+            return flat.tobytes()
+        planes = self._buf.get("planes", (n, 4, self.width), np.uint8)
+        _fill_rgbe(x, [planes[:, c, :] for c in range(4)], self._buf)
+        return self._rle(planes)
+
+    def _rle(self, planes: np.ndarray) -> bytes:
+        """New-style run-length encoding of uint8 ``(n, 4, W)`` byte planes."""
+        n, _, w = planes.shape
+        seg = planes.reshape(n * 4, w)  # one plane of one scanline per row
+        eq = self._buf.get("eq", (n * 4, w - 1), bool)
+        np.equal(seg[:, 1:], seg[:, :-1], out=eq)  # byte j+1 repeats byte j
+        win = self._buf.get("win", (n * 4, w - 3), bool)  # bytes j..j+3 equal
+        np.logical_and(eq[:, :-2], eq[:, 1:-1], out=win)
+        np.logical_and(win, eq[:, 2:], out=win)
+        # A run of L >= 4 bytes starts L - 3 windows and saves about L bytes; rows where
+        # runs would save less than 1/_PLAIN_SHARE of their size are written as literals.
+        coded = np.array([np.count_nonzero(r) for r in win]) * _PLAIN_SHARE > w  # faster than axis=1
+        pieces = [None] * (n * 4)
+        runs = np.flatnonzero(coded).tolist()
+        if len(runs) < n * 4:
+            lit = _literal_rows(seg, w, self._buf)  # all rows: cheaper than picking
+            size = lit.shape[1]
+            view = memoryview(lit.reshape(-1))
+            for s in np.flatnonzero(~coded).tolist():
+                pieces[s] = view[s * size:(s + 1) * size]
+        if len(runs) == n * 4:
+            data, bounds = _rle_rows(seg, eq, self._buf)
+        elif runs:
+            k = len(runs)
+            rows = np.take(seg, runs, axis=0, out=self._buf.get("rows", (k, w), np.uint8))
+            data, bounds = _rle_rows(rows, np.take(eq, runs, axis=0, out=self._buf.get("roweq", (k, w - 1), bool)),
+                                     self._buf)
+        if runs:
+            view, bounds = memoryview(data), bounds.tolist()
+            for i, s in enumerate(runs):
+                pieces[s] = view[bounds[i]:bounds[i + 1]]
+        line = bytes((2, 2, w >> 8, w & 0xFF))
+        out = []
+        for y in range(n):
+            out.append(line)
+            out.extend(pieces[4 * y:4 * y + 4])
+        return b"".join(out)
+
+
+def _literal_rows(rows: np.ndarray, w: int, buf: _Buffers) -> np.ndarray:
+    """Literal packets of 128 bytes (and a shorter last one) for each row of ``rows``."""
+    k = rows.shape[0]
+    q, r = divmod(w, _LIT_MAX)
+    out = buf.get("lit", (k, q * (_LIT_MAX + 1) + (r + 1 if r else 0)), np.uint8)
+    body = out[:, :q * (_LIT_MAX + 1)].reshape(k, q, _LIT_MAX + 1)
+    body[:, :, 0] = _LIT_MAX
+    body[:, :, 1:] = rows[:, :q * _LIT_MAX].reshape(k, q, _LIT_MAX)
+    if r:
+        out[:, q * (_LIT_MAX + 1)] = r
+        out[:, q * (_LIT_MAX + 1) + 1:] = rows[:, q * _LIT_MAX:]
+    return out
+
+
+def _chunks(first: np.ndarray, length: np.ndarray, limit: int):
+    """Cut regions ``[first, first + length)`` into pieces of at most ``limit``: their
+    starts and lengths, in order."""
+    count = (length + (limit - 1)) // limit
+    if count.size == 0 or count.max() <= 1:
+        return first, length
+    seq = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+    start = np.repeat(first, count) + seq * limit
+    return start, np.minimum(np.repeat(first + length, count) - start, limit)
+
+
+def _rle_rows(rows: np.ndarray, eq: np.ndarray, buf: _Buffers):
+    """Run-length encode each row of uint8 ``rows`` ``(k, W)`` separately.
+
+    ``eq`` is the rows' ``byte j+1 == byte j`` mask ``(k, W - 1)``. Works on runs of
+    equal bytes, not bytes, so it is fast where runs are long. Returns the concatenated
+    encodings and the ``k + 1`` offsets of each row's.
+    """
+    k, w = rows.shape
+    flat = rows.reshape(-1)
+    brk = buf.get("brk", (k, w), bool)
+    brk[:, 0] = True
+    np.logical_not(eq, out=brk[:, 1:])
+    start = np.flatnonzero(brk)  # runs of equal bytes (none crosses a row)
+    length = np.diff(start, append=flat.size)
+    long = length >= _MIN_RUN
+    # A packet region is a long run, or the short runs between long runs in one row.
+    region = long.copy()
+    region[1:] |= long[:-1]
+    region[0] = True
+    region |= start % w == 0
+    head = np.flatnonzero(region)
+    first = start[head]
+    size = np.diff(first, append=flat.size)
+    is_run = long[head]
+    rs, rl = _chunks(first[is_run], size[is_run], _RUN_MAX)
+    ls, ll = _chunks(first[~is_run], size[~is_run], _LIT_MAX)
+    # Packets in file order: merge the two sorted lists of starts.
+    pstart = np.concatenate((rs, ls))
+    order = np.argsort(pstart, kind="stable")
+    pstart = pstart[order]
+    plen = np.concatenate((rl, ll))[order]
+    run = np.zeros(pstart.size, bool)
+    run[:rs.size] = True
+    run = run[order]
+    psize = np.where(run, 2, plen + 1)
+    offset = np.cumsum(psize) - psize
+    out = np.empty(int(offset[-1] + psize[-1]), np.uint8)
+    out[offset] = np.where(run, 128 + plen, plen)
+    out[offset[run] + 1] = flat[pstart[run]]
+    lit_at, lit_len, lit_from = offset[~run] + 1, plen[~run], pstart[~run]
+    if lit_len.size:
+        before = np.cumsum(lit_len) - lit_len
+        seq = np.arange(int(lit_len.sum()))
+        out[np.repeat(lit_at - before, lit_len) + seq] = flat[np.repeat(lit_from - before, lit_len) + seq]
+    row_size = np.bincount(pstart // w, weights=psize, minlength=k).astype(np.int64)
+    bounds = np.concatenate(([0], np.cumsum(row_size)))
+    return out, bounds
+
+
+class RGBEFile:
+    """Writes a Radiance picture to ``path`` strip by strip, top row first.
+
+    Opens (creates or truncates) ``path`` and writes the header at once; :meth:`write`
+    encodes and appends a strip; :meth:`close` checks that all ``height`` rows came and
+    closes the file. Atomic replacement is the caller's (:mod:`hdrcl.io.atomic`, or
+    :func:`write_rgbe`). A failing file system (a full disk) raises ProcessingError
+    naming ``name`` (default ``path``), with the file closed; the caller deletes it.
+    """
+
+    def __init__(self, path: str, width: int, height: int, lines: Iterable[str] = (), *,
+                 rle: bool = True, name: Optional[str] = None):
+        self.width, self.height = int(width), int(height)
+        if self.width < 1 or self.height < 1:
+            raise ValueError(f"picture must be at least 1x1, got {width}x{height}")
+        self.name = name or path
+        self.rows_written = 0
+        self._encoder = RGBEEncoder(self.width, rle=rle)
+        head = header(self.width, self.height, lines)
+        self._file = None
+        try:
+            self._file = open(path, "wb")
+            self._file.write(head)
+        except OSError as exc:
+            raise self._failed(exc) from None
+
+    def _failed(self, exc: OSError, what: str = "") -> ProcessingError:
+        """Close the file and describe ``exc``."""
+        self.abort()
+        reason = "no space left on the device" if exc.errno == errno.ENOSPC else (exc.strerror or str(exc))
+        return ProcessingError(f"{self.name}: cannot write{what} ({reason})")
+
+    def write(self, rgb) -> None:
+        """Append the scanlines of float ``(rows, width, 3)`` radiance."""
+        rows = int(np.shape(rgb)[0])
+        if self.rows_written + rows > self.height:
+            raise ValueError(f"{self.rows_written + rows} rows written to a picture {self.height} high")
+        data = self._encoder.encode(rgb)
+        try:
+            self._file.write(data)
+        except OSError as exc:
+            raise self._failed(exc, f" rows {self.rows_written}-{self.rows_written + rows}") from None
+        self.rows_written += rows
+
+    def close(self) -> None:
+        """Flush and close; raises ValueError when rows are missing (the file is closed)."""
+        if self._file is None or self._file.closed:
+            return
+        try:
+            self._file.close()
+        except OSError as exc:
+            raise self._failed(exc) from None
+        if self.rows_written != self.height:
+            raise ValueError(f"{self.name}: only {self.rows_written} of {self.height} rows were written")
+
+    def abort(self) -> None:
+        """Close without checking or raising (the caller deletes the file)."""
+        if self._file is not None and not self._file.closed:
+            try:
+                self._file.close()
+            except OSError:
+                pass
+
+
+def write_rgbe(path, image, lines: Iterable[str] = (), *, rle: bool = True) -> None:
+    """Write float ``(H, W, 3)`` (or ``(H, W, 1)``: grey, written as RGB) radiance to the
+    Radiance file ``path``, atomically (:func:`hdrcl.io.atomic.atomic_output`), in strips
+    of about 256K pixels so that the work arrays stay small.
+
+    Raises
+    ------
+    UsageError
+        Missing or unwritable output folder.
+    ProcessingError
+        The file system failed (nothing is left at ``path`` or beside it).
+    """
+    from hdrcl.io.atomic import atomic_output
+
+    target = os.fspath(path)
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim != 3 or img.shape[2] not in (1, 3):
+        raise ValueError(f"radiance must be (H, W, 1) or (H, W, 3), got {img.shape}")
+    h, w, _ = img.shape
+    step = max(1, _CHUNK_PIXELS // w)
+    with atomic_output(target) as tmp:
+        out = RGBEFile(tmp, w, h, lines, rle=rle, name=target)
+        try:
+            for y in range(0, h, step):
+                out.write(np.broadcast_to(img[y:y + step], (min(step, h - y), w, 3)))
+            out.close()
+        except BaseException:
+            out.abort()
+            raise
+
+
+#: Scanlines OpenEXR compresses as one block, by compression.
+EXR_BLOCK_LINES = {"none": 1, "rle": 1, "zips": 1, "zip": 16, "piz": 32, "pxr24": 16, "b44": 32,
+                   "b44a": 32, "dwaa": 32, "dwab": 256}
+#: Blocks per compression thread in one batch of :class:`ExrBatch`.
+EXR_BLOCKS_PER_THREAD = 2
+#: Most bytes (as float32 samples) one batch of :class:`ExrBatch` holds.
+EXR_BATCH_BYTES = 64 << 20
+
+
+def exr_threads(oiio) -> int:
+    """Threads OpenEXR compresses with: the ``exr_threads`` attribute of OpenImageIO
+    (module ``oiio``; all the processor's threads unless set), lowered to the CPUs this
+    process may run on (setting the attribute)."""
+    n = oiio.get_int_attribute("exr_threads", 0)
+    if n == -1:  # OpenImageIO's "no thread pool"
+        return 1
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if n <= 0 or n > cpus:
+        n = cpus
+        oiio.attribute("exr_threads", n)
+    return max(1, n)
+
+
+def exr_batch_rows(compression: str, width: int, nch: int, threads: int) -> int:
+    """Rows per ``write_scanlines`` call that keep ``threads`` OpenEXR threads busy:
+    :data:`EXR_BLOCKS_PER_THREAD` whole blocks per thread, at most
+    :data:`EXR_BATCH_BYTES` (and at least one block)."""
+    block = EXR_BLOCK_LINES.get(str(compression).split(":")[0].strip().lower(), 16)
+    rows = block * EXR_BLOCKS_PER_THREAD * max(1, int(threads))
+    cap = EXR_BATCH_BYTES // max(1, width * nch * 4) // block * block
+    return max(block, min(rows, cap))
+
+
+class ExrBatch:
+    """Gathers strips for an open OpenImageIO EXR ``output`` and hands them over ``rows``
+    at a time (from row 0 down) on a helper thread, as half when ``half`` (the values
+    must fit; NumPy rounds to nearest even, as OpenEXR does), else float32.
+
+    Two batches alternate: the caller fills one while OpenEXR compresses the other
+    (OpenImageIO releases the GIL), so copying strips in overlaps compression.
+    :meth:`add` copies (callers may reuse their strip) and returns False when a write
+    failed, with ``(y0, y1, error)`` in :attr:`failed`; so does :meth:`flush`, which
+    writes what is left and waits. :meth:`cancel` waits for a write in progress (call
+    it before closing ``output``).
+    """
+
+    def __init__(self, output, rows: int, width: int, nch: int, half: bool):
+        self.output = output
+        dtype = np.float16 if half else np.float32
+        self._rows = [np.empty((int(rows), int(width), int(nch)), dtype) for _ in range(2)]
+        self._cur = 0
+        self.y0 = self.n = 0
+        self.failed = None
+        self._pool = self._pending = None
+
+    def add(self, data: np.ndarray) -> bool:
+        """Append float32 ``(rows, width, nch)`` rows; send every batch that fills."""
+        done, total = 0, data.shape[0]
+        while done < total:
+            rows = self._rows[self._cur]
+            take = min(total - done, rows.shape[0] - self.n)
+            rows[self.n:self.n + take] = data[done:done + take]
+            self.n += take
+            done += take
+            if self.n == rows.shape[0] and not self._send():
+                return False
+        return True
+
+    def _write(self, rows: np.ndarray, y0: int):
+        """On the helper thread: None, or what failed (OpenImageIO's errors are per thread)."""
+        if self.output.write_scanlines(y0, y0 + rows.shape[0], 0, rows):
+            return None
+        return y0, y0 + rows.shape[0], self.output.geterror()
+
+    def _wait(self) -> bool:
+        if self._pending is not None:
+            pending, self._pending = self._pending, None
+            self.failed = self.failed or pending.result()
+        return self.failed is None
+
+    def _send(self) -> bool:
+        """Send the current batch once the previous write is done; switch batches."""
+        if not self._wait():
+            return False
+        if self._pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="hdrcl-exr")
+        self._pending = self._pool.submit(self._write, self._rows[self._cur][:self.n], self.y0)
+        self.y0, self.n, self._cur = self.y0 + self.n, 0, 1 - self._cur
+        return True
+
+    def flush(self) -> bool:
+        """Write the rows gathered so far and wait for every write."""
+        ok = self._send() if self.n else True
+        ok = self._wait() and ok
+        self.cancel()
+        return ok
+
+    def cancel(self) -> None:
+        """Wait for a write in progress (its result is dropped) and stop the helper thread."""
+        if self._pending is not None:
+            try:
+                self._pending.result()
+            except Exception:  # the file is being dropped or has failed already
+                pass
+            self._pending = None
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
