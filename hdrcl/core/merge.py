@@ -239,7 +239,7 @@ def merge_files(
     """
     from hdrcl.cl.backend import get_processor
     from hdrcl.core.encode import check_reference_exposure, fuse_to_file, reference_for
-    from hdrcl.core.pipeline import ArraySink, ArraySource, Thumbnail, strip_rows, stream_merge
+    from hdrcl.core.pipeline import ArraySink, ArraySource, Thumbnail, stream_merge
     from hdrcl.io.colorspace import check as check_space
     from hdrcl.io.outmeta import camera_from_infos
     from hdrcl.io.reader import BracketReader
@@ -356,8 +356,8 @@ def merge_files(
             try:
                 grid = _grid_bracket(paths, infos, rel, rgb, reader=source, keep=True)
                 seconds["decode"] = source.decode_seconds
-                warm.join()
-                source.prefetch(strip_rows(w, device, work=work))
+                # The solve overlaps the OpenCL start-up on the warm-up thread (the fusion
+                # pass reads the decoded frames back: nothing to prefetch).
                 ts = _time.perf_counter()
                 resp = calibrate(grid, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
                                  fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance)
