@@ -19,6 +19,26 @@ from hdrcl.io.writers import write_ldr, write_photo
 CAM = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
 
 
+@pytest.fixture
+def decoded(monkeypatch):
+    """Every decode call as ``(path, frame index, rows)``: tests count rows decoded."""
+    import hdrcl.io.reader as reader
+
+    calls = []
+    real = reader.BracketReader._read
+
+    def counting(self, k, y0, y1):
+        calls.append((self.paths[k], k, y1 - y0))
+        return real(self, k, y0, y1)
+
+    monkeypatch.setattr(reader.BracketReader, "_read", counting)
+    return calls
+
+
+def _rows_of_frame(calls, k):
+    return sum(n for _p, kk, n in calls if kk == k)
+
+
 def _write_set(folder, frames, prefix="f"):
     os.makedirs(folder, exist_ok=True)
     paths = []
@@ -65,7 +85,7 @@ def test_frame_cache_round_trip(tmp_path, monkeypatch, in_memory):
 
 def test_frame_cache_spills_beyond_its_share_of_the_budget(monkeypatch):
     monkeypatch.setenv("HDRCL_MEMORY_MB", "1")
-    assert not FrameCache(4, 512, 512, 3, np.uint8).in_memory  # 3 MB > half of 1 MB
+    assert not FrameCache(4, 512, 512, 3, np.uint8).in_memory  # 3 MB > a quarter of 1 MB
     assert FrameCache(2, 16, 16, 3, np.uint8).in_memory
     monkeypatch.setenv("HDRCL_MEMORY_MB", "100")
     assert FrameCache(4, 512, 512, 3, np.uint8).in_memory
@@ -82,28 +102,20 @@ def bracket(tmp_path_factory):
     return _write_set(str(d), frames), times / 10.0  # labelled so that the middle is not 1 s
 
 
-def test_calibrating_merge_spilled_equals_in_memory(bracket, tmp_path, monkeypatch, cl_device):
+def test_calibrating_merge_spilled_equals_in_memory(bracket, tmp_path, monkeypatch, decoded, cl_device):
     """A calibrating merge whose decoded frames do not fit the budget spills them to the
     scratch file and gives the same file, bit for bit, decoding every row once."""
-    import hdrcl.io.reader as reader
     from hdrcl.core.merge import merge_files
 
     paths, times = bracket
     a = merge_files(paths, tmp_path / "a.exr", times=times, dtype="float", keep_radiance=True)
-    calls = []
-    real = reader.BracketReader._read
-
-    def counting(self, k, y0, y1):
-        calls.append((k, y1 - y0))
-        return real(self, k, y0, y1)
-
-    monkeypatch.setattr(reader.BracketReader, "_read", counting)
+    decoded.clear()
     monkeypatch.setenv("HDRCL_MEMORY_MB", "0.01")
     monkeypatch.setenv("HDRCL_SCRATCH_DIR", str(tmp_path))
     b = merge_files(paths, tmp_path / "b.exr", times=times, dtype="float", keep_radiance=True)
     np.testing.assert_array_equal(a.radiance, b.radiance)
     for k in range(len(paths)):
-        assert sum(n for kk, n in calls if kk == k) == 96  # every row of every frame, once
+        assert _rows_of_frame(decoded, k) == 96  # every row of every frame, once
     assert sorted(os.listdir(tmp_path)) == ["a.exr", "b.exr"]
     assert b.stages["decode"] > 0 and b.stages["solve"] > 0 and b.stages["fuse"] > 0
 
@@ -261,26 +273,17 @@ def _shoot(folder, cameras=(("Canon", "EOS R6"),), sets_per_camera=1, centres=No
             when += dt.timedelta(minutes=5)
 
 
-def test_batch_one_set_per_camera_decodes_each_frame_once(tmp_path, monkeypatch, cl_device):
+def test_batch_one_set_per_camera_decodes_each_frame_once(tmp_path, decoded, cl_device):
     """A camera with one set calibrates from the decode that feeds its fusion; its
     response file is written as before, and a rerun loads it and skips the set."""
-    import hdrcl.io.reader as reader
     from hdrcl.cli import main
 
     _shoot(tmp_path / "shoot", cameras=(("Canon", "EOS R6"), ("Nikon", "D750")))
-    calls = []
-    real = reader.BracketReader._read
-
-    def counting(self, k, y0, y1):
-        calls.append((self.paths[k], y1 - y0))
-        return real(self, k, y0, y1)
-
-    monkeypatch.setattr(reader.BracketReader, "_read", counting)
     out = tmp_path / "out"
     res = CliRunner().invoke(main, ["batch", str(tmp_path / "shoot"), "-r", "-o", str(out), "--no-preview"])
     assert res.exit_code == 0, res.output
     rows = {}
-    for p, n in calls:
+    for p, _k, n in decoded:
         rows[p] = rows.get(p, 0) + n
     assert len(rows) == 10 and set(rows.values()) == {48}  # every frame's 48 rows, once
     rep = json.loads((out / "report.json").read_text())
@@ -288,11 +291,11 @@ def test_batch_one_set_per_camera_decodes_each_frame_once(tmp_path, monkeypatch,
     assert sorted(p.name for p in out.glob("*.response.json")) == ["Canon-EOS-R6-ISO-100.response.json",
                                                                    "Nikon-D750-ISO-100.response.json"]
     assert all(e["seconds"].get("decode", 0) > 0 and e["seconds"].get("solve", 0) > 0 for e in rep["sets"])
-    calls.clear()
+    decoded.clear()
     res = CliRunner().invoke(main, ["batch", str(tmp_path / "shoot"), "-r", "-o", str(out), "--no-preview"])
     assert res.exit_code == 0, res.output
     rep = json.loads((out / "report.json").read_text())
-    assert [e["status"] for e in rep["sets"]] == ["skipped", "skipped"] and not calls
+    assert [e["status"] for e in rep["sets"]] == ["skipped", "skipped"] and not decoded
 
 
 def test_batch_one_scale_per_camera(tmp_path, cl_device):
@@ -321,27 +324,18 @@ def test_batch_one_scale_per_camera(tmp_path, cl_device):
         assert _spec(p)[1].getattribute("ExposureTime") == pytest.approx(1 / 125)
 
 
-def test_merge_with_a_report_decodes_each_frame_once(bracket, tmp_path, monkeypatch, cl_device):
+def test_merge_with_a_report_decodes_each_frame_once(bracket, tmp_path, decoded, cl_device):
     """``merge --report``: the quality report measures the frames the merge decoded
     (kept in memory) instead of decoding them again."""
-    import hdrcl.io.reader as reader
     from hdrcl.cli import main
 
     paths, times = bracket
-    calls = []
-    real = reader.BracketReader._read
-
-    def counting(self, k, y0, y1):
-        calls.append((k, y1 - y0))
-        return real(self, k, y0, y1)
-
-    monkeypatch.setattr(reader.BracketReader, "_read", counting)
     res = CliRunner().invoke(main, ["merge", *paths, "--times", ",".join(repr(float(t)) for t in times),
                                     "-o", str(tmp_path / "m.exr"), "--report", str(tmp_path / "rep")])
     assert res.exit_code == 0, res.output
     assert (tmp_path / "rep" / "index.html").exists()
     for k in range(len(paths)):
-        assert sum(n for kk, n in calls if kk == k) == 96
+        assert _rows_of_frame(decoded, k) == 96
 
 
 def test_lost_response_of_a_one_set_camera_is_solved_again(tmp_path, cl_device):
