@@ -34,30 +34,12 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from hdrcl.errors import UsageError
 from hdrcl.io import halfrange
 
 logger = logging.getLogger(__name__)
 
 #: Output types whose metadata can say what 1.0 means (they hold ``E x t_ref``).
 SCALED_EXTENSIONS = (".exr", ".hdr", ".tif", ".tiff")
-
-
-def check_reference_exposure(value, name: str = "reference_exposure") -> Optional[float]:
-    """``value`` as a positive finite number of seconds (None passes through)."""
-    if value is None:
-        return None
-    from hdrcl.io.metadata import _parse_seconds
-
-    try:
-        t = _parse_seconds(value) if isinstance(value, str) else float(value)
-    except (TypeError, ValueError, OverflowError):
-        t = None
-    if t is None or isinstance(value, bool):
-        raise UsageError(f"{name}: {value!r} is not an exposure time in seconds")
-    if not (math.isfinite(t) and 1e-9 <= t <= 1e7):
-        raise UsageError(f"{name}: {value!r} is not an exposure time between 1e-9 and 1e7 s")
-    return float(t)
 
 
 def default_reference(times: Sequence[float]) -> float:

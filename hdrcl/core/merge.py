@@ -238,7 +238,7 @@ def merge_files(
         radiance file appears, and renamed into place after it.
     """
     from hdrcl.cl.backend import get_processor
-    from hdrcl.core.encode import check_reference_exposure, fuse_to_file, reference_for
+    from hdrcl.core.encode import fuse_to_file, reference_for
     from hdrcl.core.pipeline import ArraySink, ArraySource, Thumbnail, stream_merge
     from hdrcl.io.colorspace import check as check_space
     from hdrcl.io.outmeta import camera_from_infos
@@ -256,10 +256,10 @@ def merge_files(
                       reference_patch=reference_patch, absolute=absolute, align=align, crop=crop,
                       colorspace=colorspace, reference_exposure=reference_exposure)
     samples, smoothness, seed, exposure_tolerance = o["samples"], o["smoothness"], o["seed"], o["exposure_tolerance"]
+    reference_exposure = o["reference_exposure"]
     if isinstance(output, bytes):
         output = os.fsdecode(output)
     colorspace = check_space(colorspace)
-    reference_exposure = check_reference_exposure(reference_exposure)
     output = os.fspath(output)
     ext = os.path.splitext(output)[1].lower()
     if ext not in RADIANCE_EXTENSIONS:
@@ -487,8 +487,7 @@ def _measured_exposures(frames, valid, times, resp, mode, weight, tolerance, pat
     are logged as warnings (a corrected or doubtful exposure is worth a line)."""
     from hdrcl.core.exposure_known import exposures_for_merge
 
-    vv = [v for v in valid] if valid is not None else None
-    used, notes = exposures_for_merge(frames, times, resp, mode=mode, valid=vv, weight=weight,
+    used, notes = exposures_for_merge(frames, times, resp, mode=mode, valid=valid, weight=weight,
                                       tolerance_stops=tolerance, names=paths)
     for note in notes:
         logger.warning("%s", note)
