@@ -146,6 +146,7 @@ def merge(
     reference_patch=None,
     absolute: bool = False,
     channel_order: str = "rgb",
+    align_model: str = "auto",
 ) -> np.ndarray:
     """Merge a bracket into a float32 radiance map ``(H, W, C)``.
 
@@ -157,8 +158,10 @@ def merge(
     Parameters
     ----------
     align, crop : bool
-        Align hand-held frames by translation to the middle exposure; ``crop`` keeps
-        only the area every frame covers.
+        Align hand-held frames to the middle exposure (:mod:`hdrcl.core.handheld`);
+        ``crop`` keeps only the area every frame covers.
+    align_model : {"auto", "shift", "similarity", "homography"}
+        With ``align``: the motion model (``auto``: the simplest the residuals allow).
     deghost : bool
         Take pixels where the frames disagree from the middle exposure alone.
     neutral : "x,y,w,h" or (x, y, w, h), optional
@@ -185,6 +188,10 @@ def merge(
                       exposure_tolerance=exposure_tolerance, deghost=deghost, align=align, crop=crop,
                       neutral=neutral, reference_patch=reference_patch, absolute=absolute,
                       channel_order=channel_order, device=device)
+    if align:
+        from hdrcl.core.handheld import check_model
+
+        align_model = check_model(align_model)
     arrays = bool(images) and all(isinstance(im, np.ndarray) for im in images)
     if absolute and arrays:
         raise UsageError("absolute needs the frames' f-number and ISO: give image files, not arrays")
@@ -205,7 +212,8 @@ def merge(
         raise UsageError(f"{name}: a response for {resp.bits}-bit frames, but the frames are "
                          f"{8 * br.frames[0].dtype.itemsize}-bit")
     if align:
-        frames, valid, _shifts, _box = _merge._align(br.frames, br.valid, br.times, device, crop)
+        frames, valid, _shifts, _box = _merge._align(br.frames, br.valid, br.times, device, crop, align_model,
+                                                     br.paths)
         br = Bracket(frames=frames, times=br.times, valid=valid, paths=br.paths, infos=br.infos)
     res = _merge.merge_bracket(br, resp, weight=weight, samples=samples, smoothness=smoothness, seed=seed,
                                device=device, fit_exposures=fit_exposures,

@@ -7,8 +7,8 @@ photographs it through an S-shaped camera, merges the bracket with hdrcl, and wr
 photograph blurred (8-bit, as an image editor would); right, the radiance map blurred by
 the same vector and then exposed like the middle photograph (``hdrcl expose
 --motion-blur``). The lights streak brightly only on the right: blurring clipped 8-bit
-values loses their energy. ``--out docs/motion-blur.jpg`` regenerates the README's
-picture (a tracked file: only on purpose).
+values loses their energy. ``--out docs/motion-blur.jpg`` regenerates the picture
+shown in docs/tonemap.md (a tracked file: only on purpose).
 
     python scripts/motion_blur_demo.py [--out motion-blur.jpg] [--blur 40,0]
 """
@@ -26,7 +26,7 @@ from hdrcl.io.writers import write_ldr
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="motion-blur.jpg",
-                    help="picture to write [motion-blur.jpg; docs/motion-blur.jpg is the README's]")
+                    help="picture to write [motion-blur.jpg; docs/motion-blur.jpg is the one docs/tonemap.md shows]")
     ap.add_argument("--blur", default="40,0")
     a = ap.parse_args(argv)
     dx, dy = (float(v) for v in a.blur.split(","))

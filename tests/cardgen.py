@@ -31,6 +31,35 @@ differ only by exposure and noise, hand held ones by a pixel of shake). Scenario
     5 s and 40 s apart: only the content tells the sets apart.
 ``mixed``
     All of the above on one card, one camera, in one timeline, with stray frames.
+
+Patterns real cards showed that an earlier grouping missed (issue 19, :data:`MISSED`),
+each with the truth the rule gives (frames belong together when the scene matches and
+together they form one plausible bracket, whatever the gaps):
+
+``manual_irregular``
+    13 frames by hand over several minutes, 9-81 s apart, descending in irregular steps
+    of 1.3-3.7 stops, on a scene of ~24 stops that drifts a little, S-shaped tone curve:
+    one set (then another view).
+``paused_ladder``
+    A one-stop ladder of 12 frames paused twice for 5-7 minutes on the same view: one
+    set; another view continuing the ladder after another pause is a set of its own.
+``phone_repeat``
+    Phone brackets in which one exposure is shot twice in a row (middle, start, and a
+    repeated exposure bias in auto mode): one set each, the repeat kept as a duplicate.
+``phone_iso``
+    Pro mode at one shutter time, only ISO stepping (up 1 stop, down 2 stops): one set
+    each, the ladder is ``t * ISO``.
+``phone_lenses``
+    A phone flipping between its main lens (5.11 mm) and ultra-wide (2.67 mm) inside one
+    bracket: one set per lens (``Frame.part``), the main lens seeing the magnified centre.
+``phone_12``
+    A bracketing app firing 12 frames, the last five stepping ISO from the phone's table
+    (uneven steps): one set; then a 5-frame set.
+``compact_4``
+    A compact's first frame metered in program mode, three more in manual continuing the
+    ladder: four frames, one set (twice).
+``mixed_missed``
+    All of :data:`MISSED` on one card, with stray frames.
 """
 from __future__ import annotations
 
@@ -71,6 +100,9 @@ class Frame:
     mode: int = 1  # EXIF ExposureMode: 0 auto, 1 manual, 2 auto bracket
     gap: float = 1.0  # end-to-start seconds after the previous frame
     shake: int = 0
+    camera: Optional[dict] = None  # overrides the shot's camera (a phone switching lenses)
+    zoom: float = 1.0  # the centre of the shot's scene, magnified (a longer lens)
+    part: int = 0  # frames of one shot with another part form another true set
 
 
 @dataclass
@@ -81,6 +113,10 @@ class Shot:
     merge: bool = True
     camera: dict = field(default_factory=lambda: dict(DSLR))
     label: str = ""
+    contrast: float = 1.0  # the scene's range in stops, relative to the default (~12 stops)
+    brightness: float = 1.0  # the scene's radiance, relative to the default
+    tone: float = 0.0  # strength of the camera's S-shaped tone curve (0: plain gamma 2.2)
+    drift: float = 0.0  # stops by which parts of the scene change between frames (clouds, lights)
 
 
 def _ladder(times, *, gaps, iso=100.0, mode=1, fnumber=8.0, first_gap=200.0, isos=None, biases=None):
@@ -146,16 +182,123 @@ def scenario(name: str, rng: np.random.Generator) -> List[Shot]:
         return [Shot(_ladder([1 / 1000, 1 / 500, 1 / 250], gaps=[3.0, 3.0], first_gap=60.0), label="view 1"),
                 Shot(_ladder([1 / 125, 1 / 60, 1 / 30], gaps=[3.0, 3.0], first_gap=5.0), label="view 2"),
                 Shot(_ladder([1 / 15, 1 / 8, 1 / 4], gaps=[20.0, 30.0], first_gap=40.0), label="view 3")]
+    if name in MISSED:
+        return _missed(name, rng)
     raise ValueError(name)
 
 
 SCENARIOS = ("manual_long_gaps", "back_to_back", "auto_iso", "exposure_comp", "subsecond", "aeb_orders",
              "scene_only")
+#: Patterns real cards showed that an earlier grouping missed (issue 19), each with the
+#: truth the rule gives: frames belong together when the scene matches and together they
+#: form one plausible bracket, whatever the gaps.
+MISSED = ("manual_irregular", "paused_ladder", "phone_repeat", "phone_iso", "phone_lenses", "phone_12",
+          "compact_4")
+
+PHONE2 = {"make": "OnePlus", "model": "LE2123", "serial": None, "lens": None, "focal_length": 5.11}
+COMPACT = {"make": "SONY", "model": "DSC-RX100M3", "serial": None, "lens": "24-70mm F1.8-2.8",
+           "focal_length": 8.8}
 
 
-def _mixed(rng) -> List[Shot]:
+def _missed(name: str, rng: np.random.Generator) -> List[Shot]:
+    """The scenarios of :data:`MISSED` (see :func:`scenario`)."""
+    if name == "manual_irregular":
+        # 13 frames by hand over several minutes, 9-81 s apart, the shutter turned down
+        # by 1.3-3.7 stops at a time (one step 3.7, two 1.7-2, the rest 1.3), bulb
+        # times at the long end; a scene of ~24 stops that changes a little over the
+        # minutes (clouds, lights), rendered with an S-shaped tone curve, so that the
+        # darkest frames show few cells to compare. One set. Then another scene.
+        thirds = np.full(12, 4)
+        pick = rng.permutation(12)
+        thirds[pick[0]] = 11
+        thirds[pick[1:3]] = rng.integers(5, 7, 2)
+        t0 = 0.25 * 2.0 ** (thirds.sum() / 6.0)
+        ts = [t0 * 2.0 ** (-c / 3.0) for c in np.concatenate([[0], np.cumsum(thirds)])]
+        ts = [nominal(t) if t <= 30 else float(round(t)) for t in ts]
+        return [Shot(_ladder(ts, gaps=rng.uniform(9, 81, 12)), label="manual 13 frames, irregular steps",
+                     contrast=2.0, brightness=1 / 15, tone=4.0, drift=0.5),
+                Shot(_ladder([1 / 500, 1 / 125, 1 / 30], gaps=[3.0, 3.0], first_gap=300.0), label="next view")]
+    if name == "paused_ladder":
+        # One-stop hand ladder of 12 frames, 2-6 s apart, paused twice for 5-7 minutes
+        # (5 + 4 + 3 frames) while the ladder continues on the same view: one set. Then
+        # another view continuing the ladder after another pause: a set of its own.
+        ts = [nominal(1 / 2000 * 2 ** k) for k in range(12)]
+        gaps = rng.uniform(2, 6, 11)
+        gaps[4], gaps[8] = rng.uniform(300, 420, 2)
+        more = [nominal(2.0 * 2 ** k) for k in range(3)]
+        return [Shot(_ladder(ts, gaps=gaps), label="paused ladder"),
+                Shot(_ladder(more, gaps=rng.uniform(2, 6, 2), first_gap=float(rng.uniform(300, 420))),
+                     label="another view continuing the ladder")]
+    if name == "phone_repeat":
+        # Phone brackets in which one exposure is shot twice in a row (the shutter
+        # pressed again before the dial moved): a repeat of the frame just before, on the
+        # same scene, with the ladder going on after it, is one set keeping the duplicate.
+        # In pro mode, the repeat in the middle and at the start; in auto mode with
+        # exposure compensation, a repeated bias (time and ISO follow the metering).
+        cam = dict(PHONE)
+        a = _ladder([1 / 2000, 1 / 500, 1 / 500, 1 / 125, 1 / 30], gaps=rng.uniform(2, 6, 4), iso=50,
+                    fnumber=1.7, first_gap=30.0)
+        b = _ladder([1 / 250, 1 / 250, 1 / 60, 1 / 15], gaps=rng.uniform(2, 6, 3), iso=50, fnumber=1.7,
+                    first_gap=120.0)
+        c = []
+        for i, ev in enumerate((-2, -1, -1, 0, 1, 2)):
+            e = 1 / 250 * 2.0 ** ev * 2.0 ** rng.normal(0, 0.08)
+            c.append(Frame(time=e, iso=50.0, fnumber=1.7, bias=float(ev), mode=0,
+                           gap=150.0 if i == 0 else float(rng.uniform(2, 6))))
+        return [Shot(a, camera=cam, label="pro mode, 1/500 twice", brightness=1 / 2),
+                Shot(b, camera=cam, label="1/250 twice first", brightness=1 / 8),
+                Shot(c, camera=cam, label="exposure compensation, -1 EV twice", brightness=1 / 2)]
+    if name == "phone_iso":
+        # Phone pro mode at a fixed shutter time, only ISO stepping: t * ISO is the
+        # ladder, one set. Up in one-stop steps, then another view down in two-stop steps.
+        a = [Frame(time=1 / 120, iso=float(i), fnumber=1.7, gap=30.0 if k == 0 else float(rng.uniform(1, 3)))
+             for k, i in enumerate((50, 100, 200, 400, 800, 1600))]
+        b = [Frame(time=1 / 30, iso=float(i), fnumber=1.7, gap=90.0 if k == 0 else float(rng.uniform(1, 3)))
+             for k, i in enumerate((3200, 800, 200))]
+        return [Shot(a, camera=dict(PHONE), label="ISO 50-1600 at 1/120 s", brightness=1 / 32),
+                Shot(b, camera=dict(PHONE), label="ISO 3200-200 at 1/30 s", brightness=1 / 350)]
+    if name == "phone_lenses":
+        # A phone bracket (pro mode, 1/4000 s up in one-stop steps) during which the
+        # phone flips between its main lens (5.11 mm f/1.8) and its ultra-wide (2.67 mm
+        # f/2.2) near its light threshold: each lens's frames are one set.
+        main = dict(PHONE2)
+        wide = dict(PHONE2, focal_length=2.67)
+        lens = [0, 0, 0, 1, 0, 1, 1, 1]
+        frames = []
+        for k, which in enumerate(lens):
+            frames.append(Frame(time=nominal(1 / 4000 * 2 ** k), iso=100.0, fnumber=1.8 if which == 0 else 2.2,
+                                gap=30.0 if k == 0 else float(rng.uniform(1, 3)), camera=main if which == 0 else wide,
+                                zoom=5.11 / 2.67 if which == 0 else 1.0, part=which))
+        return [Shot(frames, camera=main, label="main lens / ultra-wide", brightness=1 / 3)]
+    if name == "phone_12":
+        # A phone bracketing app (ExposureMode 2, no bias) firing 12 frames 0.3-1.5 s
+        # apart: one-stop steps in the shutter up to 1/30 s, then ISO 125..1600 from the
+        # phone's own table (steps of 1.3, 0.7, 1, 1, 1 stops). One set. Then another view.
+        ts = [1 / 2000 * 2 ** k for k in range(7)] + [1 / 30] * 5
+        isos = [50] * 7 + [125, 200, 400, 800, 1600]
+        a = _ladder([nominal(t) for t in ts], isos=isos, gaps=rng.uniform(0.3, 1.5, 11), mode=2, fnumber=1.7,
+                    first_gap=30.0)
+        b = _ladder([nominal(1 / 2000 * 2 ** k) for k in range(5)], iso=50, gaps=rng.uniform(0.3, 1.5, 4), mode=2,
+                    fnumber=1.7, first_gap=60.0)
+        return [Shot(a, camera=dict(PHONE), label="12 frames", brightness=1 / 15),
+                Shot(b, camera=dict(PHONE), label="5 frames")]
+    if name == "compact_4":
+        # A compact: the first frame metered in program mode (ExposureMode 0), the dial
+        # turned to M (10-25 s), three more frames continuing the ladder 2-5 s apart.
+        # Four frames, one set; the first frame is not left out. Twice, two views.
+        shots = []
+        for k, base in enumerate((1 / 125, 1 / 500)):
+            gaps = [30.0 if k == 0 else 200.0, float(rng.uniform(10, 25))] + list(rng.uniform(2, 5, 2))
+            fr = [Frame(time=nominal(base * 4 ** j), iso=125.0, fnumber=4.0, bias=0.0, mode=0 if j == 0 else 1,
+                        gap=float(gaps[j])) for j in range(4)]
+            shots.append(Shot(fr, camera=dict(COMPACT), label=f"compact, view {k + 1}", brightness=(1 / 19, 1 / 5)[k]))
+        return shots
+    raise ValueError(name)
+
+
+def _mixed(rng, names=SCENARIOS) -> List[Shot]:
     shots = []
-    for k, name in enumerate(SCENARIOS):
+    for k, name in enumerate(names):
         block = scenario(name, rng)
         block[0].frames[0].gap = 300.0  # a few minutes between scenarios
         shots.extend(block)
@@ -164,8 +307,11 @@ def _mixed(rng) -> List[Shot]:
     return shots
 
 
-def _scene(rng) -> np.ndarray:
-    """A radiance field of its own: ramp in a random direction, blobs, texture."""
+def _scene(rng, contrast: float = 1.0, brightness: float = 1.0) -> np.ndarray:
+    """A radiance field of its own: ramp in a random direction, blobs, texture.
+
+    ``contrast`` scales its range in stops (about 12 by default) around the middle,
+    ``brightness`` its radiance."""
     y, x = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float64)
     ang = rng.uniform(0, 2 * np.pi)
     u = (np.cos(ang) * (x - WIDTH / 2) + np.sin(ang) * (y - HEIGHT / 2)) / (WIDTH / 2)
@@ -176,17 +322,53 @@ def _scene(rng) -> np.ndarray:
     f1, f2 = rng.uniform(0.2, 0.9, 2)
     base *= 1.0 + 0.2 * np.sin(x * f1 + rng.uniform(0, 6)) * np.cos(y * f2)
     rad = base * 0.02
+    if contrast != 1.0 or brightness != 1.0:
+        mid = np.sqrt(300.0)
+        rad = 0.02 * mid * (base / mid) ** contrast * brightness
     tint = rng.uniform(0.7, 1.0, 3)
     return rad[:, :, None] * tint
 
 
-def _write(path, radiance, fr: Frame, when: _dt.datetime, camera: dict, rng, subsec_digits: int = 3):
+def _zoomed(radiance: np.ndarray, zoom: float) -> np.ndarray:
+    """The centre ``1/zoom`` of ``radiance``, magnified back to its size (nearest)."""
+    if zoom == 1.0:
+        return radiance
+    h, w = radiance.shape[:2]
+    ys = np.clip(((np.arange(h) - h / 2) / zoom + h / 2).astype(int), 0, h - 1)
+    xs = np.clip(((np.arange(w) - w / 2) / zoom + w / 2).astype(int), 0, w - 1)
+    return radiance[np.ix_(ys, xs)]
+
+
+def _drifted(radiance: np.ndarray, stops: float, rng) -> np.ndarray:
+    """``radiance`` with four soft patches brightened or darkened by ~``stops``."""
+    h, w = radiance.shape[:2]
+    y, x = np.mgrid[0:h, 0:w]
+    field = np.zeros((h, w))
+    for _ in range(4):
+        cx, cy, r = rng.uniform(0, w), rng.uniform(0, h), rng.uniform(8, 20)
+        field += rng.normal(0, stops) * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * r * r))
+    return radiance * (2.0 ** field)[:, :, None]
+
+
+def _tone(lin: np.ndarray, strength: float) -> np.ndarray:
+    """Code values 0..1: gamma 2.2, then (``strength`` > 0) an S-shaped contrast curve."""
+    y = lin ** (1 / 2.2)
+    if strength <= 0:
+        return y
+    lo, hi = (1 / (1 + np.exp(-strength * (v - 0.5))) for v in (0.0, 1.0))
+    return (1 / (1 + np.exp(-strength * (y - 0.5))) - lo) / (hi - lo)
+
+
+def _write(path, radiance, fr: Frame, when: _dt.datetime, camera: dict, rng, subsec_digits: int = 3,
+           tone: float = 0.0, drift: float = 0.0):
     import OpenImageIO as oiio
 
     exposure = fr.time * (fr.iso / 100.0) * (8.0 / fr.fnumber) ** 2
     rad = np.roll(radiance, fr.shake, axis=1) if fr.shake else radiance
+    if drift:
+        rad = _drifted(rad, drift, rng)
     lin = np.clip(rad * exposure * 4.0, 0.0, 1.0)
-    pixels = 255.0 * lin ** (1 / 2.2) + rng.normal(0.0, 1.0, rad.shape)
+    pixels = 255.0 * _tone(lin, tone) + rng.normal(0.0, 1.0, rad.shape)
     data = np.clip(np.round(pixels), 0, 255).astype(np.uint8)
     spec = oiio.ImageSpec(WIDTH, HEIGHT, 3, oiio.UINT8)
     spec.attribute("ExposureTime", oiio.TypeFloat, float(fr.time))
@@ -215,7 +397,8 @@ def _write(path, radiance, fr: Frame, when: _dt.datetime, camera: dict, rng, sub
 
 
 def write_card(folder, name: str, seed: int = 0) -> Dict:
-    """Write scenario ``name`` (or ``"mixed"``) into ``folder``.
+    """Write scenario ``name`` (or ``"mixed"``, or ``"mixed_missed"``: the :data:`MISSED`
+    scenarios on one card) into ``folder``.
 
     Returns
     -------
@@ -225,8 +408,13 @@ def write_card(folder, name: str, seed: int = 0) -> Dict:
         ``"labels"``: one label per set.
     """
     rng = np.random.default_rng([seed, len(name)])
-    shots = _mixed(rng) if name == "mixed" else scenario(name, rng)
-    return write_shots(folder, shots, seed=seed, scrambled=name in ("subsecond", "mixed"), rng=rng)
+    if name == "mixed":
+        shots = _mixed(rng)
+    elif name == "mixed_missed":
+        shots = _mixed(rng, MISSED)
+    else:
+        shots = scenario(name, rng)
+    return write_shots(folder, shots, seed=seed, scrambled=name in ("subsecond", "mixed", "mixed_missed"), rng=rng)
 
 
 def write_shots(folder, shots: List[Shot], seed: int = 0, scrambled: bool = False, rng=None) -> Dict:
@@ -238,11 +426,12 @@ def write_shots(folder, shots: List[Shot], seed: int = 0, scrambled: bool = Fals
     os.makedirs(folder, exist_ok=True)
     rng = rng if rng is not None else np.random.default_rng(seed)
     sets, labels, stray = [], [], []
+    index: Dict[str, int] = {}  # capture order of each file
     n = 0
     prev_end = None
     for k, shot in enumerate(shots):
-        scene = _scene(np.random.default_rng([seed, 7, k]))
-        names = []
+        scene = _scene(np.random.default_rng([seed, 7, k]), shot.contrast, shot.brightness)
+        parts: Dict[int, List[str]] = {}
         for fr in shot.frames:
             start = T0 if prev_end is None else prev_end + _dt.timedelta(seconds=fr.gap)
             n += 1
@@ -250,15 +439,20 @@ def write_shots(folder, shots: List[Shot], seed: int = 0, scrambled: bool = Fals
             # scrambled name makes SubSecTimeOriginal the only way to order frames.
             base = f"IMG_{n:04d}.jpg" if not scrambled else f"P{(n * 7919) % 10007:05d}.jpg"
             digits = 2 if n % 3 == 0 else 3
-            _write(os.path.join(folder, base), scene, fr, start, shot.camera, rng, subsec_digits=digits)
-            names.append(base)
+            _write(os.path.join(folder, base), _zoomed(scene, fr.zoom), fr, start, fr.camera or shot.camera, rng,
+                   subsec_digits=digits, tone=shot.tone, drift=shot.drift)
+            parts.setdefault(fr.part, []).append(base)
+            index[base] = n
             prev_end = start + _dt.timedelta(seconds=fr.time)
             # A camera rounds the sub-second field: keep the timeline on what it wrote.
             us = (start.microsecond // (10 ** (6 - digits))) * 10 ** (6 - digits)
             prev_end = start.replace(microsecond=us) + _dt.timedelta(seconds=fr.time)
-        if shot.merge:
-            sets.append(names)
-            labels.append(shot.label)
-        else:
-            stray.extend(names)
-    return {"sets": sets, "unmerged": stray, "labels": labels}
+        for names in parts.values():
+            if shot.merge:
+                sets.append(names)
+                labels.append(shot.label)
+            else:
+                stray.extend(names)
+    # Sets in the order of their first frames (a shot's parts interleave).
+    order = sorted(range(len(sets)), key=lambda i: index[sets[i][0]])
+    return {"sets": [sets[i] for i in order], "unmerged": stray, "labels": [labels[i] for i in order]}

@@ -261,3 +261,125 @@ def test_opencl_off_and_required_contradict(monkeypatch):
     monkeypatch.setenv("HDRCL_REQUIRE_OPENCL", "1")
     with pytest.raises(HdrclError, match="contradicts"):
         A.get_aligner()
+
+
+# ------------------------------------------- hand-held: similarity and homography
+
+
+@pytest.fixture(scope="module")
+def memorial_handheld(memorial):
+    """Exposures 1 stop apart of one real Memorial frame (so the scene is registered
+    exactly), moved by known similarities: rotations up to 2 degrees, shifts up to 40
+    px, scales up to 2 % (the first and last frames at the extremes)."""
+    import imageio.v3 as iio
+
+    from moved import handheld_set
+
+    base = iio.imread(memorial / "memorial0066.png")[..., :3]
+    stops = [-2, -1, 0, 1, 2]
+    tripod, moved, mats = handheld_set(base, stops, seed=5)
+    valid = [~np.all(f == (0, 0, 255), axis=2) for f in moved]
+    return tripod, moved, mats, valid, np.exp2(stops)
+
+
+@pytest.mark.parametrize("model", ["auto", "similarity", "homography"])
+def test_handheld_motion_recovered_at_the_corners(cl_device, memorial_handheld, model):
+    from hdrcl.core import handheld as HH
+    from hdrcl.core import warp as W
+
+    _, moved, mats, valid, times = memorial_handheld
+    h, w = moved[0].shape[:2]
+    res = HH.align_bracket(moved, valid, times, model=model, names=[f"m{k}.png" for k in range(5)])
+    errs = [W.corner_distance(np.asarray(a["matrix"]), m, h, w) for a, m in zip(res.alignment, mats)]
+    assert max(errs) < 0.3, errs
+    assert res.alignment[2]["model"] == "reference"
+    if model == "auto":  # rotated and scaled: a translation is not enough
+        assert all(a["model"] in ("similarity", "homography") for k, a in enumerate(res.alignment) if k != 2)
+    a0 = res.alignment[0]
+    assert abs(a0["rotation_deg"] - 2.0) < 0.05 and abs(a0["scale"] - 1.02) < 0.002
+    assert all(a["residual_px"] is not None and a["residual_px"] < 0.5 for a in res.alignment)
+
+
+def test_check_model():
+    from hdrcl.core.handheld import check_model
+    from hdrcl.errors import UsageError
+
+    assert check_model("Similarity") == "similarity" and check_model(None) == "auto"
+    with pytest.raises(UsageError, match="affine"):
+        check_model("affine")
+
+
+@pytest.mark.parametrize("folder,pattern", [("frobisher_001", "*.jpg"), ("window_e995", "*.jpg")])
+def test_real_tripod_sets_find_no_motion(cl_device, memorial, folder, pattern):
+    """Real tripod brackets: auto finds no rotation or scale, no frame moved more than
+    a fraction of a pixel, and a set that moved less than STATIC_PX stays untouched."""
+    import hdrcl
+    from hdrcl.core import handheld as HH
+    from hdrcl.core import warp as W
+
+    paths = sorted((memorial.parent / folder).glob(pattern))
+    br = hdrcl.load_bracket(paths)
+    res = HH.align_bracket(br.frames, br.valid, br.times, names=paths)
+    h, w = br.frames[0].shape[:2]
+    motion = [W.corner_distance(np.asarray(a["matrix"]), np.eye(3), h, w) for a in res.alignment]
+    assert all(a["model"] in ("none", "shift", "reference") for a in res.alignment), res.alignment
+    assert max(motion) < 0.6, motion
+    # the model finds no motion: the frames are merged as they are
+    assert all(a["model"] in ("none", "reference") for a in res.alignment), res.alignment
+    assert all(f is g for f, g in zip(res.frames, br.frames))
+
+
+def test_handheld_numpy_path_matches_opencl(cl_device, memorial_handheld, monkeypatch):
+    """Without OpenCL the same matrices come out (the estimation runs on the host from
+    grey pyramids the twins make equal) and the twin's warp agrees with the kernel's."""
+    from hdrcl.core import handheld as HH
+
+    _, moved, _, valid, times = memorial_handheld
+    a = HH.align_bracket(moved, valid, times, model="similarity")
+    monkeypatch.setenv("HDRCL_OPENCL", "0")
+    monkeypatch.delenv("HDRCL_REQUIRE_OPENCL", raising=False)
+    assert isinstance(A.get_aligner(), A.NumpyAligner)
+    b = HH.align_bracket(moved, valid, times, model="similarity")
+    for ra, rb in zip(a.alignment, b.alignment):
+        np.testing.assert_allclose(ra["matrix"], rb["matrix"], atol=1e-9)
+    for fa, fb, va, vb in zip(a.frames, b.frames, a.valid, b.valid):
+        va = np.ones(fa.shape[:2], bool) if va is None else va
+        vb = np.ones(fb.shape[:2], bool) if vb is None else vb
+        assert np.mean(va != vb) < 1e-3
+        d = np.abs(fa.astype(int) - fb.astype(int))[va & vb]
+        assert d.max() <= 1 and np.mean(d > 0) < 0.01
+
+
+def test_frame_with_nothing_to_measure_takes_its_neighbours_motion(cl_device, memorial_bracket, caplog):
+    """Memorial's 1/1024 s frame records only a little of the windows: too little to
+    register, so it is not refused but takes its neighbour's motion, with a warning."""
+    from hdrcl.core import handheld as HH
+
+    br = memorial_bracket
+    with caplog.at_level(logging.WARNING, logger="hdrcl.core.handheld"):
+        res = HH.align_bracket(br.frames, br.valid, br.times, names=br.paths)
+    darkest = int(np.argmin(br.times))
+    rec = res.alignment[darkest]
+    assert rec["model"] == "inherited" and rec["residual_px"] is None
+    neighbour = [a for a in res.alignment if a["file"] == rec["against"]][0]
+    assert rec["matrix"] == neighbour["matrix"]
+    assert any(rec["file"] in r.getMessage() and "too few" in r.getMessage() for r in caplog.records)
+    assert sum(a["model"] == "inherited" for a in res.alignment) == 1
+
+
+def test_inplace_reuses_frames_and_changes_nothing(cl_device, memorial_handheld):
+    """``inplace`` warps into the memory of frames already replaced (no fresh pages):
+    the same frames and masks come out as without it, and the arrays given are reused."""
+    from hdrcl.core import handheld as HH
+
+    _, moved, _, valid, times = memorial_handheld
+    a = HH.align_bracket(moved, valid, times, model="similarity")
+    frames, masks = [f.copy() for f in moved], list(valid)
+    given = list(frames)  # identities only: their contents are overwritten
+    b = HH.align_bracket(frames, masks, times, model="similarity", inplace=True)
+    assert b.frames is frames and b.valid is masks  # replaced in the lists given
+    for f, g, u, v in zip(a.frames, b.frames, a.valid, b.valid):
+        np.testing.assert_array_equal(f, g)
+        np.testing.assert_array_equal(u, v)
+    # the reference as it was, and at least one warp written into a replaced frame
+    assert sum(any(np.shares_memory(f, g) for g in given) for f in frames) >= 2

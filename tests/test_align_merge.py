@@ -34,7 +34,7 @@ def test_merge_align_recovers_shifts_and_crops(handheld, cl_device):
     tt = ",".join(repr(float(t)) for t in times)
     r = CliRunner().invoke(main, ["merge", *paths, "--times", tt, "-o", str(d / "a.exr"), "--align", "--crop"])
     assert r.exit_code == 0, r.output
-    line = [ln for ln in r.output.splitlines() if "aligned:" in ln][0]
+    line = [ln for ln in r.output.splitlines() if ln.strip().startswith("aligned")][0]  # "aligned:" or "aligned (to ...):"
     from hdrcl.io.radiance import read_radiance
 
     rad, meta = read_radiance(str(d / "a.exr"))
@@ -109,3 +109,115 @@ def test_report_measures_the_aligned_cropped_frames(handheld, tmp_path, cl_devic
     fig, entry = write_quality_report(res, tmp_path / "rep", loo=False)
     assert fig.coverage.shape == res.shape[:2]
     assert (tmp_path / "rep" / "index.html").is_file()
+
+
+# --------------------------------------------- hand-held: rotation, scale, refusal
+
+
+@pytest.fixture(scope="module")
+def memorial_handheld_files(memorial, tmp_path_factory):
+    """Tripod and hand-held (moved by known similarities) brackets of a real Memorial
+    frame's scene, as PNG files (see test_align.memorial_handheld)."""
+    import imageio.v3 as iio
+
+    from moved import handheld_set
+
+    from hdrcl.io.writers import write_ldr
+
+    d = tmp_path_factory.mktemp("handheld")
+    base = iio.imread(memorial / "memorial0066.png")[..., :3]
+    stops = [-2, -1, 0, 1, 2]
+    tripod, moved, mats = handheld_set(base, stops, seed=5)
+    out = {}
+    for kind, frames in (("tripod", tripod), ("moved", moved)):
+        paths = []
+        for k, f in enumerate(frames):
+            p = d / f"{kind}{k}.png"
+            write_ldr(str(p), f)
+            paths.append(str(p))
+        out[kind] = paths
+    return out, [float(t) for t in np.exp2(stops)], mats, d
+
+
+def _stops_rms(a, b):
+    """RMS difference in stops of the luminance over the central 80 %."""
+    h, w = a.shape[:2]
+    y0, y1, x0, x1 = h // 10, h - h // 10, w // 10, w - w // 10
+    la = a[y0:y1, x0:x1] @ np.array([0.2126, 0.7152, 0.0722])
+    lb = b[y0:y1, x0:x1] @ np.array([0.2126, 0.7152, 0.0722])
+    ok = (la > 0) & (lb > 0)
+    return float(np.sqrt(np.mean(np.log2(la[ok] / lb[ok]) ** 2)))
+
+
+def test_handheld_merge_matches_the_tripod_merge(memorial_handheld_files, cl_device):
+    import json
+
+    import hdrcl
+    from hdrcl.io.radiance import read_radiance
+
+    files, times, mats, d = memorial_handheld_files
+    common = dict(times=times, ignore_color=(0, 0, 255), dtype="float", keep_radiance=True, fit_exposures="off")
+    tri = hdrcl.merge_files(files["tripod"], d / "tripod.exr", **common)
+    common["response"] = tri.response
+    plain = hdrcl.merge_files(files["moved"], d / "plain.exr", **common)
+    al = hdrcl.merge_files(files["moved"], d / "aligned.exr", align=True, **common)
+    err_plain, err_al = _stops_rms(plain.radiance, tri.radiance), _stops_rms(al.radiance, tri.radiance)
+    assert err_plain > 0.3  # the motion matters ...
+    assert err_al < 0.1, (err_al, err_plain)  # ... and alignment undoes it
+    assert len(al.alignment) == 5 and al.alignment[2]["model"] == "reference"
+    assert al.shifts[0] == tuple(int(round(v)) for v in al.alignment[0]["shift_px"])
+    _, meta = read_radiance(str(d / "aligned.exr"))
+
+    def field(k):
+        v = meta[k]
+        return json.loads(v) if isinstance(v, str) else v
+
+    assert field("alignModel")[2] == "reference"
+    m0 = np.asarray(field("alignTransforms")[0], np.float64).reshape(3, 3)
+    np.testing.assert_allclose(m0, al.alignment[0]["matrix"], atol=1e-6)
+
+
+def test_handheld_merge_with_deghost_and_crop(memorial_handheld_files, cl_device):
+    import hdrcl
+
+    files, times, mats, d = memorial_handheld_files
+    res = hdrcl.merge_files(files["moved"], d / "dg.exr", times=times, ignore_color=(0, 0, 255), align=True,
+                            crop=True, deghost=True, align_model="similarity", keep_radiance=True)
+    y0, y1, x0, x1 = res.crop
+    assert res.radiance.shape[:2] == (y1 - y0, x1 - x0) and 0.6 < (y1 - y0) / 768 < 1 and 0.6 < (x1 - x0) / 512 < 1
+    assert np.all(np.isfinite(res.radiance)) and res.radiance.max() > 0
+    assert all(a["model"] in ("similarity", "reference") for a in res.alignment)
+    assert res.counts["ghost"] < 0.05 * res.radiance.shape[0] * res.radiance.shape[1]  # aligned: few ghosts
+
+
+@pytest.mark.parametrize("culprit", ["noise", "other scene"])
+def test_unalignable_frame_is_refused_by_name(memorial_handheld_files, memorial, culprit, cl_device):
+    import imageio.v3 as iio
+
+    import hdrcl
+    from hdrcl.errors import InputError
+    from hdrcl.io.writers import write_ldr
+
+    files, times, mats, d = memorial_handheld_files
+    paths = list(files["moved"])
+    bad = d / f"bad-{culprit.replace(' ', '-')}.png"
+    if culprit == "noise":
+        img = np.random.default_rng(0).integers(0, 256, (768, 512, 3)).astype(np.uint8)
+    else:  # a frame of a different scene: frobisher's, cut to size
+        other = iio.imread(memorial.parent / "frobisher_001" / "IMG_2601.jpg")[..., :3]  # 426 x 640
+        img = np.concatenate([other[:, :512]] * 2, axis=0)[:768]
+    write_ldr(str(bad), img)
+    paths[1] = str(bad)
+    out = d / f"refused-{culprit.replace(' ', '-')}.exr"
+    with pytest.raises(InputError, match=bad.name):
+        hdrcl.merge_files(paths, out, times=times, ignore_color=(0, 0, 255), align=True)
+    assert not out.exists()
+
+
+def test_align_model_is_checked(memorial_handheld_files):
+    import hdrcl
+    from hdrcl.errors import UsageError
+
+    files, times, _, d = memorial_handheld_files
+    with pytest.raises(UsageError, match="affine"):
+        hdrcl.merge_files(files["moved"], d / "u.exr", times=times, align=True, align_model="affine")

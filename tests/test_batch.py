@@ -299,7 +299,7 @@ def test_parameters_are_part_of_the_identity(clean, tmp_path):
     exr = out / f"{os.path.splitext(groups[0][0])[0]}.exr"
     stamp = exr.stat().st_mtime_ns
     res = run("batch", folder, "-o", out)
-    assert res.exit_code == 0 and "3 skipped" in res.stdout
+    assert res.exit_code == 0 and "3 up to date" in res.stdout
     assert exr.stat().st_mtime_ns == stamp
     res = run("batch", folder, "-o", out, "--compression", "zip")
     assert res.exit_code == 0 and "3 done" in res.stdout
@@ -316,7 +316,7 @@ def test_parameters_are_part_of_the_identity(clean, tmp_path):
     exr1 = preview.with_suffix(".exr")
     stamp = exr1.stat().st_mtime_ns
     res = run("batch", folder, "-o", out, "--compression", "zip", "--weight", "gaussian")
-    assert res.exit_code == 0 and "3 skipped" in res.stdout
+    assert res.exit_code == 0 and "3 up to date" in res.stdout
     assert preview.is_file() and exr1.stat().st_mtime_ns == stamp
     entry = report_of(out)["sets"][1]
     assert any("preview" in w for w in entry["warnings"])

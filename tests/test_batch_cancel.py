@@ -262,7 +262,7 @@ def test_contact_sheet_lists_unmerged_frames_and_skipped_sets(tmp_path):
     assert "2 sets: 2 merged, 0 failed" in page
     assert CliRunner().invoke(main, args).exit_code == 0
     page = (out / "report" / "index.html").read_text()
-    assert "2 sets: 0 merged, 2 skipped (up to date), 0 failed" in page
+    assert "2 sets: 0 merged, 2 up to date, 0 failed" in page
 
 
 def test_demo_twice_says_skipped(tmp_path, cl_device):
@@ -270,7 +270,7 @@ def test_demo_twice_says_skipped(tmp_path, cl_device):
     assert "3 set(s) merged, 0 failed" in CliRunner().invoke(main, args).output
     again = CliRunner().invoke(main, args)
     assert again.exit_code == 0, again.output
-    assert "0 set(s) merged, 3 skipped (up to date), 0 failed" in again.output
+    assert "0 set(s) merged, 3 up to date, 0 failed" in again.output
 
 
 def test_batch_has_merges_options(tmp_path):

@@ -100,10 +100,16 @@ def test_duplicate_exposures(bracket_files):
     assert r.exit_code == 3 and "same exposure" in r.output and "f0.png" in r.output
 
 
-def test_missing_exposure_time(bracket_files):
+def test_missing_exposure_time(bracket_files, tmp_path):
+    import shutil
+
     d = bracket_files["dir"]
-    r = run("merge", *bracket_files["paths"][:3], "-o", d / "out.exr")
+    bare = tmp_path / "bare"  # no times.txt beside these copies
+    bare.mkdir()
+    copies = [shutil.copy(p, bare) for p in bracket_files["paths"][:3]]
+    r = run("merge", *copies, "-o", bare / "out.exr")
     assert r.exit_code == 3 and "f0.png" in r.output and "exposure time" in r.output
+    assert not (bare / "out.exr").exists()
     r = run("merge", *bracket_files["paths"][:3], "--times", "1,2", "-o", d / "out.exr")
     assert r.exit_code == 2 and "--times" in r.output
     assert _no_output(d)

@@ -57,7 +57,7 @@ def test_dask_outputs_identical_to_local(cluster, manifest, tmp_path):
     # Run again on the cluster: everything is up to date.
     res = CliRunner().invoke(main, ["batch", manifest, "-o", str(remote), "--scheduler", cluster.scheduler_address,
                                     "--sets", "0-7"])
-    assert res.exit_code == 0 and "8 skipped" in res.stdout
+    assert res.exit_code == 0 and "8 up to date" in res.stdout
 
 
 def flaky_process_set(job, ctx, strict):

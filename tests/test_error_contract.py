@@ -209,7 +209,7 @@ CASES = [
     ("response-16-on-8", lambda x: _merge8(x, "--response", x["r16"], "-o", "{o}/a.exr"), 3,
      r"resp16.json: a response for 16-bit frames, but .*f0.png is 8-bit", ["a.exr"], None),
     ("calibrate-to-exr", lambda x: ["calibrate", *x["f8"], "--times-file", x["t8"], "-o", "{o}/r.exr"], 2,
-     r"r.exr: a response curve is written as .json, not '.exr'", ["r.exr"], None),
+     r"r.exr: a response curve is written as .json, .rsp, not '.exr'", ["r.exr"], None),
     ("report-json-missing-folder", lambda x: ["batch", x["shoot"], "-o", "{o}/batch", "--report-json",
                                               "{o}/nope/r.json"], 2,
      r"nope/r.json: the output folder .*nope does not exist", ["batch", "nope"], None),

@@ -304,12 +304,23 @@ def test_aperture_bracketing_is_flagged():
     assert m.unmerged[0].reason == "aperture bracketing (f/4 .. f/16 at 1/125 s)"
 
 
-def test_iso_only_bracketing_is_flagged():
+def test_iso_only_ladder_at_one_shutter_time_is_a_set():
+    # A phone in pro mode at 1/125 s stepping ISO 100, 400, 1600: t * ISO is the ladder
+    # (issue 19), and the merge's effective exposures step by it.
+    from hdrcl.io.metadata import Exposure, relative_exposures
+
     sh = Shoot()
-    sh.ladder([1 / 125] * 3, gap=0.3)
+    a = sh.ladder([1 / 125] * 3, gap=0.3)
     sh.frames[1].iso, sh.frames[2].iso = 400.0, 1600.0
     m = group_frames(sh.frames)
-    assert m.sets == [] and "only ISO varies" in m.unmerged[0].reason
+    assert files(m) == [a] and m.unmerged == []
+    assert m.sets[0].iso == [100.0, 400.0, 1600.0]
+    rel = relative_exposures([Exposure(time=t, fnumber=8.0, iso=i) for t, i in zip(m.sets[0].exposures, m.sets[0].iso)])
+    assert rel / rel[0] == pytest.approx([1.0, 4.0, 16.0])
+    # One time and one ISO is still no ladder.
+    sh = Shoot()
+    sh.ladder([1 / 125] * 3, gap=0.3)
+    assert group_frames(sh.frames).unmerged[0].reason.startswith("all frames share one exposure (1/125 s")
 
 
 def test_missing_exposure_time_is_flagged():
@@ -596,7 +607,6 @@ def test_scan_recursive_and_extensions(shoot, tmp_path):
     shutil.copy(os.path.join(folder, "IMG_0003.jpg"), tmp_path / "101CANON" / "IMG_0002.jpg")
     shutil.copy(os.path.join(folder, "IMG_0004.jpg"), tmp_path / ".thumbs" / "x.jpg")
     shutil.copy(os.path.join(folder, "IMG_0005.jpg"), tmp_path / "101CANON" / "._IMG.jpg")
-    assert scan_directory(tmp_path).sets == []
     m = scan_directory(tmp_path, recursive=True)
     assert [[os.path.relpath(f, tmp_path) for f in s.files] for s in m.sets] == [[
         os.path.join("100CANON", "IMG_9999.JPG"), os.path.join("101CANON", "IMG_0001.jpeg"),

@@ -1,6 +1,6 @@
 """The package's layers: every import points down, no module imports in a circle.
 
-The order is written down once, here (top first); ``README.md`` ("Layout") draws it.
+The order is written down once, here (top first); ``docs/development.md`` ("Layout") draws it.
 A module may import modules of its own layer or of layers below it. Lazy imports
 inside functions count too: they are imports all the same.
 """

@@ -24,7 +24,7 @@ def test_leave_one_out_with_default_settings(memorial_bracket, cl_device):
 def test_leave_one_out_paper_hat_weights(memorial_bracket, cl_device):
     rows = leave_one_out_all(memorial_bracket, weight="hat")
     # The paper's hat weights beat OpenCV (5.4) but not the 4.5 target on this film set
-    # (measured 4.97): the long exposures depart from reciprocity; see the README.
+    # (measured 4.97): the long exposures depart from reciprocity; see docs/radiometry.md (Accuracy).
     assert np.median([r.rmse for r in rows]) <= 5.1
 
 

@@ -140,3 +140,80 @@ def test_invalid_pixels_and_json(scene):
     d = json.loads(json.dumps(fig.to_dict(), allow_nan=False))
     back = QualityFigures.from_dict(d)
     assert back.to_dict() == d and back.coverage is None
+
+
+def test_clipping_counts_the_clip_levels(clean):
+    """A block that reads 252 in every frame is clipped (JPEG highlights clip anywhere in
+    250..255), and one at 3 is black: the report counts what fusion counts, by
+    :func:`hdrcl.core.weights.clip_levels`, not only 0 and 255."""
+    from hdrcl.core.weights import clip_levels
+
+    br, res = clean
+    lo, hi = clip_levels(256)
+    frames = [f.copy() for f in br.frames]
+    bright, dark = (slice(5, 25), slice(10, 40)), (slice(60, 75), slice(100, 125))
+    for f in frames:
+        f[bright] = hi + 2  # inside the clip band, not the top code
+        f[dark] = lo - 2
+    assert 0 < lo - 2 and hi + 2 < 255
+    edited = Bracket(frames=frames, times=br.times, valid=br.valid)
+    fig = measure(edited, res.response, None, loo=False)
+    area_b, area_d = 20 * 30, 15 * 25
+    assert fig.clipped_high_pixels == area_b and fig.clipped_low_pixels == area_d
+    assert (fig.coverage[bright] == 0).all() and (fig.coverage[dark] == 0).all()
+    assert fig.coverage_histogram[0] == area_b + area_d
+    # Fusion's own count of the pixel-channels it had to bound agrees.
+    fused = merge_bracket(edited, res.response)
+    assert fused.counts["clipped_high"] == 3 * area_b and fused.counts["clipped_low"] == 3 * area_d
+
+
+def test_a_later_frame_after_a_clip_is_no_evidence(clean):
+    """Once a shorter frame clips, a longer one reading mid-range (a moving light) is not a
+    measurement, as in fusion: coverage counts the frames fusion really uses."""
+    br, res = clean
+    order = np.argsort(br.times)
+    frames = [f.copy() for f in br.frames]
+    frames[order[0]][:4, :4] = 254  # the shortest frame clips
+    for j in order[1:]:
+        frames[j][:4, :4] = 120  # ... the longer ones read mid-range
+    fig = measure(Bracket(frames=frames, times=br.times, valid=br.valid), res.response, None, loo=False)
+    assert (fig.coverage[:4, :4] == 0).all() and fig.clipped_high_pixels == 16
+
+
+# ------------------------------------------------------------------ verdicts
+
+
+@pytest.mark.parametrize("key", ["loo", "clipped", "coverage"])
+def test_verdict_boundaries(key):
+    """Each limit belongs to the better verdict; just above it, the worse one."""
+    from hdrcl.report.verdicts import FAIL, PASS, THRESHOLDS, WARN, grade
+
+    t = {t.key: t for t in THRESHOLDS}[key]
+    assert 0 < t.warn_above < t.fail_above
+    assert grade(key, 0.0) == PASS
+    assert grade(key, t.warn_above) == PASS
+    assert grade(key, np.nextafter(t.warn_above, np.inf)) == WARN
+    assert grade(key, t.fail_above) == WARN
+    assert grade(key, np.nextafter(t.fail_above, np.inf)) == FAIL
+    assert grade(key, None) is None and grade(key, float("nan")) is None
+
+
+def test_verdicts_of_figures(clean):
+    """The figures' verdicts follow the table: a clean set passes; the same figures with
+    the clipping pushed just past each limit warn, then fail."""
+    from hdrcl.report.verdicts import THRESHOLDS, grade_figures, thin_coverage_percent, worst
+
+    br, res = clean
+    fig = measure(br, res.response, res.radiance, loo_max_pixels=6000)
+    assert set(grade_figures(fig).values()) == {"pass"} and worst(grade_figures(fig).values()) == "pass"
+    limit = {t.key: t for t in THRESHOLDS}["clipped"]
+    fig.clipped_high_fraction = np.nextafter(limit.warn_above, np.inf) / 100.0
+    fig.clipped_low_fraction = np.nextafter(limit.fail_above, np.inf) / 100.0
+    g = grade_figures(fig)
+    assert g["Clipped high"] == "warn" and g["Clipped low"] == "fail" and worst(g.values()) == "fail"
+    # Thin coverage: pixels measured by at most one frame, from the histogram.
+    fig.coverage_histogram = [1, 3] + [0] * (len(fig.coverage_histogram) - 3) + [fig.valid_pixels - 4]
+    assert thin_coverage_percent(fig) == pytest.approx(400.0 / fig.valid_pixels)
+    fig.loo_rmse = None
+    assert grade_figures(fig)["Leave-one-out RMSE"] is None
+    assert worst([None, None]) is None

@@ -11,6 +11,7 @@ import re
 import shutil
 import subprocess
 from html.parser import HTMLParser
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -104,11 +105,16 @@ def test_plots():
     assert {ln.get("stroke") for ln in lines} == {"#cd2828", "#1e9632", "#2850d2"}  # R, G, B
     texts = [t.text for t in root.iter("{http://www.w3.org/2000/svg}text")]
     assert "g(z) = ln exposure" in texts and "R" in texts and "255" in texts
-    # The clip points: code 0 of the longest frame, the top code of the shortest.
+    # The clip points: the longest frame at the noise floor, the shortest at the clip
+    # level (fusion's clip_levels, not codes 0 and 255).
+    from hdrcl.core.weights import clip_levels
+
+    zlo, zhi = clip_levels(256)
     lo, hi = clip_points(resp, [0.5, 2.0], 3)
     luma = np.array([0.2126, 0.7152, 0.0722])
-    assert lo == pytest.approx(float(np.exp(g[:, 0]) @ luma) / 2.0)
-    assert hi == pytest.approx(float(np.exp(g[:, -1]) @ luma) / 0.5)
+    assert 0 < zlo < zhi < 255
+    assert lo == pytest.approx(float(np.exp(g[:, zlo]) @ luma) / 2.0)
+    assert hi == pytest.approx(float(np.exp(g[:, zhi]) @ luma) / 0.5)
     rad = np.exp(np.random.default_rng(0).normal(0, 1, (20, 30, 3)))
     root = ET.fromstring(histogram_svg(rad, resp, [0.5, 2.0]))
     texts = [t.text for t in root.iter("{http://www.w3.org/2000/svg}text")]
@@ -135,6 +141,7 @@ def test_wording():
     assert len(fig.loo) == 1
     rows = dict(format_figures(fig))
     assert "the one interior frame" in rows["Leave-one-out RMSE"] and "median" not in rows["Leave-one-out RMSE"]
+    assert rows["Frames"].endswith(f", ladder spans {np.log2(4.0 / 0.25):.1f} EV")  # shortest to longest used
     fig.loo = [fig.loo[0], LeaveOneOut(index=1, time=1.0, rmse=2.0, pixels=10)]
     assert "median over 2 interior frames" in dict(format_figures(fig))["Leave-one-out RMSE"]
 
@@ -272,3 +279,171 @@ def test_report_folder_accumulates(tmp_path):
     assert [e.name for e in load_report_folder(folder)] == ["first", "second"]
     page = (folder / INDEX_NAME).read_text()
     assert 'data-set="first"' in page and 'data-set="second"' in page and "2 sets: 2 merged" in page
+
+
+# ------------------------------------------------- status words, verdicts, one-set layout, labels
+
+
+def _one_set(folder, name="solo", status="done"):
+    rad = s.radiance_field(41, 59, decades=3.0, seed=5)
+    times = s.stops(4, 2.0, centre=1.0 / float(np.median(rad)))
+    br = load_bracket(s.bracket(rad, times, s.Camera(a=1.1, x0=(1.0, 1.2, 0.8)), noise=0.5, seed=3), times)
+    res = merge_bracket(br)
+    fig = measure(br, res.response, res.radiance)
+    return write_set_report(folder, name, fig, res.response, res.radiance, bracket=br, status=status)
+
+
+def test_up_to_date_status(tmp_path):
+    """A batch's "skipped" (its output was current) reads "up to date" on the page and in
+    the set's JSON ``label``; ``status`` keeps the batch's value."""
+    from hdrcl.report.pages import STATUS_LABELS, status_label
+
+    entry = _one_set(tmp_path, status="skipped")
+    d = json.loads((tmp_path / entry.files["json"]).read_text())
+    assert d["status"] == "skipped" and d["label"] == status_label("skipped") == "up to date"
+    assert load_set_report(tmp_path, "solo").status == "skipped"
+    page = open(write_contact_sheet(tmp_path, [entry]), encoding="utf-8").read()
+    assert 'data-status="skipped" data-label="up to date"' in page
+    assert '<span class="status">up to date</span>' in page and ">skipped<" not in page
+    assert "1 set: 0 merged, 1 up to date, 0 failed" in page
+    assert status_label("done") == STATUS_LABELS["done"] != "done" and status_label("odd") == "odd"
+
+
+def test_verdicts_on_the_page(report):
+    """Graded rows carry the verdict of :func:`grade_figures`, and the header lists every
+    threshold of the table that made them."""
+    from hdrcl.report.verdicts import THRESHOLDS, grade_figures, worst
+
+    folder, index, entries = report
+    page = open(index, encoding="utf-8").read()
+    for t in THRESHOLDS:
+        assert f"<th>{html.escape(t.label)}</th>" in page
+        assert f"warn ≤ {t.fail_above:g}" in page and f"fail &gt; {t.fail_above:g}" in page
+    for k, e in enumerate(entries[:-1]):
+        card = page[page.index(f'id="set-{k}"'):]
+        card = card[:card.index("</article>")]
+        grades = grade_figures(e.figures)
+        for label, v in grades.items():
+            row = re.search(rf'<tr([^>]*)><th>{re.escape(label)}</th>', card).group(1)
+            assert (f'data-verdict="{v}"' in row) if v else ("data-verdict" not in row), (label, row)
+        assert f'data-verdict="{worst(grades.values())}"' in card[:card.index(">")]
+    assert 'data-verdict' not in page[page.index('id="set-3"'):]  # the failed set has no figures
+
+
+def test_one_set_layout(tmp_path):
+    """One set: no grid of empty columns; the card's pictures and its figures sit side by
+    side (checked in the HTML here, on screen in Chromium below)."""
+    entry = _one_set(tmp_path)
+    page = open(write_contact_sheet(tmp_path, [entry]), encoding="utf-8").read()
+    assert '<main class="sets single">' in page
+    body = re.search(r'<div class="body"><div class="look">(.*?)</div><div class="numbers">(.*?)</div></div>',
+                     page, re.S)
+    assert body and "preview" in body.group(1) and 'class="figures"' in body.group(2)
+    many = open(write_contact_sheet(tmp_path, [entry, FAILED]), encoding="utf-8").read()
+    assert '<main class="sets">' in many
+
+
+def test_one_set_fills_the_width_in_chromium(tmp_path):
+    """On a 1280 px wide window, the right half of a one-set page shows the set's
+    figures and plots, not the empty background of a second grid column."""
+    browser = _chromium()
+    entry = _one_set(tmp_path)
+    index = write_contact_sheet(tmp_path, [entry])
+    shot = tmp_path / "one.png"
+    _run_chromium(browser, tmp_path, "--hide-scrollbars", "--window-size=1280,1200", f"--screenshot={shot}",
+                  "file://" + os.path.abspath(index))
+    import OpenImageIO as oiio
+
+    rgb = oiio.ImageBuf(str(shot)).get_pixels(oiio.UINT8)[..., :3].astype(int)
+    background = np.array([0xF4, 0xF4, 0xF2])
+    right = rgb[250:900, 700:1240]
+    assert (np.abs(right - background).sum(axis=2) > 0).mean() > 0.5  # the card, not the page behind
+    assert len(np.unique(right.reshape(-1, 3), axis=0)) > 20  # text and plots there
+
+
+def test_frame_labels_in_each_cameras_terms(tmp_path):
+    """Frames shot at different apertures and ISOs are labelled with their own settings,
+    whatever relative exposures the merge used; times that the headers do not explain
+    (typed or from a times file) are labelled as given."""
+    from hdrcl.core.bracket import Bracket
+    from hdrcl.io.metadata import FrameInfo, format_time
+    from hdrcl.report.inputs import shot_settings, write_inputs
+
+    shots = [(1 / 8, 8.0, 100), (1.0, 5.6, 200), (8.0, 11.0, 400)]
+    infos = [FrameInfo(path=f"f{k}.jpg", width=8, height=6, nchannels=3, exposure_time=t, fnumber=n, iso=i)
+             for k, (t, n, i) in enumerate(shots)]
+    # What a shoot-wide reference of f/4 ISO 50 makes of them (not the camera's numbers).
+    rel = np.array([t * (4.0 / n) ** 2 * (i / 50.0) for t, n, i in shots])
+    frames = [np.full((6, 8, 3), v, np.uint8) for v in (40, 120, 200)]
+    br = Bracket(frames=frames, times=rel, valid=[None] * 3, paths=[i.path for i in infos], infos=infos)
+    rows = write_inputs(str(tmp_path), "x", br)
+    want = [f"{format_time(t)} f/{n:g} ISO {i}" for t, n, i in shots]
+    assert [r["label"] for r in rows] == want
+    assert [r["shutter"] for r in rows] == [t for t, _n, _i in shots]
+    assert [r["time"] for r in rows] == list(rel) and not np.allclose(rel, [t for t, _n, _i in shots])
+    entry = ReportEntry(name="mixed", inputs=rows)
+    page = open(write_contact_sheet(tmp_path, [entry]), encoding="utf-8").read()
+    p = _Page()
+    p.feed(page)
+    text = "".join(p.text)
+    for w in want:
+        assert w in text
+    assert format_time(rel[1]) not in text
+    # Without a shutter time for every frame the nominal times label them.
+    rows = write_inputs(str(tmp_path), "y", Bracket(frames=frames, times=rel, valid=[None] * 3))
+    assert [r["label"] for r in rows] == [format_time(t) for t in rel] and rows[0]["shutter"] is None
+    assert shot_settings(infos, rel) is not None and shot_settings(infos, rel * [1, 1, 1.5]) is None
+
+
+FROBISHER = Path(__file__).resolve().parents[2] / "shared" / "data" / "frobisher_001"
+
+
+@pytest.mark.parametrize("typed", [False, True])
+def test_merge_report_labels_real_exif(tmp_path, typed):
+    """``merge --report`` on the Canon frames of ``frobisher_001``: labelled with their
+    EXIF settings; with ``--times`` the EXIF does not bear out, with the times given."""
+    from click.testing import CliRunner
+
+    from hdrcl.cli import main
+    from hdrcl.core.bracket import read_infos
+    from hdrcl.io.metadata import format_time
+
+    paths = sorted(str(p) for p in FROBISHER.glob("*.jpg"))
+    if len(paths) != 3:
+        pytest.skip(f"frobisher_001 not found at {FROBISHER}")
+    infos = read_infos(paths)
+    given = [0.05, 1.0, 20.0]
+    args = ["merge", *paths, "-o", str(tmp_path / "f.exr"), "--report", str(tmp_path / "rep")]
+    res = CliRunner().invoke(main, args + (["--times", ",".join(map(str, given))] if typed else []))
+    assert res.exit_code == 0, res.output
+    rows = load_set_report(tmp_path / "rep", "f").inputs
+    if typed:
+        want = [format_time(t) for t in given]
+    else:
+        want = [f"{format_time(i.exposure_time)} f/{i.fnumber:g} ISO {i.iso:g}" for i in infos]
+        assert want[0].endswith(" f/8 ISO 100") and want[0].startswith("1/8 s")  # the set's README
+    assert [r["label"] for r in rows] == want
+    assert all(w in (tmp_path / "rep" / INDEX_NAME).read_text(encoding="utf-8") for w in want)
+
+
+def test_aligned_merge_report_shows_each_frames_motion(tmp_path, cl_device):
+    """``merge --align --report``: every frame's thumbnail says how it was aligned (the
+    tripod set frobisher_001: the reference and two frames found not to move)."""
+    from click.testing import CliRunner
+
+    from hdrcl.cli import main
+    from hdrcl.report.pages import alignment_text
+
+    paths = sorted(str(p) for p in FROBISHER.glob("*.jpg"))
+    if len(paths) != 3:
+        pytest.skip(f"frobisher_001 not found at {FROBISHER}")
+    res = CliRunner().invoke(main, ["merge", *paths, "-o", str(tmp_path / "f.exr"), "--align",
+                                    "--report", str(tmp_path / "rep")])
+    assert res.exit_code == 0, res.output
+    rows = load_set_report(tmp_path / "rep", "f").inputs
+    assert sorted(r["align"] for r in rows) == ["not moved", "not moved", "reference"]
+    page = (tmp_path / "rep" / INDEX_NAME).read_text(encoding="utf-8")
+    assert page.count("<span>aligned: not moved</span>") == 2 and "<span>aligned: reference</span>" in page
+    text = alignment_text({"model": "similarity", "rotation_deg": 0.5, "scale": 1.002, "shift_px": [1.0, -2.0],
+                           "residual_px": 0.12})
+    assert text == "similarity +0.50° ×1.0020 (+1.0, -2.0) px residual 0.12 px"

@@ -113,7 +113,10 @@ def test_recursive(shoot, tmp_path):
     top = tmp_path / "card"
     sub = top / "DCIM" / "100CANON"
     shutil.copytree(folder, sub)
-    assert json.loads(run("scan", top, "--json").stdout)["sets"] == []
+    # A card holds its photographs in subfolders only: scanned with them, and said so.
+    res = run("scan", top, "--json")
+    assert [names(s["files"]) for s in json.loads(res.stdout)["sets"]] == truth["sets"]
+    assert "no photographs at its top" in res.stderr and "-r" in res.stderr
     d = json.loads(run("scan", top, "--json", "--recursive").stdout)
     assert [names(s["files"]) for s in d["sets"]] == truth["sets"]
 

@@ -63,9 +63,10 @@ class AlignProcessor(OpenCLProcessor):
             self._cost_knl, self._wg = knl, wg
         return knl
 
-    def grey_pyramid(self, frame: np.ndarray, levels: int, slot: str = "frame") -> GreyPyramid:
+    def grey_pyramid(self, frame: np.ndarray, levels: int, slot: str = "frame", host_from: int = 0) -> GreyPyramid:
         """Grey levels of ``frame`` ``(H, W, C)`` or ``(H, W)``, built on the device and
-        also read back (the host picks thresholds from them)."""
+        also read back (the host picks thresholds from them), from level ``host_from``
+        on (the finer ones are None in ``host``)."""
         frame = np.asarray(frame)
         if frame.ndim == 2:
             frame = frame[:, :, None]
@@ -94,8 +95,8 @@ class AlignProcessor(OpenCLProcessor):
             (_, sw), (dh, dw) = shapes[k - 1], shapes[k]
             down_k(q, (round_up(dw, 16), round_up(dh, 4)), None, dev[k - 1], dev[k],
                    np.int32(sw), np.int32(dh), np.int32(dw))
-        host = [np.empty(s, np.uint16) for s in shapes]
-        for k in range(len(shapes)):
+        host = [np.empty(s, np.uint16) if k >= host_from else None for k, s in enumerate(shapes)]
+        for k in range(host_from, len(shapes)):
             cl.enqueue_copy(q, host[k], dev[k], is_blocking=False)
         q.finish()
         return GreyPyramid(slot, shapes, host, dev)

@@ -33,8 +33,8 @@ from typing import Dict, List, Optional
 
 #: Platform names of the CPU drivers, in hdrcl's order of preference when no GPU builds
 #: the kernels. Intel's runtime first: it builds on every x86-64 processor and its fusion
-#: kernel was faster than the PyPI PoCL's where both work (README, "If OpenCL does not
-#: work"). ``HDRCL_CPU_DRIVERS`` reorders them.
+#: kernel was faster than the PyPI PoCL's where both work (docs/install.md, "Which OpenCL
+#: device runs"). ``HDRCL_CPU_DRIVERS`` reorders them.
 CPU_DRIVER_PREFERENCE = ("Intel(R) OpenCL", "Portable Computing Language")
 
 #: Short names accepted by ``--device`` / ``PYOPENCL_CTX`` for a driver's platform.

@@ -2,13 +2,17 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 
 import click
 
 from hdrcl.cli.group import main, say
 from hdrcl.cli.options import (
+    ALIGN_HELP,
+    align_model_option,
     Checked,
+    luminance_options,
     InputFile,
     OutputFile,
     OutputFolder,
@@ -92,10 +96,18 @@ def devices(as_json):
         raise SystemExit(1)
 
 
+def _alignment_line(a: dict) -> str:
+    """One frame of ``MergeResult.alignment``: model, rotation, scale, shift, residual."""
+    res = "?" if a.get("residual_px") is None else f"{a['residual_px']:.2f}"
+    dy, dx = a["shift_px"]
+    return (f"{os.path.basename(a['file'])}: {a['model']}, rotation {a['rotation_deg']:+.2f} deg, "
+            f"scale {a['scale']:.4f}, shift ({dy:+.1f}, {dx:+.1f}) px, residual {res} px")
+
+
 @main.command()
 @click.argument("images", nargs=-1, required=True, type=InputFile("image"))
-@click.option("-o", "--output", required=True, type=OutputFile((".json",), "response curve"),
-              help="Response JSON to write.")
+@click.option("-o", "--output", required=True, type=OutputFile((".json", ".rsp"), "response curve"),
+              help="Response to write: hdrcl's JSON, or hdrgen's polynomials (.rsp).")
 @exposure_options
 @solve_options
 @weight_option
@@ -106,10 +118,12 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
     from hdrcl.core.calibrate import calibrate as _calibrate
 
     check_inputs_not_outputs(list(images) + [times_file], output)
+    if times is None and times_file is None:
+        _say_exposure_lists(images)
     resp = _calibrate(list(images), times, times_file=times_file, samples=samples, smoothness=smoothness,
                       weight=weight, ignore_color=ignore_color, seed=seed, fit_exposures=fit_exposures,
                       exposure_tolerance=exposure_tolerance)
-    resp.save(output)
+    fit = resp.save(output)
     t = resp.tables()
     say(f"wrote {output}: {resp.bits}-bit response, channels {''.join(resp.channels)}, "
                f"{resp.samples} samples, lambda {resp.smoothness:g}")
@@ -117,6 +131,9 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
         lo, hi = 10 * (resp.levels // 256), 245 * (resp.levels // 256)
         say(f"  {name}: g({lo}) = {t[c, lo]:+.3f}, g({hi}) = {t[c, hi]:+.3f}  "
                    f"({(t[c, hi] - t[c, lo]) / 2.302585:.2f} decades of exposure)")
+    if fit is not None:  # .rsp: a polynomial fit of the solved curve
+        say(f"  .rsp: polynomial orders {', '.join(map(str, fit.orders))}, largest error "
+            f"{100 * (math.exp(max(fit.max_error)) - 1):.2f} % of exposure over codes 10..245")
 
 
 @main.command()
@@ -128,6 +145,10 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
               help="Response JSON from 'hdrcl calibrate' [default: calibrate from these images].")
 @click.option("--save-response", type=OutputFile((".json",), "response curve"),
               help="Also write the response used.")
+@click.option("--response-cache", "response_cache", type=OutputFile((".json",), "response curve"),
+              help="Response JSON used as --response when it exists and fits these frames (bit depth, "
+                   "channels, camera model); otherwise calibrate from them and write the curve there (as "
+                   "hdrgen -r).")
 @exposure_options
 @solve_options
 @weight_option
@@ -145,8 +166,8 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
               help="Absolute scale: this patch's mean luminance is VALUE cd/m^2.")
 @click.option("--absolute", is_flag=True,
               help="Approximate absolute scale (cd/m^2) from f-number and ISO (meter constant K = 12.5).")
-@click.option("--align", is_flag=True,
-              help="Align hand-held frames by translation (median threshold bitmaps) before merging.")
+@click.option("--align", is_flag=True, help=ALIGN_HELP)
+@align_model_option
 @click.option("--crop", is_flag=True, help="With --align: crop to the area every frame covers.")
 @click.option("--report", "report", type=OutputFolder("report folder"),
               help="Write a quality report here (sets accumulate in one folder): preview, input frames, "
@@ -156,13 +177,16 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
 @colorspace_option
 @click.option("--owner", default=None, metavar="TEXT",
               help="Owner / copyright recorded in the file [default: the frames' EXIF Copyright].")
+@luminance_options
 @device_option
-def merge(images, output, response, save_response, times, times_file, ignore_color, samples, smoothness,
+def merge(images, output, response, save_response, response_cache, times, times_file, ignore_color, samples, smoothness,
           seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, clip_mask, ghost_threshold,
           ghost_reference,
-          neutral, reference_patch, absolute, align, crop, report, dtype, compression, reference_exposure,
-          colorspace, owner, device):
+          neutral, reference_patch, absolute, align, align_model, crop, report, dtype, compression,
+          reference_exposure, colorspace, owner, lens_circle, resize, fisheye_projection, vignetting, nd_filter, calibration_factor,
+          view, device):
     """Merge one bracket set into a radiance map."""
+    from hdrcl.core.fisheye import chain_or_none
     from hdrcl.core.merge import merge_files
     from hdrcl.core.params import check_options
     from hdrcl.io.metadata import format_time
@@ -171,8 +195,15 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
     # given, options that need each other), before any warning or decoding.
     check_options(frames=len(images), ghost_reference=ghost_reference, ghost_threshold=ghost_threshold,
                   deghost=deghost, align=align, crop=crop, absolute=absolute, reference_patch=reference_patch)
-    check_inputs_not_outputs(list(images) + [response, times_file], output, save_response, ghost_mask, clip_mask)
+    check_inputs_not_outputs(list(images) + [response, times_file], output, save_response, ghost_mask, clip_mask,
+                             response_cache)
     warn_inapplicable(output, dtype=dtype, compression=compression)
+    chain = chain_or_none(lens_circle=lens_circle, resize=resize, projection=fisheye_projection, vignetting=vignetting,
+                          nd_filter=nd_filter, calibration_factor=calibration_factor, view=view, device=device)
+    if times is None and times_file is None:
+        _say_exposure_lists(images)
+    if response_cache is not None:
+        response, save_response = _from_cache(response_cache, images, response, save_response)
     res = merge_files(list(images), output, times=times, times_file=times_file, response=response,
                       weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness, seed=seed,
                       dtype=dtype, compression=compression, device=device, fit_exposures=fit_exposures,
@@ -180,10 +211,13 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
                       clip_mask=clip_mask,
                       ghost_threshold=ghost_threshold, ghost_reference=ghost_reference,
                       neutral=neutral, reference_patch=reference_patch, absolute=absolute,
-                      thumbnail=512 if report else 0, keep_frames=bool(report), align=align, crop=crop,
+                      thumbnail=512 if report else 0, keep_frames=bool(report), align=align,
+                      align_model=align_model, crop=crop,
                       colorspace=colorspace.lower(),
-                      owner=owner, save_response=save_response, reference_exposure=reference_exposure)
+                      owner=owner, save_response=save_response, reference_exposure=reference_exposure, chain=chain)
     h, w_, c = res.shape
+    if chain is not None:  # the file holds the calibrated N x N map
+        h = w_ = chain.size
     total = sum(res.seconds.values())
     say(f"wrote {output}: {w_}x{h}, {c} channel(s), {len(res.paths)} frames "
                f"({format_time(min(res.times))} .. {format_time(max(res.times))}), "
@@ -193,9 +227,18 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
         say(f"  response: spans {res.response.span_decades():.2f} decades between codes 10 and 245")
     if res.storage_note:
         say(f"  storage: {res.storage_note}")
-    if res.shifts is not None:
+    if chain is not None:
+        ev = "" if res.vertical_illuminance is None else f", vertical illuminance {res.vertical_illuminance:.1f} lx"
+        say(f"  luminance map: cd/m2 from a {res.shape[1]}x{res.shape[0]} merge{ev}")
+    if res.alignment:
+        say("  aligned (to " + next((os.path.basename(a["file"]) for a in res.alignment
+                                     if a["model"] == "reference"), "the middle exposure") + "):")
+        for a in res.alignment:
+            if a["model"] != "reference":
+                say("    " + _alignment_line(a))
+    elif res.shifts is not None:
         say("  aligned: " + ", ".join(f"{os.path.basename(p)} ({dy:+d}, {dx:+d})"
-                                             for p, (dy, dx) in zip(res.paths, res.shifts)) + " (dy, dx px)")
+                                      for p, (dy, dx) in zip(res.paths, res.shifts)) + " (dy, dx px)")
     if deghost:
         unresolved = cnt.get("ghost_unresolved")
         say(f"  ghosts: {100.0 * cnt.get('ghost', 0) / max(h * w_, 1):.2f} % of pixels taken from the "
@@ -211,6 +254,53 @@ def merge(images, output, response, save_response, times, times_file, ignore_col
         say(f"quality report: {os.path.join(report, 'index.html')}")
         for label, text in format_figures(fig):
             say(f"  {label}: {text}")
+
+
+def _say_exposure_lists(images) -> None:
+    """One line on stderr per exposure list beside the frames that merge will use (for
+    frames without EXIF exposure time; :func:`hdrcl.io.metadata.header_exposures`)."""
+    from hdrcl.cli.group import quiet
+    from hdrcl.core.bracket import read_infos
+    from hdrcl.io.metadata import header_exposures
+
+    if quiet() or len(images) < 2:
+        return
+    exposures, used = header_exposures(list(images), read_infos(list(images)))
+    if any(e is None for e in exposures):
+        return  # merge stops on the frame no source times, in one line
+    for u in used:
+        click.echo(f"hdrcl: exposures from {u} (the frames carry no EXIF exposure time)", err=True)
+
+
+def _from_cache(path, images, response, save_response):
+    """``(response, save_response)`` for ``--response-cache PATH``: the file as the
+    response when it exists and fits the frames, else PATH as where to save the curve
+    calibrated from them (a file that does not fit is replaced, with a warning)."""
+    import logging
+
+    from hdrcl.core.params import check_response_fits
+    from hdrcl.core.response import Response
+    from hdrcl.errors import HdrclError, UsageError
+    from hdrcl.io.frames import read_info
+
+    if response is not None or save_response is not None:
+        raise UsageError("--response-cache stands for --response and --save-response: give it alone")
+    if not os.path.isfile(path):
+        return None, path
+    try:
+        resp = Response.load(path)
+        first = read_info(images[0])
+        check_response_fits(resp, path, images[0], first.bits, 3 if first.nchannels >= 3 else 1)
+        cached, taken = (" ".join(str(m or "").split()) for m in ((resp.camera or {}).get("model"), first.model))
+        if cached != taken:
+            raise HdrclError(f"{path}: a response of {cached or 'an unnamed camera'}, but {images[0]} "
+                             f"is from {taken or 'an unnamed camera'}")
+    except HdrclError as exc:
+        logging.getLogger("hdrcl.cli").warning("%s; calibrating from these frames and replacing it",
+                                               str(exc).splitlines()[0])
+        return None, path
+    say(f"response: {path} (cached)")
+    return path, None
 
 
 @main.command()
@@ -267,7 +357,7 @@ def demo(folder, size, frames, seed, no_shoot, device):
     say(f"radiance error: {100 * rep.radiance_error:.2f} % (median, well-exposed pixels)")
     say(f"response: {rep.response}   preview: {rep.preview}")
     if rep.shoot:
-        skipped = f", {rep.batch_skipped} skipped (up to date)" if rep.batch_skipped else ""
+        skipped = f", {rep.batch_skipped} up to date" if rep.batch_skipped else ""
         say(f"sample shoot: {rep.shoot} -> batch: {rep.batch_done} set(s) merged{skipped}, "
             f"{rep.batch_failed} failed into {rep.batch}")
         say(f"quality report: {rep.contact_sheet}")

@@ -212,6 +212,7 @@ COMMAND_MODULES = {
     "expose": "hdrcl.cli.core",
     "demo": "hdrcl.cli.core",
     "tonemap": "hdrcl.cli.output",
+    "falsecolor": "hdrcl.cli.falsecolor",
     "scan": "hdrcl.cli.shoot",
     "batch": "hdrcl.cli.shoot",
     "sample-shoot": "hdrcl.cli.shoot",

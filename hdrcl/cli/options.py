@@ -158,7 +158,8 @@ def exposure_options(f):
                      help="Treat pixels of exactly this colour (8-bit units) as invalid, e.g. 0,0,255.")(f)
     f = click.option("--times-file", type=InputFile("times file"),
                      help="Exposure list: HDRShop columns (file, seconds, 1/shutter, f-stop, gain dB, ND) "
-                          "or 'file seconds' lines.")(f)
+                          "or 'file seconds' lines; it wins over EXIF [default: for frames without EXIF "
+                          "exposure time, image_list.txt or times.txt beside them].")(f)
     f = click.option("--times", callback=_times, metavar="T1,T2,...",
                      help="Exposure times in seconds, one per image, e.g. 1/250,1/60,1/15 "
                           "(overrides --times-file and EXIF).")(f)
@@ -221,15 +222,18 @@ def grouping_options(f):
                           "after exposures of 1 s or more].")(f)
     f = click.option("--frames-per-set", type=Checked("frames_per_set"), default=None, metavar="N",
                      help="Cut the frames, in capture order, into sets of exactly N.")(f)
-    f = click.option("-r", "--recursive", is_flag=True, help="Include subfolders.")(f)
+    f = click.option("-r", "--recursive", is_flag=True,
+                     help="Include subfolders [default: only when the folder itself holds no photographs, "
+                          "e.g. one subfolder per set; said in one line].")(f)
     return f
 
 
 def batch_merge_options(f):
     """The options of ``merge`` that ``batch`` applies to every set."""
     f = click.option("--times-file", type=InputFile("times file"),
-                     help="Exposure list for frames without EXIF: HDRShop columns or 'file seconds' lines "
-                          "[default: image_list.txt or times.txt beside the frames, when there is one].")(f)
+                     help="Exposure list: HDRShop columns or 'file seconds' lines; it wins over EXIF for the "
+                          "frames it lists [default: for frames without EXIF exposure time, image_list.txt or "
+                          "times.txt beside them].")(f)
     f = click.option("--fit-exposures", type=click.Choice(["auto", "on", "off"]), default="auto",
                      show_default=True,
                      help="Measure each frame's exposure from the pixels through the set's (pooled or given) "
@@ -238,9 +242,29 @@ def batch_merge_options(f):
     f = click.option("--neutral", type=Checked("neutral"), metavar="X,Y,W,H",
                      help="White balance every set: make this patch (pixels) neutral grey.")(f)
     f = click.option("--crop", is_flag=True, help="With --align: crop to the area every frame covers.")(f)
-    f = click.option("--align", is_flag=True,
-                     help="Align hand-held frames by translation (median threshold bitmaps) before merging.")(f)
+    f = align_model_option(f)
+    f = click.option("--align", is_flag=True, help=ALIGN_HELP)(f)
     return f
+
+
+ALIGN_HELP = ("Align hand-held frames to the middle exposure (shift, rotation, scale; see --align-model) "
+              "before merging; a frame that cannot be aligned fails the merge.")
+
+
+def align_model_option(f):
+    """``--align-model``: the motion model of ``--align`` (hdrcl.core.align)."""
+    return click.option("--align-model", type=click.Choice(["auto", "shift", "similarity", "homography"]),
+                        default="auto", show_default=True,
+                        help="With --align: the motion model; auto picks the simplest one the residuals "
+                             "allow (shift, similarity, homography for wide lenses).")(f)
+
+
+def output_format_option(f):
+    """``--format``: the file type of batch outputs."""
+    return click.option("--format", "output_format", type=click.Choice(["exr", "hdr"]), default="exr",
+                        show_default=True,
+                        help="File type of the outputs: OpenEXR, or Radiance RGBE (.hdr; with the luminance "
+                             "options, Radiance's 179 lm/W convention).")(f)
 
 
 def ignore_color_option(f):
@@ -307,3 +331,31 @@ def warn_inapplicable(output: str, **options) -> None:
 
     for msg in inapplicable_options(output, **{k: given(k) for k in options}):
         logging.getLogger("hdrcl.cli").warning("%s", msg)
+
+
+def luminance_options(f):
+    """The calibrated fisheye luminance map (hdrcl.core.fisheye): seven options, all
+    needing --lens-circle."""
+    opts = [
+        click.option("--lens-circle", metavar="CX,CY,DIAMETER",
+                     help="Fisheye luminance map: crop to this lens circle (pixels of the merged image, origin top "
+                          "left; square crop, black outside the circle); implies --absolute."),
+        click.option("--resize", type=int, default=None, metavar="PIXELS",
+                     help="With --lens-circle: side of the square output, area-averaged [default: 1000]."),
+        click.option("--fisheye-projection", type=click.Choice(["equisolid-to-equidistant"]), default=None,
+                     help="With --lens-circle: correct the lens projection (Radiance's fisheye_corr.cal)."),
+        click.option("--vignetting", metavar="FILE.cal|A1,...,A8",
+                     help="With --lens-circle: divide by 1 + A1 r + ... + A8 r^8 (r = 0 at the centre, 1 at the "
+                          "circle), or a Radiance vignetting .cal file."),
+        click.option("--nd-filter", metavar="FILE.cal|KR,KG,KB",
+                     help="With --lens-circle: neutral density filter factors per channel, or its .cal file."),
+        click.option("--calibration-factor", metavar="FILE.cal|K",
+                     help="With --lens-circle: photometric calibration factor against a luminance meter, or its "
+                          ".cal file."),
+        click.option("--view", metavar='"-vta -vh 186 -vv 186"',
+                     help="With --lens-circle: the Radiance VIEW= of the map [default with --fisheye-projection: "
+                          "-vta -vh 180 -vv 180]; -vta views get the vertical illuminance."),
+    ]
+    for opt in reversed(opts):
+        f = opt(f)
+    return f

@@ -1,6 +1,6 @@
 """Commands on a whole shoot: scan, batch, sample-shoot.
 
-Exit codes of ``batch``: 0 every selected set done or skipped; 1 some set (or, for
+Exit codes of ``batch``: 0 every selected set done or up to date; 1 some set (or, for
 a whole-folder run, some input file) failed while the rest completed; 2 usage error;
 3 the folder, manifest or response file cannot be read.
 """
@@ -28,6 +28,8 @@ from hdrcl.cli.options import (
     grouping_options,
     ignore_color_option,
     batch_merge_options,
+    luminance_options,
+    output_format_option,
     output_options,
     reference_exposure_option,
     solve_options,
@@ -48,7 +50,8 @@ from hdrcl.cli.options import (
 @click.option("--content/--no-content", default=True, show_default=True,
               help="Compare the frames' content (small exposure-normalised thumbnails) as well as their headers.")
 @click.option("--times-file", type=InputFile("times file"),
-              help="Exposure list for frames without EXIF [default: image_list.txt or times.txt beside them].")
+              help="Exposure list; it wins over EXIF for the frames it lists [default: for frames without "
+                   "EXIF exposure time, image_list.txt or times.txt beside them].")
 @click.pass_context
 def scan(ctx, source, recursive, frames_per_set, gap, output, as_json, explain, content, times_file):
     """Group the photographs of a folder into bracket sets.
@@ -65,6 +68,7 @@ def scan(ctx, source, recursive, frames_per_set, gap, output, as_json, explain, 
     from hdrcl.shoot.plan import check_manifest, load_source
     from hdrcl.shoot.scan import format_explain, format_table
 
+    recursive = _descend(source, recursive)
     manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap,
                            times_file=times_file, content=content)
     problems = {} if os.path.isdir(source) else check_manifest(manifest)
@@ -89,7 +93,25 @@ def scan(ctx, source, recursive, frames_per_set, gap, output, as_json, explain, 
         ctx.exit(1)
 
 
+def _descend(source, recursive: bool, exclude=()) -> bool:
+    """``recursive`` for scanning ``source``: True also when the folder holds no photographs
+    but its subfolders do; one line on stderr says so, or says to add -r when
+    photographs in subfolders (other than the ``exclude`` folders) are left out."""
+    from hdrcl.shoot.scan import descends, left_below
+
+    if not os.path.isdir(source):
+        return recursive
+    note = descends(source, recursive, exclude=exclude)
+    line = note or left_below(source, recursive, exclude=exclude)
+    if line and not is_quiet():
+        click.echo(f"hdrcl: {line}", err=True)
+    return recursive or note is not None
+
+
 # ------------------------------------------------------------------------ batch
+#: How the summary and the progress lines call a set's status (report.json keeps the
+#: status values themselves).
+SHOWN = {"skipped": "up to date"}
 
 
 class _Progress:
@@ -101,7 +123,7 @@ class _Progress:
     def __init__(self, stream, tty: bool, quiet: bool):
         self.stream, self.tty, self.quiet = stream, tty, quiet
         self.total = 0
-        self.counts = {"done": 0, "skipped": 0, "failed": 0}
+        self.counts = {"done": 0, "skipped": 0, "failed": 0}  # "skipped": up to date
         self.t0 = time.monotonic()
         self.drawn = False
 
@@ -122,7 +144,8 @@ class _Progress:
                 self._draw(completed)
         elif not self.quiet or res.status == "failed":
             width = len(str(total))
-            line = (f"hdrcl: [{completed:{width}d}/{total}] set {res.index} {name}: {res.status} "
+            shown = SHOWN.get(res.status, res.status)
+            line = (f"hdrcl: [{completed:{width}d}/{total}] set {res.index} {name}: {shown} "
                     f"({res.seconds.get('total', 0.0):.2f} s)")
             if res.error:
                 line += f": {res.error}"
@@ -141,7 +164,7 @@ class _Progress:
         eta = f", {elapsed / completed * (self.total - completed):.0f} s left" if 0 < completed < self.total else ""
         c = self.counts
         self.stream.write(f"\r\033[K[{'#' * fill}{'-' * (width - fill)}] {completed}/{self.total} sets "
-                          f"({c['done']} done, {c['skipped']} skipped, {c['failed']} failed{eta})")
+                          f"({c['done']} done, {c['skipped']} up to date, {c['failed']} failed{eta})")
         self.stream.flush()
         self.drawn = True
 
@@ -157,7 +180,8 @@ class _Progress:
 @click.option("-o", "--output", "out_dir", required=True, type=OutputFolder("output folder"),
               help="Output folder (created): one EXR and one JPEG preview per set, report.json.")
 @click.option("--response", type=InputFile("response file"),
-              help="Response JSON for every set [default: calibrate one per camera and ISO, pooled over the shoot].")
+              help="Response JSON for every set [default: calibrate one per camera and ISO (sets without "
+                   "camera make and model: one per folder), pooled over the shoot].")
 @click.option("--sets", "sets", metavar="A-B[,C...]", callback=sets_callback,
               help="Only these manifest indices (ranges are clamped to the sets that exist), "
                    "e.g. a farm chunk #START#-#END#.")
@@ -168,6 +192,17 @@ class _Progress:
 @click.option("--retries", type=Checked("retries"), default=2, show_default=True,
               help="With --scheduler: retries of a task that failed unexpectedly.")
 @click.option("--force", is_flag=True, help="Rebuild outputs that are already up to date.")
+@click.option("--name", "name", metavar="TEMPLATE",
+              help="Output names: {folder} (the set's folder), {first} (first frame, capture order), "
+                   "{date} (capture date, YYYY-MM-DD), {index} (set number from 1, zero-padded), {camera} "
+                   "(make-model) [default: {folder} when every set has a folder of its own, else {first}]. "
+                   "Characters unsafe in file names become _; two sets named alike are refused.")
+@click.option("--dry-run", is_flag=True,
+              help="Print the plan (each set's frames, exposures, output, response) and exit; nothing is "
+                   "merged or written. With --json, as JSON.")
+@click.option("--response-cache", "response_cache", type=OutputFolder("response cache"),
+              help="Folder of responses, one per camera and ISO (<camera>-ISO-<n>.response.json): one found "
+                   "there that fits is used as it is, else the curve is calibrated and saved there.")
 @click.option("--calibrate-only", is_flag=True,
               help="Only solve (or load) and save the responses, e.g. once before submitting farm chunks.")
 @click.option("--report", "report_dir", type=OutputFolder("report folder"),
@@ -191,21 +226,26 @@ class _Progress:
 @output_options
 @reference_exposure_option
 @colorspace_option
+@output_format_option
+@luminance_options
 @device_option
 @click.pass_context
-def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force, calibrate_only, report_dir,
+def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force, name, dry_run, response_cache,
+          calibrate_only, report_dir,
           report_json, as_json, preview, preview_size, tonemap, recursive, frames_per_set, gap, samples, smoothness,
-          seed, weight, ignore_color, deghost, align, crop, neutral, fit_exposures, times_file, dtype, compression,
-          reference_exposure, colorspace, device):
+          seed, weight, ignore_color, deghost, align, align_model, crop, neutral, fit_exposures, times_file, dtype,
+          compression, reference_exposure, colorspace, output_format, lens_circle, resize, fisheye_projection,
+          vignetting, nd_filter, calibration_factor, view, device):
     """Merge every bracket set of a folder or manifest into OUT_DIR.
 
-    SOURCE is a folder of photographs (grouped as 'hdrcl scan' does) or a manifest
-    from 'hdrcl scan -o'. Each set becomes OUT_DIR/<first frame>.exr plus a JPEG
-    preview; outputs that are already up to date are skipped, so an interrupted run
-    is finished by running it again.
+    SOURCE is a folder of photographs (grouped as 'hdrcl scan' does; a folder whose
+    photographs are all in subfolders is scanned with them) or a manifest from
+    'hdrcl scan -o'. Each set becomes OUT_DIR/<name>.exr plus a JPEG preview (see
+    --name); outputs that are already up to date are left as they are, so an
+    interrupted run is finished by running it again.
 
     \b
-    Exit codes: 0 every set done or skipped; 1 some sets failed (the others
+    Exit codes: 0 every set done or up to date; 1 some sets failed (the others
     completed; see report.json), or nothing could be merged; 2 usage error;
     3 unreadable folder, manifest or response file; 143 / 130 stopped by
     SIGTERM / Ctrl-C (report.json holds the sets that finished; run again to
@@ -222,7 +262,18 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
         from hdrcl.core.radiometry import parse_patch
 
         parse_patch(neutral, "--neutral")
+    from hdrcl.core.fisheye import chain_or_none
+
+    def _cal(value):  # a .cal file by its absolute path: workers may run elsewhere
+        return os.path.abspath(value) if isinstance(value, str) and value.lower().endswith(".cal") else value
+
+    luminance = dict(lens_circle=lens_circle, resize=resize, projection=fisheye_projection,
+                     vignetting=_cal(vignetting), nd_filter=_cal(nd_filter), calibration_factor=_cal(calibration_factor),
+                     view=view)
+    if chain_or_none(**luminance) is None:  # every option checked here, before any set
+        luminance = None
     quiet = is_quiet()
+    recursive = _descend(source, recursive, exclude=(out_dir, report_dir))
     if report_json and os.path.dirname(os.path.abspath(report_json)) != os.path.abspath(out_dir):
         from hdrcl.io.atomic import check_output
 
@@ -231,13 +282,23 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
                         ignore_color=ignore_color, deghost=deghost, dtype=dtype, compression=compression,
                         preview=preview, preview_size=preview_size, tonemap=tonemap, colorspace=colorspace.lower(),
                         device=device, report_dir=report_dir, align=align, crop=crop, neutral=neutral,
-                        fit_exposures=fit_exposures, reference_exposure=reference_exposure)
+                        fit_exposures=fit_exposures, reference_exposure=reference_exposure, align_model=align_model,
+                        output_format=output_format, luminance=luminance)
+    if dry_run:
+        from hdrcl.shoot.run import describe_batch
+
+        plan = describe_batch(source, out_dir, options=opts, sets=sets, response=response,
+                              response_cache=response_cache, name=name, recursive=recursive,
+                              frames_per_set=frames_per_set, gap=gap, times_file=times_file)
+        click.echo(json.dumps(plan, indent=1) if as_json else _format_plan(plan, out_dir))
+        ctx.exit(0)
     progress = _Progress(sys.stderr, sys.stderr.isatty(), quiet)
     try:
         rep = run_batch(source, out_dir, options=opts, sets=sets, response=response, jobs=jobs,
                         scheduler=scheduler, retries=retries, force=force, report=report_json,
                         calibrate_only=calibrate_only, recursive=recursive, frames_per_set=frames_per_set,
-                        gap=gap, progress=progress, times_file=times_file, handle_signals=True)
+                        gap=gap, progress=progress, times_file=times_file, handle_signals=True,
+                        name=name, response_cache=response_cache)
     except Cancelled as exc:  # before any set ran (scanning, calibrating): nothing to report
         progress.close()
         click.echo(f"hdrcl: {_stopped(exc.signum)}", err=True)
@@ -260,6 +321,31 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
     ctx.exit(rep.exit_code)
 
 
+def _format_plan(plan: dict, out_dir: str) -> str:
+    """``batch --dry-run``: two lines per set, then what is left out."""
+    from hdrcl.io.metadata import format_time
+
+    lines = []
+    for r in plan["sets"]:
+        span = (f"{format_time(r['exposures'][0])} .. {format_time(r['exposures'][1])}"
+                if r["exposures"] else "exposures from EXIF")
+        lines.append(f"set {r['index']}: {r['frames']} frames, {os.path.basename(r['first'])} .. "
+                     f"{os.path.basename(r['last'])}, {span} -> {r['output']}"
+                     + (" (+ preview)" if r["preview"] else ""))
+        resp, cal = r["response"], r["calibration"]
+        how = {"given": "given", "cached": "from the cache", "own": "calibrated from this set alone",
+               "pooled": f"calibrated, pooled over sets {', '.join(map(str, cal.get('sets', [])))}"}[cal["kind"]]
+        state = {"saved": " (saved; reused while its calibration is current)",
+                 "calibrate": " (to be written)"}.get(resp["source"], "")
+        lines.append(f"  response {resp['group']}: {resp['file']}{state}, {how}")
+    for u in plan["unmerged"]:
+        more = f" (+{len(u['files']) - 1} more)" if len(u["files"]) > 1 else ""
+        lines.append(f"not merged: {os.path.basename(u['files'][0])}{more}: {u['reason']}")
+    lines.append(f"dry run: {len(plan['sets'])} set(s) would be merged into {out_dir} "
+                 f"(reference {plan['reference']}); nothing was written")
+    return "\n".join(lines)
+
+
 def _stopped(signum: int) -> str:
     """``terminated`` (SIGTERM) or ``interrupted`` (Ctrl-C), as the other commands say it."""
     import signal
@@ -278,7 +364,7 @@ def _summary(rep) -> None:
                 more = f" (+{len(u['files']) - 1} more)" if len(u["files"]) > 1 else ""
                 click.echo(f"  not merged: {os.path.basename(u['files'][0])}{more}: {u['reason']}")
     else:
-        click.echo(f"{n} set(s): {rep.count('done')} done, {rep.count('skipped')} skipped, "
+        click.echo(f"{n} set(s): {rep.count('done')} done, {rep.count('skipped')} up to date, "
                    f"{rep.count('failed')} failed in {rep.seconds:.1f} s; report: {rep.path}")
     if rep.quality_report:
         click.echo(f"quality report: {rep.quality_report}")

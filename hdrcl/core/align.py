@@ -1,5 +1,8 @@
 """Translation alignment of hand-held brackets by median threshold bitmaps (Ward 2003).
 
+``merge --align`` starts here and goes on in :mod:`hdrcl.core.handheld` (sub-pixel
+translation, similarity or homography, and the warp).
+
 G. Ward, "Fast, robust image registration for compositing high dynamic range
 photographs from hand-held exposures", Journal of Graphics Tools 8(2), 2003.
 
@@ -204,7 +207,7 @@ class NumpyAligner:
     """The twins behind the interface of :class:`hdrcl.cl.align.AlignProcessor`:
     :meth:`grey_pyramid`, :meth:`bitmaps`, :meth:`costs`."""
 
-    def grey_pyramid(self, frame: np.ndarray, levels: int, slot: str = "frame") -> GreyPyramid:
+    def grey_pyramid(self, frame: np.ndarray, levels: int, slot: str = "frame", host_from: int = 0) -> GreyPyramid:
         frame = np.asarray(frame)
         if frame.dtype not in (np.uint8, np.uint16):
             raise TypeError(f"frames must be uint8 or uint16, not {frame.dtype}")
@@ -213,7 +216,7 @@ class NumpyAligner:
         host = [g]
         for _ in range(levels - 1):
             host.append(downsample(host[-1]))
-        return GreyPyramid(slot, shapes, host)
+        return GreyPyramid(slot, shapes, [g if k >= host_from else None for k, g in enumerate(host)])
 
     def bitmaps(self, gp: GreyPyramid, thresholds: Sequence[int], tol: int) -> HostBitmaps:
         tb, eb = zip(*(threshold_bitmaps(g, t, tol) for g, t in zip(gp.host, thresholds)))
@@ -346,7 +349,19 @@ def estimate_shifts(
         return [(0, 0)]
     aligner = get_aligner(device)
 
+    shifts, _ = shift_search(aligner, frames, ref, levels, radius, tol, lo, hi)
+    return shifts
+
+
+def shift_search(aligner, frames, ref: int, levels: int, radius: int, tol: int, lo: int, hi: int,
+                 keep_from: Optional[int] = None) -> Tuple[List[Shift], List[List[np.ndarray]]]:
+    """The search of :func:`estimate_shifts` per frame; also, with ``keep_from``, each
+    frame's grey pyramid from that level down to the coarsest (host arrays, for the
+    sub-pixel registration of :mod:`hdrcl.core.register`)."""
     ref_gp = aligner.grey_pyramid(frames[ref], levels, slot="ref")
+    kept: List[List[np.ndarray]] = [[] for _ in frames]
+    if keep_from is not None:
+        kept[ref] = list(ref_gp.host[keep_from:])
     ref_use = usable_interval(ref_gp.host[0], lo, hi)
     ref_bms: Dict[int, Any] = {}  # reference bitmaps by percentile, rebuilt when it changes
     shifts: List[Shift] = []
@@ -356,6 +371,8 @@ def estimate_shifts(
             logger.info("align: frame %d is the reference", j)
             continue
         gp = aligner.grey_pyramid(f, levels, slot="frame")
+        if keep_from is not None:
+            kept[j] = list(gp.host[keep_from:])
         q = shared_percentile(ref_use, usable_interval(gp.host[0], lo, hi))
         if q not in ref_bms:
             ref_bms.clear()  # one reference set at a time: the device holds one slot
@@ -365,7 +382,7 @@ def estimate_shifts(
         shifts.append((dy, dx))
         logger.info("align: frame %d shift dy=%+d dx=%+d px (threshold at the %.1f%% point; "
                     "%d mismatching pixels)", j, dy, dx, 100.0 * q / QONE, cost)
-    return shifts
+    return shifts, kept
 
 
 def crop_box(shape: Tuple[int, int], shifts: Sequence[Shift]) -> Tuple[int, int, int, int]:

@@ -13,7 +13,10 @@ set of one camera the same ``t_ref`` (one radiometric scale across a shoot), and
 recorded in standard metadata: OpenEXR's ``expTime`` (with ``aperture`` and
 ``isoSpeed``) and ``hdrcl:referenceExposure``, Radiance's ``EXPOSURE=`` line (stored =
 original x EXPOSURE, Radiance's own convention), and the TIFF's hdrcl JSON. PFM files
-have no metadata and hold ``E`` as is; so do maps in absolute units (cd/m^2).
+have no metadata and hold ``E`` as is; so do maps in absolute units (cd/m^2). A
+calibrated fisheye luminance map (``chain=``, :mod:`hdrcl.core.fisheye`) is absolute
+too: written once its ``N x N`` result is known (:func:`fuse_through_chain`), with no
+reference exposure and no ``EXPOSURE=`` line.
 
 **Storage.** An EXR is half float whenever the values fit (``--dtype auto``, the
 default, and ``--dtype half``). The range is measured on the merged data as it streams
@@ -107,7 +110,7 @@ class Stored:
 
 
 def fuse_to_file(open_writer: Callable, run: Callable, *, output: str, dtype: str, reference: float,
-                 keep_units: bool):
+                 keep_units: bool, chain=None):
     """Fuse into a radiance file, half whenever the data fit.
 
     Parameters
@@ -124,12 +127,19 @@ def fuse_to_file(open_writer: Callable, run: Callable, *, output: str, dtype: st
         Multiplier from 1 s radiance to the file's values (:func:`reference_for`).
     keep_units : bool
         Absolute units: never rescale; float when half cannot hold them.
+    chain : hdrcl.core.fisheye.LuminanceChain, optional
+        A calibrated fisheye luminance map (:func:`fuse_through_chain`): the strips go
+        into the chain, whose ``N x N`` result is written once the fusion ends, with
+        ``open_writer(dtype, 1.0, chain)`` (the callback adapts its metadata, camera and
+        size with ``chain.writer_args(metadata, camera)``). One pass, never a second.
 
     Returns
     -------
     writer, counts, Stored
         The writer is still open: the caller commits it with ``close()`` (or ``abort()``).
     """
+    if chain is not None:
+        return fuse_through_chain(open_writer, run, chain, output=output, dtype=dtype)
     ext = os.path.splitext(os.fspath(output))[1].lower()
     optimistic = ext == ".exr" and dtype in ("auto", "half")
     first = "half" if optimistic or dtype == "auto" else dtype
@@ -152,6 +162,34 @@ def fuse_to_file(open_writer: Callable, run: Callable, *, output: str, dtype: st
     again = RangeMeter(writer, reference * hp.scale, check=False)
     try:
         counts = run(again, False)
+    except BaseException:
+        writer.abort()
+        raise
+    return writer, counts, stored
+
+
+def fuse_through_chain(open_writer: Callable, run: Callable, chain, *, output: str, dtype: str):
+    """Fuse into ``chain`` (strips in cd/m^2), then write its calibrated map.
+
+    The map is in the writer's memory whole (``N x N``), so its range is known before
+    the file is opened: half when it fits (``auto``, ``half``), float otherwise (the
+    units are kept: never rescaled). Returns ``writer, counts, Stored`` as
+    :func:`fuse_to_file` does; ``Stored.reference`` is 1 (absolute units).
+    """
+    counts = run(chain, True)
+    values = chain.file_values(output, chain.finish())
+    pos = values[values > 0]
+    lo = float(pos.min()) if pos.size else math.inf
+    hi = float(values.max()) if values.size else 0.0
+    ext = os.path.splitext(os.fspath(output))[1].lower()
+    if pos.size:
+        hp = halfrange.plan(lo, hi, dtype if ext == ".exr" else "float", keep_units=True)
+    else:  # all black: any type holds it
+        hp = halfrange.HalfPlan("float" if dtype == "float" else "half")
+    stored = Stored(dtype=hp.dtype, reference=1.0, lo=lo, hi=hi, note=hp.message)
+    writer = open_writer(hp.dtype, 1.0, chain)
+    try:
+        writer.write_rows(0, values.shape[0], values)
     except BaseException:
         writer.abort()
         raise

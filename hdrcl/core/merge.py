@@ -22,6 +22,7 @@ from hdrcl.core.bracket import (
 from hdrcl.core.calibrate import calibrate, exposures_used
 from hdrcl.core.response import Response, _as_response
 from hdrcl.core.scale import _radiometric_factors
+from hdrcl.core.stages import _kept_frames, _measured_exposures, _report_exposure_check, _Tee, _warm_up  # noqa: F401
 from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.errors import UsageError
 
@@ -43,13 +44,15 @@ class MergeResult:
     output: Optional[str] = None
     shape: tuple = ()
     thumbnail: Optional[np.ndarray] = None
-    shifts: Optional[list] = None  # (dy, dx) per frame when aligned
+    shifts: Optional[list] = None  # (dy, dx) per frame when aligned: whole-pixel motion of its centre
+    alignment: Optional[list] = None  # per frame when aligned: hdrcl.core.handheld.describe dicts
     nominal: Optional[np.ndarray] = None  # the set's own exposures before any refinement
     crop: Optional[tuple] = None  # (y0, y1, x0, x1) of the input kept, with align + crop
     storage_note: Optional[str] = None  # how an EXR was stored when half could not hold it
     stored: Optional[object] = None  # hdrcl.core.encode.Stored: type, reference exposure, measured range
     kept: Optional[tuple] = None  # (frames, valid, is_grid) with keep_frames: for the quality report
     stages: dict = field(default_factory=dict)  # seconds per stage (decode, solve, fuse, encode, write); overlapping
+    vertical_illuminance: Optional[float] = None  # lux at the lens, with a fisheye luminance chain (-vta view)
 
     def __post_init__(self):
         if not self.shape and self.radiance is not None:
@@ -153,11 +156,13 @@ def merge_files(
     reference_patch=None,
     absolute: bool = False,
     align: bool = False,
+    align_model: str = "auto",
     crop: bool = False,
     colorspace: str = "rec709",
     owner: Optional[str] = None,
     save_response: Union[str, os.PathLike, None] = None,
     reference_exposure=None,
+    chain=None,
 ) -> MergeResult:
     """Merge image files into a radiance file (EXR, HDR, TIFF or PFM by extension).
 
@@ -218,10 +223,15 @@ def merge_files(
     absolute : bool
         Approximate absolute scale (cd/m^2) from the first frame's f-number and ISO.
     align : bool
-        Align hand-held frames by translation (median threshold bitmaps, Ward 2003;
-        :mod:`hdrcl.core.align`) to the middle exposure; ``result.shifts`` holds each
-        frame's ``(dy, dx)``. Pixels a shifted frame no longer covers are masked in that
-        frame. The frames are held in memory for this.
+        Align hand-held frames to the middle exposure (:mod:`hdrcl.core.handheld`):
+        whole-pixel shift by median threshold bitmaps, then a sub-pixel fit of
+        ``align_model``, and a warp. ``result.alignment`` holds one dict per frame
+        (model, matrix, rotation, scale, shift, residual); ``result.shifts`` each
+        frame's whole-pixel ``(dy, dx)``. Pixels a warped frame no longer covers are
+        masked in that frame. A frame that cannot be aligned is refused (InputError
+        naming it). The frames are held in memory for this.
+    align_model : {"auto", "shift", "similarity", "homography"}
+        With ``align``: the motion model; ``auto`` takes the simplest that fits.
     crop : bool
         With ``align``: crop the output to the box every frame covers.
     colorspace : {"rec709", "acescg"}
@@ -236,6 +246,13 @@ def merge_files(
         Also write the response used (JSON). It is written to a temporary file before
         the radiance, so a full disk or a read-only folder fails the merge before the
         radiance file appears, and renamed into place after it.
+    chain : hdrcl.core.fisheye.LuminanceChain, optional
+        A calibrated fisheye luminance map (``LuminanceChain.from_options``): the fused
+        strips, in cd/m^2 (``absolute`` is implied unless ``reference_patch`` sets the
+        scale), are cropped to the lens circle and area-averaged to ``N x N`` as they
+        come, corrected at the end and written as the output (``N x N``);
+        ``result.vertical_illuminance`` holds the lux at the lens for ``-vta`` views.
+        ``result.radiance`` and the thumbnail stay the full merged map.
     """
     from hdrcl.cl.backend import get_processor
     from hdrcl.core.encode import fuse_to_file, reference_for
@@ -257,6 +274,8 @@ def merge_files(
                       colorspace=colorspace, reference_exposure=reference_exposure)
     samples, smoothness, seed, exposure_tolerance = o["samples"], o["smoothness"], o["seed"], o["exposure_tolerance"]
     reference_exposure = o["reference_exposure"]
+    if chain is not None and reference_patch is None:
+        absolute = True  # a luminance map is in cd/m^2; the chain multiplies by its K
     if isinstance(output, bytes):
         output = os.fsdecode(output)
     colorspace = check_space(colorspace)
@@ -276,6 +295,10 @@ def merge_files(
     rgb = _parse_ignore_color(ignore_color)
     if crop and not align:
         raise UsageError("--crop needs --align")
+    if align:
+        from hdrcl.core.handheld import check_model
+
+        align_model = check_model(align_model)
     if ghost_mask is not None and not deghost:
         raise UsageError("--ghost-mask needs --deghost")
     if not deghost and (ghost_threshold is not None or ghost_reference is not None):
@@ -297,6 +320,8 @@ def merge_files(
     nch = 3 if first.nchannels >= 3 else 1
     h, w = first.height, first.width
     check_image_size(w, h, neutral=neutral, reference_patch=reference_patch)  # from the headers
+    if chain is not None:
+        chain.bind(h, w, nch)  # --lens-circle against the image, before any decoding
     if resp is not None:
         check_response_fits(resp, source_name, paths[0], first.bits, nch)
     if resp is None and _all_raw(paths):
@@ -307,7 +332,7 @@ def merge_files(
                           for p, t in zip(paths, rel)]
     t1 = _time.perf_counter()
     seconds["open"] = t1 - t0
-    shifts = crop_box = None
+    shifts = crop_box = alignment = None
     nominal = rel
     grid = None  # the sampling grid, when a streaming pass read it
     fit_notes: List[str] = []
@@ -316,12 +341,23 @@ def merge_files(
             frames, valid = reader.read_all()
             seconds["decode"] = reader.decode_seconds
         valid = _with_ignore(frames, valid, rgb)
-        frames, valid, shifts, crop_box = _align(frames, valid, rel, device, crop)
+        from hdrcl.core.handheld import align_bracket
+
+        ta = _time.perf_counter()
+        al = align_bracket(frames, valid, rel, device, crop, align_model, paths, inplace=True)
+        seconds["align"] = _time.perf_counter() - ta
+        frames, valid, shifts, crop_box, alignment = al.frames, al.valid, al.shifts, al.crop, al.alignment
+        del al
         if crop_box is not None:
             y0, y1, x0, x1 = crop_box
             h, w = y1 - y0, x1 - x0
-        if resp is None:
-            br = Bracket(frames=frames, times=rel, valid=valid, paths=paths, infos=infos)
+        if resp is None:  # from the sampling grid of the aligned frames, as a streaming merge does
+            from hdrcl.core.sampling import grid_stride
+
+            k = grid_stride(h, w)
+            br = Bracket(frames=[f[::k, ::k] for f in frames], times=rel,
+                         valid=[None if v is None else v[::k, ::k] for v in valid], paths=paths, infos=infos,
+                         grid=True)
             resp = calibrate(br, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
                              fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance)
         source = ArraySource(frames, valid)
@@ -366,13 +402,15 @@ def merge_files(
                 source.close()
                 raise
     rel = exposures_used(resp, rel)
+    if chain is not None:
+        chain.bind(h, w, nch)  # again: --crop may have made the image smaller
     t2 = _time.perf_counter()
     seconds["calibrate"] = t2 - t1
     warm.join()
     backend = "numpy" if get_processor("fusion", device, work=work) is None else "opencl"
     result = MergeResult(radiance=None, response=resp, counts={}, times=rel, paths=paths, backend=backend,
                          shape=(h, w, nch), warnings=list(resp.warnings) + fit_notes, output=output, shifts=shifts,
-                         nominal=nominal, crop=crop_box)
+                         nominal=nominal, crop=crop_box, alignment=alignment)
     # Any per-frame mask (alpha, ignore colour, or pixels an aligned frame lost) must
     # reach the kernel.
     has_valid = (rgb is not None or any(i.nchannels in (2, 4) for i in infos)
@@ -402,16 +440,20 @@ def merge_files(
                                   [paths[i] for i in order])
         meta["colorspace"] = colorspace
         if shifts is not None:
-            meta["alignShifts"] = [list(map(int, sh)) for sh in shifts]
+            from hdrcl.core.handheld import alignment_meta
+
+            meta.update(alignment_meta(shifts, alignment))
         camera = camera_from_infos(infos, owner=owner, units=unit, exposure_time=t_ref)
         when = first.capture_time.strftime("%Y:%m:%d %H:%M:%S") if first.capture_time else None
 
-        def open_writer(dt, half_scale):
-            m = dict(meta)
+        def open_writer(dt, half_scale, ch=None):
+            m, cam, ww, hh = dict(meta), camera, w, h
+            if ch is not None:  # the chain's N x N map: its units, VIEW=, vertical illuminance
+                m, cam, ww, hh = ch.writer_args(m, cam)
             if half_scale != 1.0:
                 m["halfScale"] = half_scale
-            return RadianceWriter(output, w, h, nch, dtype=dt, compression=compression, metadata=m,
-                                  timestamp=when, colorspace=colorspace, camera=camera)
+            return RadianceWriter(output, ww, hh, nch, dtype=dt, compression=compression, metadata=m,
+                                  timestamp=when, colorspace=colorspace, camera=cam)
 
         def run(file_sink, first_pass):
             # --- fuse (the encode and write happen in the writer's thread as strips come)
@@ -436,7 +478,7 @@ def merge_files(
             return counts
 
         writer, counts, stored = fuse_to_file(open_writer, run, output=output, dtype=dtype, reference=t_ref,
-                                              keep_units=unit != "relative")
+                                              keep_units=unit != "relative", chain=chain)
         tw = _time.perf_counter()
         try:
             result.warnings += writer.close()
@@ -445,6 +487,8 @@ def merge_files(
             raise
         seconds["write"] = _time.perf_counter() - tw
         result.stored = stored
+        if chain is not None:
+            result.vertical_illuminance = chain.vertical_illuminance
         if stored.note:
             msg = f"{output}: {stored.note}"
             result.warnings.append(msg)
@@ -479,98 +523,15 @@ def merge_files(
     result.stages = {k: seconds[k] for k in ("decode", "solve", "fuse", "encode", "write") if k in seconds}
     result.seconds = {"open": seconds["open"], "calibrate": seconds["calibrate"],
                       "fuse_and_write": _time.perf_counter() - t2}
+    if "align" in seconds:  # within "calibrate" (the frames are aligned before the solve)
+        result.seconds["align"] = seconds["align"]
     return result
 
 
-def _measured_exposures(frames, valid, times, resp, mode, weight, tolerance, paths):
-    """:func:`hdrcl.core.exposure_known.exposures_for_merge` on a set's grid; its notes
-    are logged as warnings (a corrected or doubtful exposure is worth a line)."""
-    from hdrcl.core.exposure_known import exposures_for_merge
+def _align(frames, valid, times, device, crop: bool = False, model: str = "auto", names=None):
+    """``(frames, valid, shifts, box)`` of :func:`hdrcl.core.handheld.align_bracket`
+    (``box`` None without ``crop``)."""
+    from hdrcl.core.handheld import align_bracket
 
-    used, notes = exposures_for_merge(frames, times, resp, mode=mode, valid=valid, weight=weight,
-                                      tolerance_stops=tolerance, names=paths)
-    for note in notes:
-        logger.warning("%s", note)
-    return used, notes
-
-
-def _kept_frames(source, grid):
-    """``(frames, valid, is_grid)`` the merge holds already: an aligned set's frames, the
-    decoded-frame cache when it is in memory, else the sampling grid; None otherwise."""
-    if hasattr(source, "frames"):  # aligned (and cropped): what was merged
-        return list(source.frames), list(source.valid), False
-    cache = getattr(source, "cache", None)
-    if cache is not None and cache.complete and cache.in_memory:
-        frames, valid = cache.rows(0, cache.height)
-        return frames, valid, False
-    if grid is not None:
-        return list(grid.frames), list(grid.valid), True
-    return None
-
-
-def _report_exposure_check(check, result, tolerance):
-    """Warn about exposures the pixels contradict; refuse a set whose exposures run in
-    reverse order of its brightness (raised inside the writer: no output is left)."""
-    from hdrcl.core.exposure_fit import EXPOSURE_TOLERANCE_STOPS
-    from hdrcl.errors import InputError
-
-    msgs, backwards = check.problems(EXPOSURE_TOLERANCE_STOPS if tolerance is None else float(tolerance))
-    if backwards:
-        raise InputError(f"{check.names[-1]}: the exposure times run in reverse order of the frames' "
-                         "brightness with this response; check the times")
-    for m in msgs:
-        logger.warning("%s", m)
-        result.warnings.append(m)
-
-
-def _align(frames, valid, times, device, crop: bool = False):
-    """Shift ``frames`` onto the middle exposure; returns frames, masks, shifts and the
-    box every frame covers, ``(y0, y1, x0, x1)``. With ``crop`` the frames and masks are
-    cut to that box; without it the box returned is None."""
-    from hdrcl.core.align import apply_shifts, estimate_shifts
-    from hdrcl.io.metadata import format_time
-
-    order = np.argsort(np.asarray(times, np.float64), kind="stable")
-    est = estimate_shifts([frames[i] for i in order], device=device)
-    shifts = [None] * len(frames)
-    for pos, i in enumerate(order):
-        shifts[i] = tuple(int(v) for v in est[pos])
-    for i, sh in enumerate(shifts):
-        logger.info("align: frame %d (%s) shifted by dy=%d dx=%d", i, format_time(times[i]), sh[0], sh[1])
-    out, masks, box = apply_shifts(frames, shifts, valid)
-    out, masks = list(out), list(masks)
-    if not crop:
-        return out, masks, shifts, None
-    y0, y1, x0, x1 = box
-    out = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in out]
-    masks = [None if v is None else np.ascontiguousarray(v[y0:y1, x0:x1]) for v in masks]
-    return out, masks, shifts, box
-
-
-def _warm_up(device, calibrating: bool, work=None):
-    """Open the OpenCL device (and import the solver) on a helper thread while the
-    frames decode: both take a few tenths of a second that need not add up."""
-    import threading
-
-    def warm():
-        try:
-            if calibrating:
-                import scipy.sparse  # noqa: F401
-            from hdrcl.cl.backend import get_processor
-
-            get_processor("fusion", device, work=work)
-        except Exception:  # the main thread meets the same error and reports it
-            pass
-
-    t = threading.Thread(target=warm, name="hdrcl-warm-up", daemon=True)
-    t.start()
-    return t
-
-
-class _Tee:
-    def __init__(self, *sinks):
-        self.sinks = sinks
-
-    def write_rows(self, y0, y1, data):
-        for s in self.sinks:
-            s.write_rows(y0, y1, data)
+    al = align_bracket(frames, valid, times, device, crop, model, names)
+    return al.frames, al.valid, al.shifts, al.crop

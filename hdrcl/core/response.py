@@ -1,5 +1,7 @@
 """The camera response ``g = ln f^-1``: one table per channel, its knots, its JSON file
-format (:class:`Response`), and the linear response of RAW data.
+format (:class:`Response`), and the linear response of RAW data. :meth:`Response.load`
+and :meth:`Response.save` also read and write hdrgen's ``.rsp`` polynomials
+(:mod:`hdrcl.io.rsp`), chosen by the file's extension.
 """
 from __future__ import annotations
 
@@ -301,20 +303,40 @@ class Response:
         """The response file's text (see :meth:`to_dict`)."""
         return json.dumps(self.to_dict(), indent=1) + "\n"
 
-    def save(self, path) -> None:
-        """Write the response as JSON, atomically (temporary file, then rename), with
-        the permissions the umask allows."""
+    def save(self, path):
+        """Write the response atomically (temporary file, then rename), with the
+        permissions the umask allows: JSON, or hdrgen's polynomial form when ``path``
+        ends in ``.rsp`` (:mod:`hdrcl.io.rsp`; returns its :class:`~hdrcl.io.rsp.RspFit`,
+        the order and fit error per channel, else None)."""
         from hdrcl.io.atomic import write_text
 
+        if os.fspath(path).lower().endswith(".rsp"):
+            from hdrcl.io.rsp import write_rsp
+
+            if self.bits != 8:  # hdrgen's polynomials are read back as 8-bit codes
+                raise UsageError(f"{os.fspath(path)}: hdrgen's .rsp holds 8-bit responses; this one is "
+                                 f"{self.bits}-bit: write it as .json")
+
+            return write_rsp(self.tables(), self.levels, path)
         write_text(path, self.to_json())
+        return None
 
     @classmethod
     def load(cls, path) -> "Response":
-        """Read a response file; :class:`InputError` names the file and the problem
-        (a UTF-8 byte-order mark is accepted)."""
+        """Read a response file, hdrcl's JSON or (``.rsp``) hdrgen's polynomials
+        (:mod:`hdrcl.io.rsp`); :class:`InputError` names the file and the problem (a UTF-8
+        byte-order mark is accepted)."""
         from hdrcl.io.jsondoc import read_json
 
         path = os.fspath(path)
+        if path.lower().endswith(".rsp"):
+            from hdrcl.io.rsp import read_rsp
+
+            g, channels = read_rsp(path)
+            resp = cls(bits=8, g=g, knots=np.arange(256, dtype=np.float64), channels=channels, smoothness=0.0,
+                       camera={"responseFile": os.path.basename(path)})
+            resp.check_given(path)
+            return resp
         return cls.from_dict(read_json(path, "response file"), source=path)
 
 

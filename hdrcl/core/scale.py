@@ -10,8 +10,12 @@ from hdrcl.errors import UsageError
 
 
 def _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, nch, neutral, reference_patch,
-                         absolute, h, w):
-    """Per-channel factors (or None) and metadata for white balance and absolute scale."""
+                         absolute, h, w, exposure_reference=None):
+    """Per-channel factors (or None) and metadata for white balance and absolute scale.
+
+    ``exposure_reference`` is the ``(f-number, ISO)`` that the exposures ``rel`` are
+    relative to when that is not the first frame's (a batch: the shoot's reference);
+    the absolute scale must use the same."""
     from hdrcl.core import radiometry as rm
 
     if reference_patch is not None and absolute:
@@ -51,9 +55,11 @@ def _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, n
         units.update({"units": "cd/m2", "scaleSource": f"reference patch {patch} = {value:g} cd/m2",
                       "scale": float(scale)})
     elif absolute:
-        scale = rm.exif_scale(infos[0].fnumber, infos[0].iso)
+        ref_n, ref_iso = exposure_reference or (None, None)
+        fnumber, iso = ref_n or infos[0].fnumber, ref_iso or infos[0].iso
+        scale = rm.exif_scale(fnumber, iso)
         factors *= scale
         units.update({"units": "cd/m2 (approximate)",
-                      "scaleSource": f"K N^2/ISO, K={rm.METER_K:g}, N={infos[0].fnumber:g}, ISO={infos[0].iso:g}",
+                      "scaleSource": f"K N^2/ISO, K={rm.METER_K:g}, N={fnumber:g}, ISO={iso:g}",
                       "scale": float(scale)})
     return factors, units

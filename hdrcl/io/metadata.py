@@ -15,7 +15,7 @@ import logging
 import math
 import os
 from dataclasses import dataclass, field
-from typing import Mapping, Optional, Sequence, Union
+from typing import List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -32,7 +32,13 @@ __all__ = [
     "resolve_exposures",
     "format_time",
     "check_exposures",
+    "EXPOSURE_LISTS",
+    "header_exposures",
 ]
+
+#: Exposure lists looked for beside frames that carry no EXIF exposure time, in this
+#: order of preference (``merge``, ``calibrate``, ``scan`` and ``batch`` alike).
+EXPOSURE_LISTS = ("image_list.txt", "times.txt")
 
 # Two exposures whose effective times differ by less than this fraction (0.0014 stops)
 # are the same exposure: they add no range, but they are fused (less noise).
@@ -312,6 +318,57 @@ def read_times_file(path) -> dict:
     return result
 
 
+def _has_time(info) -> bool:
+    t = info.exposure_time
+    return t is not None and math.isfinite(t) and t > 0
+
+
+def _list_in(folder: str) -> Optional[str]:
+    for name in EXPOSURE_LISTS:
+        candidate = os.path.join(folder, name)
+        if os.path.isfile(candidate):
+            return candidate
+    return None
+
+
+def header_exposures(paths, infos) -> Tuple[list, List[str]]:
+    """Each frame's exposure from its header, or from the exposure list beside it.
+
+    A frame with an EXIF exposure time keeps it (with its f-number and ISO); one
+    without takes its entry in the first of :data:`EXPOSURE_LISTS` in its own folder
+    (time, f-number, gain and ND as listed). The one rule of ``merge``, ``calibrate``,
+    ``scan`` and ``batch``.
+
+    Returns
+    -------
+    (list, list of str)
+        One :class:`Exposure` per frame (None for a frame neither source times), and
+        the lists that were used.
+
+    Raises
+    ------
+    InputError
+        A list beside the frames cannot be read (the message names it).
+    """
+    tables: dict = {}
+    used: List[str] = []
+    out = []
+    for n, info in zip(paths, infos):
+        if _has_time(info):
+            out.append(Exposure(time=float(info.exposure_time), fnumber=info.fnumber, iso=info.iso))
+            continue
+        folder = os.path.dirname(os.path.abspath(os.fspath(n)))
+        if folder not in tables:
+            found = _list_in(folder)
+            tables[folder] = (found, read_times_file(found) if found else {})
+        found, table = tables[folder]
+        e = table.get(os.path.basename(os.fspath(n)))
+        if e is not None and found not in used:
+            used.append(found)
+        out.append(None if e is None else Exposure(e.time, info.fnumber or e.fnumber, info.iso, e.gain_db, e.nd))
+    return out, used
+
+
 def _shared_or_none(values, label):
     """The reference value for a factor, or None when it must be ignored."""
     if any(v is None or v <= 0 for v in values):
@@ -391,7 +448,9 @@ def resolve_exposures(
     """Choose each frame's exposure from the given sources and check the set is usable.
 
     Precedence: ``times`` (the whole exposure: EXIF aperture and ISO are not used), then
-    ``times_file``, then each frame's EXIF (ExposureTime, FNumber, ISO).
+    ``times_file``, then each frame's EXIF (ExposureTime, FNumber, ISO), or for a frame
+    without EXIF exposure time its entry in an ``image_list.txt`` or ``times.txt``
+    beside it (:func:`header_exposures`; one info line per list).
 
     Parameters
     ----------
@@ -448,14 +507,14 @@ def resolve_exposures(
     else:
         if infos is None or len(infos) != len(names):
             raise ValueError("resolve_exposures needs one FrameInfo per path for EXIF")
-        exposures = []
-        for n, info in zip(names, infos):
-            t = info.exposure_time
-            if t is None or not math.isfinite(t) or t <= 0:
-                raise InputError(
-                    f"{n}: no exposure time in EXIF; give --times or --times-file"
-                )
-            exposures.append(Exposure(time=t, fnumber=info.fnumber, iso=info.iso))
+        exposures, used = header_exposures(names, infos)
+        for u in used:
+            logger.info("%s: exposures of the frames it lists (they carry no EXIF exposure time)", u)
+        for n, e in zip(names, exposures):
+            if e is None:
+                beside = _list_in(os.path.dirname(os.path.abspath(n)))
+                raise InputError(f"{n}: no exposure time in EXIF; give --times or --times-file"
+                                 + (f" (not listed in {beside})" if beside else ""))
     rel = relative_exposures(exposures)
     for n, r in zip(names, rel):
         if not (math.isfinite(r) and r > 0):

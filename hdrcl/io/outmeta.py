@@ -16,6 +16,12 @@ read by standard names:
 ``exposure_time``      ``expTime``                 the map is what a frame of ``expTime``
                                                    at this f-number and ISO records as 1
                                                    (:mod:`hdrcl.core.encode`)
+``units`` = ``cd/m2``  ``whiteLuminance`` = 1      a calibrated luminance map
+                                                   (:mod:`hdrcl.core.fisheye`): 1.0 is 1
+                                                   cd/m^2; ``.hdr``: no ``EXPOSURE=`` line
+``view``               (``.hdr``: ``VIEW=``)       Radiance view, e.g. ``-vta -vh 180 -vv 180``
+``vertical_illuminance``  (``.hdr``:               lux at the lens (EXR: ``hdrcl:*``
+                       ``VERTICAL_ILLUMINANCE=``)  metadata of the chain)
 =====================  ==========================  =========================================
 
 The reference f-number and ISO are the first frame's (the merge expresses every frame's
@@ -69,6 +75,8 @@ def standard_attributes(ext: str, camera: Optional[Mapping]) -> list:
     for key, name in (("make", "cameraMake"), ("model", "cameraModel"), ("lens", "lensModel")):
         if cam.get(key):
             out.append((name, _clean(cam[key])))
+    if cam.get("units") == "cd/m2":  # a calibrated luminance map: 1.0 is 1 cd/m^2
+        out.append(("whiteLuminance", 1.0))
     for key, name in (("focal_length", "nominalFocalLength"), ("fnumber", "FNumber"), ("iso", "isoSpeed"),
                       ("exposure_time", "ExposureTime")):
         value = cam.get(key)
@@ -77,19 +85,62 @@ def standard_attributes(ext: str, camera: Optional[Mapping]) -> list:
     return out
 
 
-def hdr_header_lines(camera: Optional[Mapping], colorspace: str, timestamp: Optional[str]) -> list:
-    """The Radiance header lines hdrcl adds after ``FORMAT=`` (without newlines)."""
+#: The Radiance header line that carries hdrcl's own metadata (compact JSON; Radiance
+#: tools pass unknown header lines through): ``hdrcl batch`` finds its input hash there.
+HDR_METADATA_LINE = "HDRCL="
+
+
+def hdr_header_lines(camera: Optional[Mapping], colorspace: str, timestamp: Optional[str],
+                     metadata: Optional[Mapping] = None) -> list:
+    """The Radiance header lines hdrcl adds after ``FORMAT=`` (without newlines);
+    ``metadata`` (the ``hdrcl:*`` values) goes on one ``HDRCL=`` line as JSON."""
     prim = " ".join(f"{v:.4f}" for v in chromaticities(check_space(colorspace)))
     # Radiance's convention: stored value = original x EXPOSURE. hdrcl stores radiance
     # (relative to 1 s) times the reference exposure; absolute maps are stored as they are.
-    exposure = float((camera or {}).get("exposure_time") or 1.0)
-    lines = [f"SOFTWARE={software()}", f"EXPOSURE={exposure:.6e}", f"PRIMARIES= {prim}"]
+    # A calibrated luminance map (``units`` cd/m2, hdrcl.core.fisheye) holds Radiance's
+    # radiance as it is: no EXPOSURE= line at all, and its VIEW= and vertical illuminance.
+    cam = camera or {}
+    exposure = float(cam.get("exposure_time") or 1.0)
+    lines = [f"SOFTWARE={software()}"]
+    if cam.get("units") != "cd/m2":
+        lines.append(f"EXPOSURE={exposure:.6e}")
+    lines.append(f"PRIMARIES= {prim}")
+    if cam.get("view"):
+        lines.append(f"VIEW= {_clean(cam['view'])}")
+    if cam.get("vertical_illuminance") is not None:
+        lines.append(f"VERTICAL_ILLUMINANCE= {float(cam['vertical_illuminance']):.6g}")
     if timestamp:
         lines.append(f"CAPDATE= {_clean(timestamp)}")
     owner = (camera or {}).get("owner")
     if owner:
         lines.append(f"# owner: {_clean(owner)}")
+    # OpenImageIO's RGBE reader loses the header at a line of a multiple of 128 bytes.
+    lines = [line + " " if len(line) % 128 == 0 else line for line in lines]
+    if metadata:
+        import json
+
+        text = json.dumps(dict(metadata), separators=(",", ":"), sort_keys=True, default=str, ensure_ascii=True)
+        # Lines of at most 96 characters of JSON (escaped: no line breaks), in order.
+        lines += [f"{HDR_METADATA_LINE}{text[i:i + 96]}" for i in range(0, len(text), 96)]
     return lines
+
+
+def hdr_metadata(path) -> dict:
+    """The ``HDRCL=`` metadata of a Radiance file's header (its ``HDRCL=`` lines joined,
+    before the first blank line; at most 1 MB read), or {}."""
+    import json
+
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 20)
+    key = HDR_METADATA_LINE.encode()
+    parts = [raw[len(key):] for raw in head.split(b"\n\n", 1)[0].split(b"\n") if raw.startswith(key)]
+    if not parts:
+        return {}
+    try:
+        value = json.loads(b"".join(parts).decode("ascii"))
+    except (ValueError, UnicodeDecodeError):
+        return {}
+    return value if isinstance(value, dict) else {}
 
 
 def patch_hdr_header(path: str, lines: Sequence[str]) -> None:

@@ -93,7 +93,7 @@ def read_radiance(path, *, require_float: bool = False) -> tuple:
             problem = f"{name}: cannot decode pixel data"
         if problem is not None:
             raise InputError(problem)
-        metadata = _spec_metadata(spec)
+        metadata = _with_hdr_line(name, _spec_metadata(spec))
         exposure_line = _positive(spec.getattribute("hdr:exposure"))
     finally:
         inp.close()
@@ -181,8 +181,34 @@ def read_metadata(path) -> dict:
     inp = _open_input(name)
     try:
         spec = inp.spec()
-        metadata = _spec_metadata(spec)
-        exposure_line = _positive(spec.getattribute("hdr:exposure"))
+        metadata = _with_hdr_line(name, _spec_metadata(spec))
     finally:
         inp.close()
     return metadata
+
+
+def _with_hdr_line(name: str, metadata: dict) -> dict:
+    """A Radiance file's ``HDRCL=`` header line (:func:`hdrcl.io.outmeta.hdr_metadata`)
+    added to ``metadata``. Its scale keys are left out: the ``EXPOSURE=`` lines say the
+    scale (Radiance tools that rescale a picture add to them)."""
+    if not name.lower().endswith(".hdr"):
+        return metadata
+    from hdrcl.io.outmeta import hdr_metadata
+
+    try:
+        extra = hdr_metadata(name)
+    except OSError:
+        return metadata
+    for key in ("referenceExposure", "halfScale"):
+        extra.pop(key, None)
+    return {**extra, **metadata}
+
+
+def white_luminance(path) -> Optional[float]:
+    """OpenEXR's ``whiteLuminance`` of a file (cd/m^2 of RGB 1, 1, 1), or None."""
+    inp = _open_input(os.fspath(path))
+    try:
+        value = inp.spec().getattribute("whiteLuminance")
+    finally:
+        inp.close()
+    return _positive(value)

@@ -147,13 +147,13 @@ def _write(path: str, pixels: np.ndarray, fmt: str, attributes: list, channelnam
             raise ProcessingError(f"{path}: cannot write ({detail or 'unknown error'})")
 
 
-def _hdr_lines(ext, camera, colorspace, timestamp):
+def _hdr_lines(ext, camera, colorspace, timestamp, metadata=None):
     """Radiance header lines (SOFTWARE, EXPOSURE, PRIMARIES, CAPDATE) or None."""
     if ext != ".hdr":
         return None
     from hdrcl.io.outmeta import hdr_header_lines
 
-    return hdr_header_lines(camera, colorspace, timestamp)
+    return hdr_header_lines(camera, colorspace, timestamp, metadata)
 
 
 def _exr_compression(compression: str) -> str:
@@ -304,7 +304,7 @@ def write_radiance(path, image, *, dtype="half", compression=DEFAULT_EXR_COMPRES
     if ext == ".hdr":
         if np.any(img[finite] < 0):
             warnings.append(f"{target}: negative values are written as 0 in RGBE")
-        write_rgbe(target, img, _hdr_lines(ext, camera, colorspace, timestamp))
+        write_rgbe(target, img, _hdr_lines(ext, camera, colorspace, timestamp, metadata))
     else:
         if ext == ".exr":
             exr_threads(_oiio())
@@ -448,7 +448,7 @@ class RadianceWriter:
         target, ext, fmt, attrs, channelnames, warnings = _radiance_header(
             path, nch, dtype, compression, metadata, timestamp, colorspace, camera)
         self.colorspace = str(colorspace).strip().lower()
-        self._hdr_lines = _hdr_lines(ext, camera, colorspace, timestamp)
+        self._hdr_lines = _hdr_lines(ext, camera, colorspace, timestamp, metadata)
         self.path, self.ext = target, ext
         self.width, self.height, self.nch = int(width), int(height), int(nch)
         self.dtype, self.warnings = dtype, list(warnings)

@@ -73,23 +73,80 @@ def camera_summary(infos: Sequence) -> dict:
     return out
 
 
+#: Relative tolerance within which the camera's recorded settings must explain the
+#: exposures a merge used before the report labels the frames with them.
+SETTINGS_RTOL = 0.01
+
+
+def shot_settings(infos: Sequence, times=None) -> Optional[List[dict]]:
+    """Each frame's exposure as its camera recorded it: ``{"shutter", "fnumber",
+    "iso"}`` (seconds; f-number and ISO None where unknown), or None when a frame has no
+    shutter time or the headers do not explain ``times``.
+
+    ``times``, when given, are the exposures a merge was given for the frames (relative;
+    from ``--times`` or a times file they override EXIF): the recorded settings count
+    only when their effective exposures (:func:`hdrcl.io.metadata.relative_exposures`)
+    are proportional to ``times`` within :data:`SETTINGS_RTOL`.
+    """
+    from hdrcl.io.metadata import Exposure, relative_exposures
+
+    infos = list(infos or [])
+    if not infos or any(i is None or not i.exposure_time or not np.isfinite(i.exposure_time)
+                        or i.exposure_time <= 0 for i in infos):
+        return None
+    if times is not None:
+        t = np.asarray(times, np.float64)
+        if t.size != len(infos):
+            return None
+        rel = relative_exposures([Exposure(time=float(i.exposure_time), fnumber=i.fnumber, iso=i.iso)
+                                  for i in infos])
+        ratio = rel / t
+        if not np.all(np.isfinite(ratio)) or not np.all(ratio > 0) or np.ptp(np.log(ratio)) > SETTINGS_RTOL:
+            return None
+    return [{"shutter": float(i.exposure_time), "fnumber": i.fnumber, "iso": i.iso} for i in infos]
+
+
+def setting_parts(shutter: Optional[float], fnumber: Optional[float] = None,
+                  iso: Optional[float] = None) -> List[str]:
+    """``["1/8 s", "f/8", "ISO 100"]``: a frame's settings in words, the unknown ones left
+    out (shutter time as :func:`hdrcl.io.metadata.format_time`)."""
+    from hdrcl.io.metadata import format_time
+
+    parts = [] if shutter is None else [format_time(float(shutter))]
+    if fnumber:
+        parts.append(f"f/{_fmt_number(float(fnumber))}")
+    if iso:
+        parts.append(f"ISO {float(iso):g}")
+    return parts
+
+
 def write_inputs(folder: str, stem: str, bracket, size: int = THUMB_SIZE) -> List[dict]:
     """Thumbnails of ``bracket``'s frames (``<stem>-frame-NN.jpg``) and one row per
-    frame: ``file``, ``time`` (nominal, relative seconds), ``fnumber``, ``iso``, ``thumb``."""
+    frame, shortest exposure first: ``file``, ``time`` (nominal, relative seconds: in a
+    batch rescaled to the shoot's reference aperture and ISO), ``fnumber``, ``iso``,
+    ``shutter`` (the time ``bracket.infos`` records, None when a frame has none),
+    ``label`` (the frame's exposure in its own camera's terms, e.g. ``"1/8 s f/8 ISO
+    100"``, from the infos when every frame has a shutter time, else the nominal time)
+    and ``thumb``. The caller leaves out of the infos the times the merge did not use
+    (:func:`shot_settings` with the times given)."""
+    from hdrcl.io.metadata import format_time
     from hdrcl.io.writers import write_ldr
 
     rows = []
     infos = list(getattr(bracket, "infos", None) or [])
     paths = list(getattr(bracket, "paths", None) or [])
+    shots = shot_settings(infos)
     order = np.argsort(np.asarray(bracket.times, np.float64), kind="stable")
     for n, k in enumerate(order):
         name = f"{stem}-frame-{n:02d}.jpg"
         write_ldr(os.path.join(folder, name), thumbnail(bracket.frames[k], size))
         info = infos[k] if k < len(infos) else None
+        shot = shots[k] if shots else {}
+        label = " ".join(setting_parts(**shot)) if shot else format_time(float(bracket.times[k]))
         rows.append({"file": os.path.basename(paths[k]) if k < len(paths) else f"frame {k}",
                      "time": float(bracket.times[k]),
                      "fnumber": getattr(info, "fnumber", None), "iso": getattr(info, "iso", None),
-                     "thumb": name})
+                     "shutter": shot.get("shutter"), "label": label, "thumb": name})
     return rows
 
 

@@ -4,6 +4,7 @@ read again, measured against the merge and written as a set report and contact s
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from typing import Optional, Union
 
 import numpy as np
@@ -37,6 +38,7 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
     """
     from hdrcl.core.sampling import grid_stride
     from hdrcl.io.reader import BracketReader
+    from hdrcl.report.inputs import shot_settings
     from hdrcl.report.pages import load_report_folder, write_contact_sheet, write_set_report
     from hdrcl.report.quality import measure
 
@@ -57,7 +59,11 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
             else:
                 frames, valid = reader.read_grid(grid_stride(h, w))
     valid = _with_ignore(frames, valid, rgb)
-    if result.shifts is not None and kept is None:  # measure what was merged: the aligned (and cropped) frames
+    if getattr(result, "alignment", None) and kept is None:  # what was merged: the warped (and cropped) frames
+        from hdrcl.core.handheld import apply_alignment
+
+        frames, valid = apply_alignment(frames, valid, result.alignment, result.crop)
+    elif result.shifts is not None and kept is None:
         from hdrcl.core.align import apply_shifts
 
         frames, valid, _box = apply_shifts(frames, result.shifts, valid)
@@ -67,12 +73,14 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
             frames = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in frames]
             valid = [None if v is None else v[y0:y1, x0:x1] for v in valid]
     nominal = result.nominal if result.nominal is not None else result.times
+    if shot_settings(infos, nominal) is None:  # --times or a times file overrode EXIF: label what was given
+        infos = [replace(i, exposure_time=None) for i in infos]
     br = Bracket(frames=frames, times=np.asarray(nominal), valid=valid, paths=paths, infos=infos)
     preview = result.thumbnail if result.thumbnail is not None else result.radiance
     fig = measure(br, result.response, preview, weight=weight, times=result.times, device=device, loo=loo)
     stem = name or os.path.splitext(os.path.basename(result.output or paths[0]))[0]
     entry = write_set_report(folder, stem, fig, result.response, preview, fig.coverage, warnings=result.warnings,
-                             bracket=br)
+                             bracket=br, alignment=getattr(result, "alignment", None))
     # The folder accumulates: every set reported into it before (any run) is on the page.
     entries = [e for e in load_report_folder(folder) if e.name != entry.name] + [entry]
     write_contact_sheet(folder, sorted(entries, key=lambda e: e.name))

@@ -12,7 +12,10 @@ For each set, :func:`write_set_report` writes into a report folder::
 
 and :func:`write_contact_sheet` writes ``index.html`` (:mod:`hdrcl.report.sheet`): one
 card per set (failed sets too, with their reason) and the frames a batch did not merge,
-with theirs. A folder accumulates sets: ``merge --report DIR`` run twice shows both sets
+with theirs. Each card's figures are coloured pass / warn / fail by the thresholds of
+:mod:`hdrcl.report.verdicts` (listed in the page's header); a set a batch skipped
+because its output was current is "up to date", with the figures measured for that
+output. A folder accumulates sets: ``merge --report DIR`` run twice shows both sets
 (:func:`load_report_folder`). The page is static and self-contained (inline CSS,
 relative links; the folder can be moved or served as is), every text is HTML-escaped,
 and every file is written atomically.
@@ -34,11 +37,19 @@ from hdrcl.core.response import Response
 from hdrcl.report.inputs import file_stem
 from hdrcl.report.plots import IMAGE_SIZE, coverage_image, histogram_svg, response_svg
 from hdrcl.report.quality import QualityFigures
-from hdrcl.report.sheet import STATUS_DONE, STATUS_FAILED, STATUS_SKIPPED, format_ev, format_figures
+from hdrcl.report.sheet import (
+    STATUS_DONE,
+    STATUS_FAILED,
+    STATUS_LABELS,
+    STATUS_SKIPPED,
+    format_ev,
+    format_figures,
+    status_label,
+)
 
 __all__ = ["ReportEntry", "file_stem", "write_set_report", "load_set_report", "load_report_folder",
            "write_contact_sheet", "format_figures", "format_ev", "INDEX_NAME", "REPORT_FORMAT",
-           "STATUS_DONE", "STATUS_SKIPPED", "STATUS_FAILED"]
+           "STATUS_DONE", "STATUS_SKIPPED", "STATUS_FAILED", "STATUS_LABELS", "status_label"]
 
 logger = logging.getLogger(__name__)
 
@@ -62,7 +73,10 @@ class ReportEntry:
     file names relative to the report folder (those written). ``camera`` holds the
     settings of :func:`hdrcl.report.inputs.camera_summary`, ``inputs`` one row per frame
     with its thumbnail (:func:`hdrcl.report.inputs.write_inputs`). A failed set has
-    ``status`` "failed", its ``error`` and usually no figures.
+    ``status`` "failed", its ``error`` and usually no figures. ``status`` keeps the
+    batch's values (``done``, ``skipped``, ``failed``, ``pending``); the JSON adds
+    ``label``, the words the page shows (:func:`status_label`: ``skipped`` is "up to
+    date").
     """
 
     name: str
@@ -76,7 +90,8 @@ class ReportEntry:
 
     def to_dict(self) -> dict:
         return {"format": REPORT_FORMAT, "version": REPORT_VERSION, "name": self.name, "status": self.status,
-                "error": self.error, "warnings": list(self.warnings), "files": dict(self.files),
+                "label": status_label(self.status), "error": self.error, "warnings": list(self.warnings),
+                "files": dict(self.files),
                 "camera": dict(self.camera), "inputs": [dict(r) for r in self.inputs],
                 "figures": None if self.figures is None else self.figures.to_dict()}
 
@@ -99,6 +114,21 @@ def _write_text(path: str, text: str) -> None:
             f.write(text)
 
 
+def alignment_text(a: dict) -> str:
+    """A frame's alignment in a few words: ``similarity 0.42° ×1.003, residual 0.08 px``."""
+    model = a.get("model", "?")
+    if model in ("reference", "none"):
+        return "reference" if model == "reference" else "not moved"
+    res = a.get("residual_px")
+    parts = [model]
+    if model in ("similarity", "homography"):
+        parts.append(f"{float(a.get('rotation_deg', 0.0)):+.2f}° ×{float(a.get('scale', 1.0)):.4f}")
+    dy, dx = a.get("shift_px") or (0.0, 0.0)
+    parts.append(f"({float(dy):+.1f}, {float(dx):+.1f}) px")
+    parts.append("residual ?" if res is None else f"residual {float(res):.2f} px")
+    return " ".join(parts)
+
+
 def write_set_report(
     folder: Union[str, os.PathLike],
     name: str,
@@ -111,6 +141,7 @@ def write_set_report(
     status: str = STATUS_DONE,
     preview_size: int = IMAGE_SIZE,
     bracket=None,
+    alignment=None,
 ) -> ReportEntry:
     """Write one set's report files into ``folder`` and return its contact-sheet entry.
 
@@ -134,6 +165,9 @@ def write_set_report(
         Shown on the set's card (the merge's warnings).
     bracket : Bracket, optional
         The frames measured: their thumbnails and camera settings go on the card.
+    alignment : list of dict, optional
+        ``MergeResult.alignment`` of an aligned merge: each frame's motion model and
+        residual misalignment go under its thumbnail.
     """
     from hdrcl.io.writers import write_ldr
     from hdrcl.report.inputs import camera_summary, write_inputs
@@ -166,6 +200,10 @@ def write_set_report(
     if bracket is not None:
         camera = camera_summary(getattr(bracket, "infos", None) or [])
         inputs = write_inputs(folder, stem, bracket)
+        moved = {os.path.basename(a["file"]): a for a in (alignment or []) if isinstance(a, dict) and "file" in a}
+        for row in inputs:
+            if row.get("file") in moved:
+                row["align"] = alignment_text(moved[row["file"]])
     files["json"] = stem + ".json"
     entry = ReportEntry(name=name, status=status, figures=figures, files=files, warnings=list(warnings),
                         camera=camera, inputs=inputs)

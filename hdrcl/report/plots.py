@@ -56,14 +56,18 @@ def _luminance(rgb: np.ndarray) -> np.ndarray:
 
 
 def clip_points(response: Response, times: Sequence[float], nch: int) -> tuple:
-    """Luminance below which no frame reads a pixel (the longest frame's code 0) and
-    above which every frame clips (the shortest frame's top code), in the radiance
-    map's units: ``exp(g(0)) / t_max`` and ``exp(g(Zmax)) / t_min`` per channel,
-    combined as Rec.709 luminance."""
+    """Luminance below which no frame measures a pixel (the longest frame at the noise
+    floor) and above which every frame clips (the shortest frame at the clip level), in
+    the radiance map's units: ``exp(g(lo)) / t_max`` and ``exp(g(hi)) / t_min`` per
+    channel with ``(lo, hi)`` = :func:`hdrcl.core.weights.clip_levels` (8-bit: 5 and
+    250, the levels fusion uses), combined as Rec.709 luminance."""
+    from hdrcl.core.weights import clip_levels
+
     g = monotone_tables(response.table_for(nch))
+    lo, hi = clip_levels(g.shape[1])
     t = np.asarray(times, np.float64)
-    low = np.exp(g[:, 0]) / float(t.max())
-    high = np.exp(g[:, -1]) / float(t.min())
+    low = np.exp(g[:, lo]) / float(t.max())
+    high = np.exp(g[:, hi]) / float(t.min())
     return _luminance(low), _luminance(high)
 
 

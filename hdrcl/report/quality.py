@@ -146,7 +146,8 @@ class QualityFigures:
         clipped pixel's bound and the scene's range is at least this.
     clipped_high_fraction, clipped_low_fraction : float
         Fractions of the pixels valid in some frame that no frame measured, in at least
-        one channel, because it reads the top (bottom) code.
+        one channel, because its frames read at or above the clip level (at or below the
+        noise floor) of :func:`hdrcl.core.weights.clip_levels`, as fusion decides.
     clipped_high_pixels, clipped_low_pixels, valid_pixels : int
         The counts behind the fractions.
     extra_ev_high : float
@@ -157,7 +158,8 @@ class QualityFigures:
         ``>= 0``. Likewise relative to the longest frame for clipped-low pixels: at
         least this many stops more exposure.
     coverage_histogram : list of int
-        Pixels with coverage 0, 1, ..., ``frames`` (pixels valid in no frame left out).
+        Pixels with coverage 0, 1, ..., ``frames`` (pixels valid in no frame left out):
+        the frames fusion takes evidence from (see :func:`measure`).
     coverage : ndarray (H, W) uint8, optional
         Per pixel, the number of frames that measure it (see :func:`measure`); not
         serialised by :meth:`to_dict`.
@@ -297,29 +299,35 @@ def measure(
     -----
     Definitions, with ``L`` levels, ``Zmax = L - 1`` and frames ordered by exposure:
 
-    * A frame *measures* a pixel-channel when the pixel is valid in that frame and the
-      weight of its code is non-zero (for both weightings: the code is neither 0 nor
-      ``Zmax``). **coverage** of a pixel is the number of frames that measure its
-      least-measured channel; :data:`NO_DATA` (255) where the pixel is valid in no frame.
+    * A frame *measures* a pixel-channel when fusion takes evidence from it
+      (:func:`hdrcl.core.reference.fuse`): the pixel is valid in that frame, its code
+      lies strictly between the clip levels ``(lo, hi)`` of
+      :func:`hdrcl.core.weights.clip_levels` (8-bit: 5 and 250, not merely 0 and 255:
+      JPEG highlights clip anywhere in 250..255) with non-zero weight, no shorter valid
+      frame reads ``>= hi`` and no longer one ``<= lo``. **coverage** of a pixel is the
+      number of frames that measure its least-measured channel; :data:`NO_DATA` (255)
+      where the pixel is valid in no frame.
     * A pixel-channel that no frame measures is **clipped high** when its shortest valid
-      frame reads in the upper half (``2 Z >= L``), else **clipped low** -- the rule
-      fusion uses to fill it. A pixel is clipped high (low) when any of its channels is;
-      the fractions are over the pixels valid in at least one frame. So coverage 0
-      means clipped high or low.
-    * **extra_ev_high**: a clipped-high pixel-channel reads ``Zmax`` in its shortest
-      valid frame ``s``, so its exposure there is at least the camera's clip point,
-      ``ln E + ln t_s >= g(Zmax)``: fusion's ``g(Zmax) - ln t_s`` is a lower bound on
-      ``ln E``, and nothing in the frames bounds it from above. A frame of time ``t``
-      reads it within the working range only if ``ln E + ln t <= g(Z_top)``, with
-      ``Z_top = 245`` (8-bit). Hence ``log2(t / t_shortest) <= log2(t_s / t_shortest)
-      - (g(Zmax) - g(Z_top)) / ln 2``; the minimum of that bound over the clipped
-      pixel-channels is reported. It is honest but optimistic: the true change needed
-      is at least this large, and may be far larger (the sun). ``g`` is taken
-      non-decreasing, as for rendering.
-    * **extra_ev_low**, the mirror image: a clipped-low pixel-channel reads 0 in its
-      longest valid frame ``l``, so ``ln E <= g(0) - ln t_l``, and a frame reads it at
-      ``Z_bot = 10`` or above only if ``log2(t / t_longest) >= log2(t_l / t_longest) +
-      (g(Z_bot) - g(0)) / ln 2``; the maximum over the clipped pixel-channels.
+      frame reads ``>= hi``, else **clipped low** when its longest valid frame reads
+      ``<= lo``, else (frames that contradict each other) high when the shortest valid
+      frame reads in the upper half (``2 Z >= L``): the rule fusion uses to fill it. A
+      pixel is clipped high (low) when any of its channels is; the fractions are over
+      the pixels valid in at least one frame. So coverage 0 means clipped high or low.
+    * **extra_ev_high**: a clipped-high pixel-channel reads ``Z_s >= hi`` in its
+      shortest valid frame ``s``, so ``ln E + ln t_s >= g(Z_s)``: fusion's
+      ``g(Z_s) - ln t_s`` is a lower bound on ``ln E``, and nothing in the frames bounds
+      it from above. A frame of time ``t`` reads it within the working range only if
+      ``ln E + ln t <= g(Z_top)``, with ``Z_top = 245`` (8-bit). Hence
+      ``log2(t / t_shortest) <= log2(t_s / t_shortest) - (g(Z_s) - g(Z_top)) / ln 2``;
+      the minimum of that bound over the clipped pixel-channels is reported. It is
+      honest but optimistic: the true change needed is at least this large, and may be
+      far larger (the sun). ``g`` is taken non-decreasing, as for rendering.
+    * **extra_ev_low**, the mirror image: a clipped-low pixel-channel reads
+      ``Z_l <= lo`` in its longest valid frame ``l``, so ``ln E <= g(Z_l) - ln t_l``,
+      and a frame reads it at ``Z_bot = 10`` or above only if ``log2(t / t_longest) >=
+      log2(t_l / t_longest) + (g(Z_bot) - g(Z_l)) / ln 2``; the maximum over the
+      clipped pixel-channels. Pixel-channels filled by the contradiction rule prove no
+      bound and are left out of both.
     * **dynamic_range_stops**: :func:`dynamic_range_stops` of ``radiance``, 0.1th to
       99.9th percentile. Clipped pixels enter at their fusion bounds, so when more than
       0.1 % are clipped it is flagged as a lower bound.
@@ -341,37 +349,12 @@ def measure(
         raise UsageError(f"the response describes {response.bits}-bit images but the frames are "
                          f"{8 * frames[0].dtype.itemsize}-bit")
     from hdrcl.core.reference import monotone_tables
-    from hdrcl.core.weights import weight_table
+    from hdrcl.core.weights import clip_levels
 
     h, w, c = frames[0].shape
-    measured = (weight_table(levels, weight) > 0).astype(np.uint8)  # by code value
     order = np.argsort(used, kind="stable")
-    count = np.zeros((h, w, c), np.uint8)
-    if all(bracket.valid[j] is None for j in order):
-        # Every pixel valid everywhere (the common case): no masks to track.
-        for j in order:
-            count += np.take(measured, frames[j])
-        first_j = np.zeros((h, w), np.int16)  # rank (exposure order) of the shortest valid frame
-        last_j = np.full((h, w), len(order) - 1, np.int16)  # ... and of the longest
-        first_z = frames[order[0]]
-        valid_px = np.ones((h, w), bool)
-    else:
-        first_j = np.full((h, w), -1, np.int16)
-        last_j = np.full((h, w), -1, np.int16)
-        first_z = np.zeros((h, w, c), frames[0].dtype)
-        for rank, j in enumerate(order):
-            z, ok = frames[j], bracket.valid[j]
-            m = np.take(measured, z)
-            if ok is None:
-                ok = np.ones((h, w), bool)
-            else:
-                m &= ok[..., None]
-            count += m
-            newly = ok & (first_j < 0)
-            first_j[newly] = rank
-            np.copyto(first_z, z, where=newly[..., None])
-            last_j[ok] = rank
-        valid_px = first_j >= 0
+    count, first_j, last_j, first_z, last_z, valid_px = _evidence_counts(frames, bracket.valid, order, levels,
+                                                                          weight)
     # Coverage: frames measuring the least-measured channel. 0 exactly where some
     # channel is measured by no frame, so the clipped pixels are found among those.
     coverage = count[..., 0].copy()
@@ -380,8 +363,12 @@ def measure(
     all_valid = bool(valid_px.all())
     idx = np.flatnonzero(coverage == 0) if all_valid else np.flatnonzero((coverage == 0) & valid_px)
     unmeasured = count.reshape(-1, c)[idx] == 0
-    # Fusion's rule: the shortest valid frame reads in the upper half (2 Z >= L).
-    upper = np.ascontiguousarray(first_z).reshape(-1, c)[idx] >= levels // 2
+    zfirst, zlast = first_z.reshape(-1, c)[idx], last_z.reshape(-1, c)[idx]  # int codes
+    zlo, zhi = clip_levels(levels)
+    # Fusion's rule (hdrcl.core.reference.fuse): clipped high when the shortest valid frame
+    # clips; else black when the longest valid one is at the noise floor; else (frames
+    # that contradict each other) by the half of the range the shortest one reads in.
+    upper = (zfirst >= zhi) | ((zlast > zlo) & (2 * zfirst.astype(np.int64) >= levels))
     high, low = unmeasured & upper, unmeasured & ~upper  # (pixels, channels)
     n_high, n_low = int(high.any(axis=1).sum()), int(low.any(axis=1).sum())
     n_valid = int(valid_px.sum())
@@ -393,13 +380,13 @@ def measure(
     log2_t = np.log2(used[order])
     ln2 = np.log(2.0)
     extra_high = extra_low = 0.0
-    if n_high:
-        rows, cc = np.nonzero(high)
-        gap = (g[cc, levels - 1] - g[cc, z_top]) / ln2
+    if (high & (zfirst >= zhi)).any():  # contradicting frames prove no bound
+        rows, cc = np.nonzero(high & (zfirst >= zhi))
+        gap = (g[cc, zfirst[rows, cc]] - g[cc, z_top]) / ln2
         extra_high = float(np.min(log2_t[first_j.ravel()[idx[rows]]] - log2_t[0] - gap))
-    if n_low:
-        rows, cc = np.nonzero(low)
-        gap = (g[cc, z_bot] - g[cc, 0]) / ln2
+    if (low & (zlast <= zlo)).any():
+        rows, cc = np.nonzero(low & (zlast <= zlo))
+        gap = (g[cc, z_bot] - g[cc, zlast[rows, cc]]) / ln2
         extra_low = float(np.max(log2_t[last_j.ravel()[idx[rows]]] - log2_t[-1] + gap))
 
     if not all_valid:
@@ -434,6 +421,47 @@ def measure(
         clipped_high_pixels=n_high, clipped_low_pixels=n_low, valid_pixels=n_valid,
         extra_ev_high=min(extra_high, 0.0), extra_ev_low=max(extra_low, 0.0),
         coverage_histogram=[int(v) for v in hist], coverage=coverage)
+
+
+def _evidence_counts(frames, valid, order, levels: int, weight: str):
+    """Per pixel-channel, the number of frames fusion takes evidence from
+    (:func:`hdrcl.core.reference.fuse`'s rule, see :func:`measure`), and per pixel the
+    exposure ranks of its shortest and longest valid frame, the shortest one's codes and
+    whether any frame is valid.
+
+    Returns ``(count (H, W, C) uint8, first_j, last_j (H, W) int16, first_z, last_z
+    (H, W, C) codes of the shortest and longest valid frame, valid_px (H, W) bool)``.
+    """
+    from hdrcl.core.weights import clip_levels, evidence_weights, weight_table
+
+    h, w, c = frames[0].shape
+    zlo, zhi = clip_levels(levels)
+    evidence = (evidence_weights(levels, weight_table(levels, weight)) > 0).astype(np.uint8)  # by code
+    count = np.zeros((h, w, c), np.uint8)
+    done = np.zeros((h, w, c), bool)  # clipped in a shorter frame: no longer evidence
+    first_j = np.full((h, w), -1, np.int16)  # rank (exposure order) of the shortest valid frame
+    last_j = np.full((h, w), -1, np.int16)  # ... and of the longest
+    first_z = np.zeros((h, w, c), frames[0].dtype)
+    last_z = np.zeros((h, w, c), frames[0].dtype)
+    for rank, j in enumerate(order):
+        z, ok = frames[j], valid[j]
+        m = np.take(evidence, z)
+        m[done] = 0
+        black = z <= zlo
+        if ok is None:
+            ok = np.ones((h, w), bool)
+        else:
+            m &= ok[..., None]
+            black &= ok[..., None]
+        count += m
+        count[black] = 0  # at the noise floor: this frame and every shorter one are no evidence
+        done |= (z >= zhi) & ok[..., None]
+        newly = ok & (first_j < 0)
+        first_j[newly] = rank
+        np.copyto(first_z, z, where=newly[..., None])
+        last_j[ok] = rank
+        np.copyto(last_z, z, where=ok[..., None])
+    return count, first_j, last_j, first_z, last_z, first_j >= 0
 
 
 def _fitted_for(response: Response, nominal: np.ndarray) -> Optional[np.ndarray]:

@@ -1,9 +1,13 @@
 """The contact sheet's HTML (``index.html``) and the figures in words.
 
-One card per set: name and status, camera settings, the tone-mapped preview, the input
-frames as shot, the figures, the response and histogram charts and the coverage map,
-the exposures, the warnings; failed sets with their error; then the frames a batch did
-not merge, with the reason. Every text is HTML-escaped and every link relative.
+One card per set: name, status (in words: a batch's "skipped" is "up to date") and the
+worst verdict of its figures, camera settings, the tone-mapped preview, the input frames
+with each one's settings as its camera recorded them, the figures coloured pass / warn /
+fail (:mod:`hdrcl.report.verdicts`, whose thresholds the header lists), the response and
+histogram charts and the coverage map, the exposures, the warnings; failed sets with
+their error; then the frames a batch did not merge, with the reason. A page of one set
+lays the card out across the page's width. Every text is HTML-escaped and every link
+relative.
 """
 from __future__ import annotations
 
@@ -15,8 +19,19 @@ import numpy as np
 
 from hdrcl.report.plots import coverage_legend
 from hdrcl.report.quality import QualityFigures
+from hdrcl.report.verdicts import grade_figures, legend_rows, thin_coverage_percent, worst
 
 STATUS_DONE, STATUS_SKIPPED, STATUS_FAILED = "done", "skipped", "failed"
+#: What the page calls each status (a batch's internal "skipped" is an up-to-date output,
+#: not a problem); unknown statuses are shown as they are.
+STATUS_LABELS = {STATUS_DONE: "merged", STATUS_SKIPPED: "up to date", STATUS_FAILED: "failed",
+                 "pending": "pending"}
+
+
+def status_label(status: Optional[str]) -> str:
+    """The words the report uses for a set's ``status`` (:data:`STATUS_LABELS`)."""
+    status = status or STATUS_DONE
+    return STATUS_LABELS.get(status, status)
 
 
 def _fmt_time(t: Optional[float]) -> str:
@@ -44,6 +59,14 @@ def format_ev(value: float, side: str) -> str:
     return f"at least {value:+.1f} EV from the {frame} frame"
 
 
+def _ladder_span(f: QualityFigures) -> str:
+    """``", ladder spans 6.0 EV"``: shortest to longest exposure used; empty if unknown."""
+    used = [e.get("used") for e in f.exposures or []]
+    if len(used) < 2 or not all(isinstance(u, (int, float)) and u > 0 for u in used):
+        return ""
+    return f", ladder spans {np.log2(max(used) / min(used)):.1f} EV"
+
+
 def format_figures(figures: QualityFigures) -> List[tuple]:
     """``(label, text)`` rows of a set's figures, as the contact sheet shows them."""
     f = figures
@@ -61,14 +84,19 @@ def format_figures(figures: QualityFigures) -> List[tuple]:
         p0, p1 = f.dynamic_range_percentiles
         dr = (f"{'at least ' if f.dynamic_range_is_lower_bound else ''}{f.dynamic_range_stops:.1f} stops "
               f"(luminance P{p0:g} to P{p1:g})")
+    thin = thin_coverage_percent(f)
+    none = 100.0 * f.coverage_histogram[0] / f.valid_pixels if thin is not None else None
     return [
         ("Leave-one-out RMSE", loo),
         ("Dynamic range", dr),
         ("Clipped high", f"{100 * f.clipped_high_fraction:.2f} % of pixels"),
         ("Clipped low", f"{100 * f.clipped_low_fraction:.2f} % of pixels"),
+        ("Thin coverage", "–" if thin is None else
+         f"{thin:.2f} % of pixels measured by at most one frame ({none:.2f} % by none)"),
         ("Extra exposure for highlights", format_ev(f.extra_ev_high, "high")),
         ("Extra exposure for shadows", format_ev(f.extra_ev_low, "low")),
-        ("Frames", f"{f.frames} × {f.shape[1]}×{f.shape[0]}, {f.bits}-bit, {f.weight} weights"),
+        ("Frames", f"{f.frames} × {f.shape[1]}×{f.shape[0]}, {f.bits}-bit, {f.weight} weights"
+                   + _ladder_span(f)),
     ]
 
 
@@ -80,7 +108,10 @@ h1{font-size:1.5em;margin:0 0 4px}
 .summary{margin:2px 0;color:#555}
 #image-check{margin:2px 0;color:#a00}
 #image-check:empty{display:none}
-main{display:grid;grid-template-columns:repeat(auto-fill,minmax(540px,1fr));gap:16px;padding:16px 24px}
+main{display:grid;grid-template-columns:repeat(auto-fit,minmax(540px,1fr));gap:16px;padding:16px 24px}
+main.single{display:block}
+main.single .body{display:grid;grid-template-columns:minmax(0,1fr) minmax(0,1fr);gap:0 24px;align-items:start}
+main.single .plots{display:grid;grid-template-columns:repeat(auto-fit,minmax(300px,1fr));align-items:start}
 article{background:#fff;border:1px solid #ddd;border-radius:6px;padding:12px 16px}
 article.failed{border-color:#d33;background:#fff6f6}
 h2{font-size:1.2em;margin:0 0 6px;word-break:break-all}
@@ -88,13 +119,26 @@ h3{font-size:1em;margin:12px 0 4px;color:#444}
 .status{font-size:.75em;padding:1px 7px;border-radius:3px;background:#e6f2e6;margin-left:8px;vertical-align:middle;
 font-weight:600}
 article.failed .status{background:#f8d0d0}
+article.skipped .status{background:#e3ecf7}
+.verdict{font-size:.75em;padding:1px 7px;border-radius:3px;margin-left:6px;vertical-align:middle;font-weight:600}
+.v-pass{background:#e6f4e8;color:#1e6b2a}
+.v-warn{background:#fff1cc;color:#7a4d00}
+.v-fail{background:#fbdcdc;color:#a00}
+table.figures td.mark{white-space:nowrap;font-weight:600;font-size:.85em;text-align:right;padding:3px 6px}
+table.figures tr.v-pass td,table.figures tr.v-pass th,table.figures tr.v-warn td,table.figures tr.v-warn th,
+table.figures tr.v-fail td,table.figures tr.v-fail th{background:inherit}
+.thresholds{margin:6px 0 0;font-size:.85em;color:#333}
+.thresholds table{width:auto}
+.thresholds td,.thresholds th{padding:1px 10px 1px 0}
 .camera{margin:0 0 8px;color:#333}
 .thumb{display:block;max-width:100%;max-height:460px;width:auto;height:auto;margin:0 auto 8px;background:#000}
 .frames{display:flex;flex-wrap:wrap;gap:6px}
 .frames figure{margin:0;flex:0 0 auto;width:96px}
 .frames img{width:96px;height:auto;display:block;border:1px solid #ddd;background:#000}
 .frames figcaption{font-size:.8em;color:#444;text-align:center;white-space:nowrap;overflow:hidden;
-text-overflow:ellipsis}
+text-overflow:ellipsis;line-height:1.25}
+.frames figcaption.shot{white-space:normal}
+.frames figcaption.shot span{white-space:nowrap}
 table{border-collapse:collapse;width:100%}
 th,td{text-align:left;vertical-align:top;padding:3px 8px 3px 0}
 th{font-weight:600;white-space:nowrap;color:#444}
@@ -154,6 +198,18 @@ def _camera_line(camera: dict) -> Optional[str]:
     return " · ".join(parts) if parts else None
 
 
+def _caption_parts(row: dict, vary_f: bool, vary_iso: bool) -> List[str]:
+    """A frame's caption: its settings as the camera recorded them when the report has
+    them (``shutter``), else the nominal time and the settings that differ in the set."""
+    from hdrcl.report.inputs import setting_parts
+
+    align = [f"aligned: {row['align']}"] if row.get("align") else []
+    if row.get("shutter"):
+        return setting_parts(row["shutter"], row.get("fnumber"), row.get("iso")) + align
+    return (setting_parts(row.get("time"), row.get("fnumber") if vary_f else None,
+                          row.get("iso") if vary_iso else None) or ["–"]) + align
+
+
 def _inputs(entry) -> List[str]:
     rows = [r for r in (entry.inputs or []) if isinstance(r, dict)]
     if not rows:
@@ -162,14 +218,10 @@ def _inputs(entry) -> List[str]:
     vary_iso = len({r.get("iso") for r in rows}) > 1
     out = [f"<h3>Input frames ({len(rows)}, shortest exposure first)</h3>", '<div class="frames">']
     for r in rows:
-        cap = [_fmt_time(r.get("time"))]
-        if vary_f and r.get("fnumber"):
-            cap.append(f"f/{float(r['fnumber']):g}")
-        if vary_iso and r.get("iso"):
-            cap.append(f"ISO {float(r['iso']):g}")
+        cap = " ".join(f"<span>{_e(p)}</span>" for p in _caption_parts(r, vary_f, vary_iso))
         thumb = (_img(r["thumb"], f"{r.get('file', '')}: input frame") if r.get("thumb")
                  else "<div>(no thumbnail)</div>")
-        out.append(f'<figure title="{_e(r.get("file", ""))}">{thumb}<figcaption>{_e(" ".join(cap))}'
+        out.append(f'<figure title="{_e(r.get("file", ""))}">{thumb}<figcaption class="shot">{cap}'
                    f"</figcaption></figure>")
     out.append("</div>")
     return out
@@ -184,7 +236,7 @@ def _plots(entry) -> List[str]:
     if "histogram" in files:
         plots.append(f'<figure>{_img(files["histogram"], entry.name + ": luminance histogram")}'
                      "<figcaption>Luminance of the radiance map; the dashed lines are the clip points of the "
-                     "bracket (below: the longest frame reads 0; above: the shortest frame clips)."
+                     "bracket (below: the longest frame is at its noise floor; above: the shortest frame clips)."
                      "</figcaption></figure>")
     if "coverage" in files:
         frames = f.frames if f is not None else 0
@@ -197,11 +249,47 @@ def _plots(entry) -> List[str]:
     return ['<div class="plots">' + "".join(plots) + "</div>"] if plots else []
 
 
+def _figures_table(f: QualityFigures) -> str:
+    """The figures, the graded ones coloured by their verdict (:mod:`hdrcl.report.verdicts`)."""
+    grades = grade_figures(f)
+    out = ['<h3>Figures</h3><table class="figures">']
+    for label, text in format_figures(f):
+        v = grades.get(label)
+        attrs = f' class="v-{v}" data-verdict="{v}"' if v else ""
+        out.append(f"<tr{attrs}><th>{_e(label)}</th><td>{_e(text)}</td>"
+                   f'<td class="mark">{_e(v or "")}</td></tr>')
+    out.append("</table>")
+    return "\n".join(out)
+
+
+def _exposures_table(entry) -> List[str]:
+    f = entry.figures
+    if f is None or not f.exposures:
+        return []
+    shot = {r.get("file"): r for r in entry.inputs or [] if isinstance(r, dict) and r.get("shutter")}
+    out = ["<details><summary>Exposures (as shot; nominal, fitted and used in relative seconds)</summary><table>"
+           "<tr><th>frame</th><th>as shot</th><th>nominal</th><th>fitted</th><th>used</th></tr>"]
+    for k, ex in enumerate(f.exposures):
+        r = shot.get(ex.get("file"))
+        as_shot = " ".join(_caption_parts(r, False, False)) if r else "–"
+        cells = (ex.get("file", k), as_shot, _fmt_time(ex.get("nominal")),
+                 _fmt_fitted(ex.get("fitted"), ex.get("nominal")), _fmt_time(ex.get("used")))
+        out.append("<tr>" + "".join(f"<td>{_e(v)}</td>" for v in cells) + "</tr>")
+    out.append("</table></details>")
+    return out
+
+
 def _card(entry, index: int) -> str:
     status = entry.status or STATUS_DONE
+    f = entry.figures
+    verdict = worst(grade_figures(f).values()) if f is not None else None
+    badge = f'<span class="verdict v-{verdict}" title="worst verdict of its figures">{verdict}</span>' \
+        if verdict else ""
     out = [f'<article class="set {_e(status)}" id="set-{index}" data-set="{_e(entry.name)}" '
-           f'data-status="{_e(status)}">',
-           f'<h2>{_e(entry.name)}<span class="status">{_e(status)}</span></h2>']
+           f'data-status="{_e(status)}" data-label="{_e(status_label(status))}"'
+           + (f' data-verdict="{verdict}"' if verdict else "") + ">",
+           f'<h2>{_e(entry.name)}<span class="status">{_e(status_label(status))}</span>{badge}</h2>',
+           '<div class="body"><div class="look">']
     cam = _camera_line(entry.camera or {})
     if cam:
         out.append(f'<p class="camera">{_e(cam)}</p>')
@@ -211,28 +299,27 @@ def _card(entry, index: int) -> str:
     if entry.error:
         out.append(f'<p class="error">{_e(entry.error)}</p>')
     out += _inputs(entry)
-    f = entry.figures
+    out.append('</div><div class="numbers">')
     if f is not None:
-        out.append('<h3>Figures</h3><table class="figures">')
-        for label, text in format_figures(f):
-            out.append(f"<tr><th>{_e(label)}</th><td>{_e(text)}</td></tr>")
-        out.append("</table>")
-    out += _plots(entry)
-    if f is not None and f.exposures:
-        out.append("<details><summary>Exposures (relative seconds)</summary><table>"
-                   "<tr><th>frame</th><th>nominal</th><th>fitted</th><th>used</th></tr>")
-        for k, ex in enumerate(f.exposures):
-            cells = (ex.get("file", k), _fmt_time(ex.get("nominal")),
-                     _fmt_fitted(ex.get("fitted"), ex.get("nominal")), _fmt_time(ex.get("used")))
-            out.append("<tr>" + "".join(f"<td>{_e(v)}</td>" for v in cells) + "</tr>")
-        out.append("</table></details>")
+        out.append(_figures_table(f))
+    out += _exposures_table(entry)
     if entry.warnings:
         out.append('<h3>Warnings</h3><ul class="warnings">'
                    + "".join(f"<li>{_e(w)}</li>" for w in entry.warnings) + "</ul>")
     if "json" in files:
         out.append(f'<p><a href="{_href(files["json"])}">figures (JSON)</a></p>')
+    out.append("</div></div>")
+    out += _plots(entry)
     out.append("</article>")
     return "\n".join(out)
+
+
+def _thresholds_legend() -> str:
+    """The verdicts' thresholds, as :data:`hdrcl.report.verdicts.THRESHOLDS` applies them."""
+    rows = "".join(f"<tr><th>{_e(label)}</th><td class=\"v-pass\">pass {_e(p)}</td>"
+                   f"<td class=\"v-warn\">warn {_e(w)}</td><td class=\"v-fail\">fail {_e(x)}</td>"
+                   f"<td>{_e(meaning)}</td></tr>" for label, p, w, x, meaning in legend_rows())
+    return f'<details class="thresholds" open><summary>Verdicts</summary><table>{rows}</table></details>'
 
 
 def _unmerged_section(groups: Sequence[dict]) -> str:
@@ -267,8 +354,12 @@ def contact_sheet_html(entries: Sequence, title: str = "hdrcl quality report",
     skipped = sum(1 for e in entries if e.status == STATUS_SKIPPED)
     other = len(entries) - failed - merged - skipped
     summary = (f"{len(entries)} set{'s' if len(entries) != 1 else ''}: {merged} merged, "
-               + (f"{skipped} skipped (up to date), " if skipped else "") + f"{failed} failed"
+               + (f"{skipped} {STATUS_LABELS[STATUS_SKIPPED]}, " if skipped else "") + f"{failed} failed"
                + (f", {other} pending" if other else ""))
+    verdicts = [worst(grade_figures(e.figures).values()) for e in entries if e.figures is not None]
+    counted = [f"{verdicts.count(v)} {v}" for v in ("pass", "warn", "fail") if v in verdicts]
+    if counted:
+        summary += "; verdicts: " + ", ".join(counted)
     nfiles = sum(len(g["files"]) for g in unmerged)
     if nfiles:
         summary += f"; {nfiles} file{'s' if nfiles != 1 else ''} not merged"
@@ -278,6 +369,9 @@ def contact_sheet_html(entries: Sequence, title: str = "hdrcl quality report",
         "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
         f"<title>{_e(title)}</title>\n<style>\n{_CSS}\n</style>\n</head>\n<body>\n"
         f"<header><h1>{_e(title)}</h1><p class=\"summary\">{_e(summary)} · hdrcl {_e(__version__)}</p>"
-        f"<p id=\"image-check\" data-loaded=\"\" data-total=\"\"></p></header>\n"
-        f"<main>\n{cards}\n</main>\n{_unmerged_section(list(unmerged))}\n"
+        f"<p id=\"image-check\" data-loaded=\"\" data-total=\"\"></p>"
+        f"{_thresholds_legend() if verdicts else ''}</header>\n"
+        # One set: the card takes the page's width and lays its parts side by side.
+        f"<main class=\"sets{' single' if len(entries) == 1 else ''}\">\n{cards}\n</main>\n"
+        f"{_unmerged_section(list(unmerged))}\n"
         f"<script>\n{_SCRIPT}\n</script>\n</body>\n</html>\n")

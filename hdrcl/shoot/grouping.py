@@ -6,7 +6,9 @@ bracket set ends and the next begins, using several signals together:
 * **Camera**: frames are first split into one stream per camera body (Make, Model,
   serial), so two photographers shooting side by side do not break each other's sets;
   camera RAW files and the JPEGs shot with them (RAW+JPEG) are separate streams too.
-* **Lens, focal length, image size**: a change ends the set.
+* **Lens, focal length, image size**: each lens is a stream of its own too, so a phone
+  that flips between its lenses inside one sequence gives one set per lens (not single
+  frames); a set that ends where the camera moved to another lens says so.
 * **Time gap**, measured from the *end* of one exposure to the *start* of the next:
   ``gap = start(i+1) - (start(i) + exposure_time(i))``. Within a set gaps are short
   (a burst: ~0.1-1 s; by hand: a few seconds). The default limit is
@@ -19,20 +21,33 @@ bracket set ends and the next begins, using several signals together:
   +2`` or ``-2, 0, +2``...) is the ladder: a repeated bias value starts a new set. A
   hand-made monotonic ladder of three or more frames that turns back also restarts, and
   so does an auto-bracket pattern (``0, -2, +2, -4, +4``) that the next frame breaks.
-  A change of exposure mode (manual / auto bracket) or of the aperture in the middle of
-  a shutter-speed ladder ends the set.
+  A frame that carries a one-way ladder on past its end by a plausible step (0.45-4.5
+  stops, even when uneven: a phone going on in ISO from its own table) continues it.
+  A frame that repeats the exposure of the frame just before, with the ladder going on
+  after it on the same scene, is kept in the set as a duplicate (pass 2 of
+  :mod:`hdrcl.shoot.splitting`). A change to or from auto bracketing, or of the
+  aperture in the middle of a shutter-speed ladder, ends the set; a change between
+  auto and manual exposure (a compact's first frame metered in P, the rest in M) ends
+  the run, and the bridges below join it back when the ladder continues.
 * **The scene** (with ``compare``, which ``scan_directory`` gives by default): small
   exposure-normalised thumbnails of a frame and of the set's frame nearest in exposure
   (:mod:`hdrcl.shoot.scene`); a changed scene ends the set.
-* **Long gaps bridged**: runs that only a long gap separates are joined when together
-  they form one exposure ladder (evenly spaced in ``t``, ``t * ISO`` or the exposure
-  bias, in an order people shoot: :mod:`hdrcl.shoot.ladder`) and the scene matches:
-  hand-made brackets with 5-60 s between frames (:mod:`hdrcl.shoot.splitting`).
+* **Long gaps bridged**: runs that only a long gap (or an auto / manual change)
+  separates are joined when together they form one exposure ladder (evenly spaced in
+  ``t``, ``t * ISO`` or the exposure bias, in an order people shoot; unevenly but one
+  way when the scene matches: :mod:`hdrcl.shoot.ladder`) and the scene matches:
+  hand-made brackets with 5-80 s between frames, and pauses of up to a quarter of an
+  hour on one view while the ladder goes on (:mod:`hdrcl.shoot.splitting`).
+
+The rule behind all of these: frames belong together when the scene matches and
+together they form one plausible bracket (every exposure once, a span of stops),
+whatever the gaps. One shutter time with the ISO stepping is a ladder in ``t * ISO``
+(the merge uses it), so it is a set.
 
 No fixed set size is guessed: sets may differ in size. Every set records why it ended
 (:attr:`BracketSet.reason`) and why each frame joined it (:attr:`BracketSet.joins`).
 Groups that cannot be merged are reported in :attr:`Manifest.unmerged`: single frames,
-frames that all share one exposure, aperture bracketing, mixed cameras (possible with
+frames that all share one exposure (time and ISO), aperture bracketing, mixed cameras (possible with
 ``frames_per_set``), frames without an exposure time, unreadable files.
 
 A :class:`Manifest` is the result; it is written to and read from JSON so a user can
@@ -54,7 +69,7 @@ from hdrcl.shoot.compare import (DEFAULT_GAP, LONG_EXPOSURE, _camera_desc, _came
                                  _exposure_range, _fmt_bias, _fmt_f, _norm, _same_stops, _sort_key, _time,
                                  _varies, format_exposure)
 from hdrcl.shoot.manifest import BracketSet, Manifest, Unmerged, _is_number
-from hdrcl.shoot.splitting import _Group, chunk, split_stream
+from hdrcl.shoot.splitting import _camera_reason, _Group, chunk, split_stream
 
 logger = logging.getLogger(__name__)
 
@@ -107,10 +122,9 @@ def unmergeable_reason(infos: Sequence[FrameInfo]) -> Optional[str]:
         if not time_varies:
             return f"aperture bracketing ({span} at {format_exposure(times[0])} s)"
         return f"aperture varies ({span}): depth of field differs between frames"
-    if not time_varies:
-        if _varies([f.iso for f in infos], _same_stops):
-            return (f"all frames share one exposure time ({format_exposure(times[0])} s; "
-                    "only ISO varies)")
+    # One shutter time with the ISO stepping (a phone in pro mode) is a ladder in
+    # t * ISO, which the merge uses (hdrcl.io.metadata.relative_exposures).
+    if not time_varies and not _varies([f.iso for f in infos], _same_stops):
         return (f"all frames share one exposure ({format_exposure(times[0])} s, "
                 f"{_fmt_f(infos[0].fnumber)})")
     return None
@@ -145,6 +159,38 @@ def _make_set(grp: _Group) -> BracketSet:
         height=first.height,
         joins=list(grp.joins),
     )
+
+
+def _split_by_lens(stream: List[FrameInfo], gap, compare) -> List[_Group]:
+    """Group one camera's frames, each lens (lens, focal length, image size) apart.
+
+    A phone that flips between its lenses inside one sequence gives one set per lens,
+    not single frames. A set that ends where the camera moved to another lens says so
+    (``"focal length changed (5.11 -> 2.67 mm)"``), as it did before.
+    """
+    lenses: List[List[FrameInfo]] = []
+    for f in stream:
+        for frames in lenses:
+            if _camera_reason(frames[0], f) is None:
+                frames.append(f)
+                break
+        else:
+            lenses.append([f])
+    if len(lenses) == 1:
+        return split_stream(stream, gap, compare)
+    position = {id(f): i for i, f in enumerate(stream)}
+    groups = []
+    for frames in lenses:
+        for grp in split_stream(frames, gap, compare):
+            for k, (a, b) in enumerate(zip(grp.frames, grp.frames[1:])):
+                between = position[id(b)] - position[id(a)] - 1
+                if between:
+                    grp.joins[k] += f", after {between} frame(s) with another lens"
+            i = position[id(grp.frames[-1])]
+            if grp.reason == "end of files" and i + 1 < len(stream):
+                grp.reason = _camera_reason(grp.frames[-1], stream[i + 1]) or grp.reason
+            groups.append(grp)
+    return groups
 
 
 # --------------------------------------------------------------------------- entry
@@ -204,7 +250,7 @@ def group_frames(infos: Sequence[FrameInfo], *, frames_per_set: Optional[int] = 
             raw = os.path.splitext(os.fspath(f.path))[1].lower() in _RAW_EXTENSIONS
             streams.setdefault((_camera_key(f), _time(f) is None, raw), []).append(f)
         for stream in streams.values():
-            groups.extend(split_stream(stream, gap, compare))
+            groups.extend(_split_by_lens(stream, gap, compare))
         groups.sort(key=lambda g: _sort_key(g.frames[0]))
 
     manifest = Manifest()

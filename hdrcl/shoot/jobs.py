@@ -75,6 +75,15 @@ class BatchOptions:
         from the pixels through the set's pooled or given response where the metadata is
         clearly wrong, :func:`hdrcl.core.exposure_known.exposures_for_merge`) or ``on``
         (measured for every frame).
+    align_model : {"auto", "shift", "similarity", "homography"}
+        With ``align``: the motion model (:mod:`hdrcl.core.align`).
+    output_format : {"exr", "hdr"}
+        The outputs' file type (``.hdr``: Radiance RGBE).
+    luminance : dict, optional
+        The fisheye luminance chain's options (``lens_circle``, ``resize``,
+        ``projection``, ``vignetting``, ``nd_filter``, ``calibration_factor``, ``view``;
+        :func:`hdrcl.core.fisheye.chain_or_none`): every set becomes a calibrated
+        luminance map.
     reference_exposure : float, optional
         Seconds (at the shoot's reference f-number and ISO) that a value of 1.0 in
         every EXR stands for (:mod:`hdrcl.core.encode`); default one per camera, the
@@ -100,6 +109,18 @@ class BatchOptions:
     neutral: Optional[str] = None
     fit_exposures: str = "auto"
     reference_exposure: Optional[float] = None
+    align_model: str = "auto"
+    output_format: str = "exr"
+    luminance: Optional[dict] = None
+
+    def luminance_chain(self):
+        """A fresh :class:`hdrcl.core.fisheye.LuminanceChain` for one set (it holds that
+        set's map), or None without the luminance options."""
+        if not self.luminance:
+            return None
+        from hdrcl.core.fisheye import chain_or_none
+
+        return chain_or_none(**self.luminance, device=self.device)
 
     def output_params(self) -> dict:
         """Parameters that shape an EXR beyond its response (part of its digest)."""
@@ -111,9 +132,16 @@ class BatchOptions:
             out["colorspace"] = self.colorspace
         for key, value, default in (("align", self.align, False), ("crop", self.crop, False),
                                     ("neutral", self.neutral, None), ("fit_exposures", self.fit_exposures, "auto"),
-                                    ("reference_exposure", self.reference_exposure, None)):
+                                    ("reference_exposure", self.reference_exposure, None),
+                                    ("align_model", self.align_model if self.align else "auto", "auto")):
             if value != default:
                 out[key] = value
+        chain = self.luminance_chain()
+        if chain is not None:  # the calibration files' numbers, not their names
+            d = dict(chain.describe(), view=chain.view[0] if chain.view else None)
+            if isinstance(d.get("vignetting"), dict):
+                d["vignetting"] = {k: v for k, v in d["vignetting"].items() if k != "source"}
+            out["luminance"] = d
         return out
 
     def solve_params(self) -> dict:
@@ -139,6 +167,7 @@ class SetJob:
     group: str
     reference: Tuple[Optional[float], Optional[float]]
     exposure_ref: Optional[float] = None  # seconds a value of 1.0 stands for (hdrcl.core.encode)
+    fnumber: Optional[float] = None  # f-number of an exposure list for frames whose header has none
 
 
 @dataclass
@@ -167,12 +196,17 @@ class SetResult:
     response: Optional[str] = None
     quality: Optional[dict] = None
     storage: Optional[str] = None  # how the EXR was stored when half could not hold it (a decision)
+    alignment: Optional[list] = None  # with --align: per frame model, matrix, shift, residual (hdrcl.core.handheld)
+    vertical_illuminance: Optional[float] = None  # lux at the lens, with a fisheye luminance map (-vta view)
 
     def to_dict(self) -> dict:
+        from hdrcl.report.sheet import status_label
+
         return {
             "index": self.index,
             "files": list(self.files),
             "status": self.status,
+            "label": status_label(self.status),  # the words a page shows: "up to date" for skipped
             "output": self.output,
             "preview": self.preview,
             "error": self.error,
@@ -184,6 +218,8 @@ class SetResult:
             "response": self.response,
             "quality": self.quality,
             "storage": self.storage,
+            **({"alignment": self.alignment} if self.alignment is not None else {}),
+            **({"vertical_illuminance": self.vertical_illuminance} if self.vertical_illuminance is not None else {}),
         }
 
 
@@ -195,7 +231,7 @@ class ResponseEntry:
     payload: Optional[dict] = None  # Response.to_dict() as written (None: unavailable)
     digest: Optional[str] = None
     file: Optional[str] = None
-    source: str = ""  # "given", "loaded", "calibrated"
+    source: str = ""  # "given", "cached" (--response-cache), "loaded", "calibrated"
     sets: List[int] = field(default_factory=list)
     error: Optional[str] = None
     warnings: List[str] = field(default_factory=list)

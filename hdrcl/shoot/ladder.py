@@ -25,7 +25,7 @@ from typing import List, Optional, Sequence
 
 from hdrcl.io.metadata import FrameInfo
 
-__all__ = ["Ladder", "exposure_value", "ladder_of", "MIN_STEP"]
+__all__ = ["Ladder", "exposure_value", "ladder_of", "MIN_STEP", "MAX_STEP"]
 
 #: Smallest ladder step (stops) taken as a bracket: a third of a stop is noise in the
 #: metering of phone auto mode, not a bracket.

@@ -7,7 +7,7 @@ import logging
 import os
 import re
 from collections import Counter
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 from hdrcl.errors import InputError, UsageError
@@ -59,36 +59,134 @@ def select_sets(sets: Sequence, ranges: Optional[Sequence[Tuple[int, Optional[in
 
 
 # ------------------------------------------------------------------------- naming
-def output_stems(manifest) -> Dict[int, str]:
+#: Fields of ``--name`` templates (:func:`output_stems`).
+NAME_FIELDS = ("folder", "first", "date", "index", "camera")
+
+#: Characters no output name keeps (unsafe on some file system, or a path separator).
+_UNSAFE = re.compile(r'[\x00-\x1f\x7f<>:"/\\|?*]')
+
+
+def check_template(template: str) -> str:
+    """Refuse a ``--name`` template with an unknown field, a format spec or a stray brace.
+
+    Raises
+    ------
+    UsageError
+        One line naming the problem and the fields there are.
+    """
+    import string
+
+    known = ", ".join("{" + f + "}" for f in NAME_FIELDS)
+    try:
+        parts = list(string.Formatter().parse(str(template)))
+    except ValueError as exc:
+        raise UsageError(f"--name '{template}': {exc} (fields: {known})") from None
+    fields = [(f, spec, conv) for _text, f, spec, conv in parts if f is not None]
+    for f, spec, conv in fields:
+        if f not in NAME_FIELDS:
+            raise UsageError(f"--name '{template}': unknown field {{{f}}}; the fields are {known}")
+        if spec or conv:
+            raise UsageError(f"--name '{template}': {{{f}}} takes no format or conversion")
+    if not fields and not _safe(template):
+        raise UsageError(f"--name '{template}': names no field and is empty once sanitised")
+    return str(template)
+
+
+def _safe(name: str) -> str:
+    """``name`` without characters unsafe in file names (each becomes ``_``), leading or
+    trailing dots and spaces, at most 200 characters."""
+    return _UNSAFE.sub("_", name).strip(" .")[:200].strip(" .")
+
+
+def _folder_of(s) -> str:
+    return os.path.dirname(os.path.abspath(s.files[0]))
+
+
+def own_folders(manifest) -> bool:
+    """Whether every set lies in a subfolder of its own (one folder per set, none the
+    scanned folder itself): the outputs are then named after the folders."""
+    root = os.path.abspath(manifest.root) if manifest.root else None
+    folders = []
+    for s in manifest.sets:
+        where = {os.path.dirname(os.path.abspath(f)) for f in s.files}
+        if len(where) != 1 or where == {root}:
+            return False
+        folders.append(where.pop())
+    return bool(folders) and len(set(folders)) == len(folders)
+
+
+def default_template(manifest) -> str:
+    """``{folder}`` when each set has its own folder (:func:`own_folders`), else ``{first}``."""
+    return "{folder}" if own_folders(manifest) else "{first}"
+
+
+def name_fields(manifest) -> Dict[int, Dict[str, str]]:
+    """The values of :data:`NAME_FIELDS` for every set, by index: ``folder`` (the first
+    frame's folder name), ``first`` (the first frame's stem, capture order), ``date``
+    (capture date YYYY-MM-DD, ``undated`` without one), ``index`` (1-based, zero-padded
+    to the widest number), ``camera`` (make-model slug, ``unknown-camera``)."""
+    sets = sorted(manifest.sets, key=lambda s: s.index)
+    width = len(str(max([len(sets)] + [s.index + 1 for s in sets])))
+    out = {}
+    for s in sets:
+        start = str(s.start or "")
+        out[s.index] = {
+            "folder": os.path.basename(_folder_of(s)) or "root",
+            "first": os.path.splitext(os.path.basename(s.files[0]))[0].lstrip(".") or f"set{s.index}",
+            "date": start[:10] if re.match(r"\d{4}-\d\d-\d\d", start) else "undated",
+            "index": str(s.index + 1).zfill(width),
+            "camera": _slug(s.camera) if s.camera else "unknown-camera",
+        }
+    return out
+
+
+def _clashes(names: Dict[int, str]) -> set:
+    seen = Counter(n.casefold() for n in names.values())
+    return {i for i, n in names.items() if seen[n.casefold()] > 1}
+
+
+def output_stems(manifest, template: Optional[str] = None) -> Dict[int, str]:
     """Output name (without extension) of every set of ``manifest``, by index.
 
-    A set is named after its first frame (``IMG_0001``). Names that would collide
-    (compared case-insensitively, for macOS and Windows) are made unique from the
-    whole manifest, so the name never depends on which sets a run selects: first with
-    the folders that tell the frames apart (``day1_IMG_0001``), then with the file's
-    extension (``IMG_0001_tif``), and as a last resort with the set index.
+    ``template`` (``--name``) uses the fields of :func:`name_fields`; characters unsafe
+    in file names become ``_``. Two sets it names alike (compared case-insensitively,
+    for macOS and Windows) are a usage error. Without a template, sets in folders of
+    their own are named after the folder and others after their first frame
+    (:func:`default_template`); names that would collide are made unique from the whole
+    manifest, so the name never depends on which sets a run selects: first with the
+    folders that tell the sets apart (``day1_IMG_0001``, ``day1_bracket``), then with
+    the file's extension (``IMG_0001_tif``), and as a last resort with the set index.
+
+    Raises
+    ------
+    UsageError
+        ``template`` has an unknown field, or names two sets alike.
     """
+    explicit = template is not None
+    template = check_template(template) if explicit else default_template(manifest)
     sets = sorted(manifest.sets, key=lambda s: s.index)
+    fields = name_fields(manifest)
+    stems = {i: _safe(template.format(**f)) or f"set{i}" for i, f in fields.items()}
+    bad = _clashes(stems)
+    if bad and explicit:
+        a, b = sorted(i for i in bad if stems[i].casefold() == stems[min(bad)].casefold())[:2]
+        raise UsageError(f"--name '{template}': sets {a} and {b} would both be named '{stems[a]}'; "
+                         "add {index} or {first} to tell them apart")
     first = {s.index: os.path.abspath(s.files[0]) for s in sets}
-    stems = {i: os.path.splitext(os.path.basename(p))[0].lstrip(".") or f"set{i}" for i, p in first.items()}
-
-    def clashes(names):
-        seen = Counter(n.casefold() for n in names.values())
-        return {i for i, n in names.items() if seen[n.casefold()] > 1}
-
-    bad = clashes(stems)
     if bad:
         common = os.path.commonpath([os.path.dirname(first[i]) for i in bad])
         for i in bad:
             rel = os.path.relpath(os.path.dirname(first[i]), common)
             parts = [p for p in rel.split(os.sep) if p not in (".", "")]
-            stems[i] = "_".join(parts + [stems[i]])
-    bad = clashes(stems)
-    for i in bad:
+            if template == "{folder}":
+                stems[i] = _safe("_".join(parts)) or stems[i]
+            else:
+                stems[i] = _safe("_".join(parts + [stems[i]]))
+    for i in _clashes(stems):
         ext = os.path.splitext(first[i])[1].lstrip(".").lower()
         if ext:
             stems[i] = f"{stems[i]}_{ext}"
-    for i in clashes(stems):
+    for i in _clashes(stems):
         stems[i] = f"{stems[i]}-set{i}"
     return stems
 
@@ -190,20 +288,39 @@ def _camera_label(info) -> str:
     return label or "unknown camera"
 
 
-def _group_of(info) -> str:
-    """Response group of a set from its first frame: camera body and ISO."""
+def _group_of(info, folder: str = "") -> str:
+    """Response group of a set from its first frame: camera body and ISO; a set without
+    camera make and model is its folder's (``folder``, relative to the scanned one), as
+    nothing says two folders of such frames come from one camera."""
     if info is None:
         return "unreadable"
     label = _camera_label(info)
+    if label == "unknown camera" and folder:
+        label = folder
     if info.serial:
         label += f" #{info.serial}"
-    iso = f"ISO {info.iso:g}" if info.iso else "ISO ?"
-    return f"{label} {iso}"
+    return f"{label} ISO {info.iso:g}" if info.iso else label
+
+
+def _folder_label(s, root) -> str:
+    """The set's folder relative to the scanned ``root`` (its name when it is the root or
+    outside it)."""
+    folder = _folder_of(s)
+    if root:
+        rel = os.path.relpath(folder, os.path.abspath(root))
+        if rel != "." and not rel.startswith(".."):
+            return rel.replace(os.sep, "/")
+    return os.path.basename(folder) or "root"
 
 
 def _slug(text: str) -> str:
     s = re.sub(r"[^A-Za-z0-9]+", "-", text.replace("#", "")).strip("-")
     return s or "camera"
+
+
+def response_path(group: str, folder: str) -> str:
+    """Where a response group's curve is saved: ``<folder>/<slug>.response.json``."""
+    return os.path.join(folder, _slug(group) + RESPONSE_SUFFIX)
 
 
 def _reference(infos: Sequence) -> Tuple[Optional[float], Optional[float]]:
@@ -259,40 +376,48 @@ class _Plan:
     selected: List[SetJob]
     reference: Tuple[Optional[float], Optional[float]]
     groups: Dict[str, List[int]]
+    firsts: Dict[int, object] = field(default_factory=dict)  # each set's first header (None: unreadable)
 
 
-def _plan(manifest, out_dir: str, options: BatchOptions, ranges) -> _Plan:
+def _plan(manifest, out_dir: str, options: BatchOptions, ranges, name: Optional[str] = None) -> _Plan:
     from hdrcl.io.frames import read_info
     from hdrcl.shoot.claims import check_regular
 
     sets = sorted(manifest.sets, key=lambda s: s.index)
-    stems = output_stems(manifest)
-    firsts = {}
+    stems = output_stems(manifest, name)
+    firsts, listed_fn = {}, {}
     for s in sets:
         try:
             check_regular(s.files[0])  # a FIFO would block the header read
-            firsts[s.index] = read_info(s.files[0])
+            info = read_info(s.files[0])
         except (InputError, OSError) as exc:  # the set fails later with its own reason
             logger.debug("set %d: first frame unreadable: %s", s.index, exc)
-            firsts[s.index] = None
+            info = None
+        if info is not None and not info.fnumber and s.fnumber:
+            # The f-number of an exposure list (or a hand-edited manifest) where EXIF has none.
+            listed_fn[s.index] = float(s.fnumber)
+            info = replace(info, fnumber=float(s.fnumber))
+        firsts[s.index] = info
     reference = _reference([firsts[s.index] for s in sets])
     jobs, groups = {}, {}
+    group_of = {s.index: _group_of(firsts[s.index], _folder_label(s, manifest.root)) for s in sets}
     for s in sets:
-        groups.setdefault(_group_of(firsts[s.index]), []).append(s.index)
+        groups.setdefault(group_of[s.index], []).append(s.index)
     exposure_refs = _camera_references(sets, firsts, groups, reference, options.reference_exposure)
     for s in sets:
-        group = _group_of(firsts[s.index])
+        group = group_of[s.index]
         stem = os.path.join(out_dir, stems[s.index])
         jobs[s.index] = SetJob(index=s.index, files=[os.path.abspath(f) for f in s.files],
-                               exposures=[float(t) for t in s.exposures], output=stem + ".exr",
+                               exposures=[float(t) for t in s.exposures], output=f"{stem}.{options.output_format}",
                                preview=stem + ".jpg" if options.preview else None, group=group,
-                               reference=reference, exposure_ref=exposure_refs.get(group))
+                               reference=reference, exposure_ref=exposure_refs.get(group),
+                               fnumber=listed_fn.get(s.index))
     selected = [jobs[s.index] for s in select_sets(sets, ranges)]
-    return _Plan(jobs=jobs, selected=selected, reference=reference, groups=groups)
+    return _Plan(jobs=jobs, selected=selected, reference=reference, groups=groups, firsts=firsts)
 
 
 def _written_files(plan: _Plan, out_dir: str, *, report_path: str, report_dir: Optional[str],
-                   responses: bool) -> List[Tuple[str, str]]:
+                   responses: bool, response_dir: Optional[str] = None) -> List[Tuple[str, str]]:
     """Every file a run of ``plan`` may write, with what it is: outputs, previews, claim
     files, the groups' responses (when calibrated here), the JSON report and the
     quality report's files."""
@@ -312,7 +437,7 @@ def _written_files(plan: _Plan, out_dir: str, *, report_path: str, report_dir: O
                     (".json", "-preview.jpg", "-response.svg", "-histogram.svg", "-coverage.png")]
             out += [(f"{fs}-frame-{n:02d}.jpg", "quality report") for n in range(len(job.files))]
     if responses:
-        out += [(os.path.join(out_dir, _slug(g) + RESPONSE_SUFFIX), "response")
+        out += [(response_path(g, response_dir or out_dir), "response")
                 for g in sorted({j.group for j in plan.selected})]
     if report_dir is not None:
         out.append((os.path.join(report_dir, INDEX_NAME), "contact sheet"))
@@ -321,7 +446,7 @@ def _written_files(plan: _Plan, out_dir: str, *, report_path: str, report_dir: O
 
 def check_outputs_spare_inputs(manifest, plan: _Plan, out_dir: str, *, report_path: str,
                                report_dir: Optional[str] = None, responses: bool = True,
-                               source=None) -> None:
+                               source=None, response_dir: Optional[str] = None) -> None:
     """Refuse, before anything is written, a run that would write over one of its inputs.
 
     The inputs are every file of the manifest (its sets and the groups it does not
@@ -349,7 +474,7 @@ def check_outputs_spare_inputs(manifest, plan: _Plan, out_dir: str, *, report_pa
             continue
         ids.setdefault((st.st_dev, st.st_ino), f)
     for path, what in _written_files(plan, out_dir, report_path=report_path, report_dir=report_dir,
-                                     responses=responses):
+                                     responses=responses, response_dir=response_dir):
         hit = names.get(os.path.normcase(os.path.realpath(path)))
         if hit is None:
             try:

@@ -17,12 +17,11 @@ from hdrcl.errors import HdrclError, InputError
 from hdrcl.io.jsondoc import read_state
 from hdrcl.shoot.jobs import (
     MAX_POOL_SETS,
-    RESPONSE_SUFFIX,
     BatchOptions,
     ResponseEntry,
     SetJob,
 )
-from hdrcl.shoot.plan import _Plan, _shoot_scale, _slug
+from hdrcl.shoot.plan import _Plan, _shoot_scale, response_path
 from hdrcl.shoot.state import (
     DIGEST_RECIPE,
     _atomic_json,
@@ -74,7 +73,7 @@ def _open_set(job: SetJob) -> _Opened:
         t = job.exposures[k] if job.exposures else info.exposure_time
         if t is None or not t > 0:
             raise InputError(f"{info.path}: no exposure time in EXIF; add \"exposures\" to the set in the manifest")
-        timed.append(replace(info, exposure_time=float(t)))
+        timed.append(replace(info, exposure_time=float(t), fnumber=info.fnumber or job.fnumber))
     exposures = resolve_exposures(job.files, timed)
     k, notes = _shoot_scale(exposures, job.reference)
     times = np.asarray(relative_exposures(exposures), np.float64) * k
@@ -124,7 +123,7 @@ def _calibrate_group(group: str, jobs: List[SetJob], out_dir: str, options: Batc
                      defer: bool = False) -> ResponseEntry:
     """Load the group's saved response if its key matches, else solve and save it; with
     ``defer``, a group of one set is left to that set's merge (:func:`solve_deferred`)."""
-    path = os.path.join(out_dir, _slug(group) + RESPONSE_SUFFIX)
+    path = response_path(group, out_dir)
     entry = ResponseEntry(group=group, file=path, sets=[j.index for j in jobs])
     usable, keyed = [], []
     for j in jobs:
@@ -210,10 +209,45 @@ def _solve_pool(entry: ResponseEntry, usable: List[SetJob], options: BatchOption
     return entry
 
 
+def _cached(group: str, cache: str, first_info) -> "ResponseEntry | None":
+    """The group's curve from the ``--response-cache`` folder when there is one that fits
+    the frames (its bit depth); None (with a warning for one that does not) otherwise.
+
+    A curve this batch calibrated into the cache keeps the digest it was merged with
+    (its calibration key), so a rerun finds its sets up to date."""
+    path = response_path(group, cache)
+    if not os.path.isfile(path):
+        return None
+    saved = read_state(path, "cached response")  # damaged: None, said by read_state
+    try:
+        resp = Response.from_dict(saved, source=path) if saved is not None else None
+    except HdrclError as exc:
+        logger.warning("%s; calibrating %s again", str(exc).splitlines()[0], group)
+        resp = None
+    if resp is None:
+        return None
+    if first_info is not None and first_info.bits != resp.bits:
+        logger.warning("%s: a %d-bit response, the frames of %s are %d-bit; calibrating it again",
+                       path, resp.bits, group, first_info.bits)
+        return None
+    model = " ".join(str((resp.camera or {}).get("model") or "").split())
+    if first_info is not None and model and model != " ".join((first_info.model or "").split()):
+        logger.warning("%s: a response of a %s, the frames of %s are a %s's; calibrating it again",
+                       path, model, group, first_info.model)
+        return None
+    payload = {k: v for k, v in saved.items() if k != "calibration"}
+    calib = saved.get("calibration")
+    key = calib.get("key") if isinstance(calib, dict) and isinstance(calib.get("key"), str) else None
+    logger.info("%s: response from the cache %s", group, path)
+    return ResponseEntry(group=group, payload=payload, file=path, source="cached",
+                         digest=_key_digest(key) if key else response_digest(payload))
+
+
 def _prepare_responses(plan: _Plan, out_dir: str, options: BatchOptions, response=None,
-                       defer: bool = False) -> Dict[str, ResponseEntry]:
-    """Every needed group's response: given, loaded, solved now, or (``defer``) left to
-    the merge of a group's only set."""
+                       defer: bool = False, cache=None) -> Dict[str, ResponseEntry]:
+    """Every needed group's response: given, from the ``cache`` folder, loaded, solved
+    now, or (``defer``) left to the merge of a group's only set (saved into ``cache``
+    when given, else ``out_dir``)."""
     needed = sorted({j.group for j in plan.selected})
     if response is not None:
         if isinstance(response, Response):
@@ -226,9 +260,27 @@ def _prepare_responses(plan: _Plan, out_dir: str, options: BatchOptions, respons
                 for g in needed}
     out = {}
     for g in needed:
-        out[g] = _calibrate_group(g, [plan.jobs[i] for i in _pool_of(plan.groups[g])], out_dir, options,
+        first = plan.firsts.get(plan.groups[g][0])
+        folder = cache_for(first, cache)
+        if folder is not None:
+            out[g] = _cached(g, folder, first)
+            if out[g] is not None:
+                continue
+        out[g] = _calibrate_group(g, [plan.jobs[i] for i in _pool_of(plan.groups[g])], folder or out_dir, options,
                                   defer=defer)
     return out
+
+
+def cache_for(first_info, cache):
+    """The ``--response-cache`` folder for a group whose first frame is ``first_info``,
+    or None: a group whose frames name no camera is grouped by its folder, and a folder's
+    name says nothing about the camera (another shoot's "set01" may be another camera's),
+    so it is calibrated each time and saved beside the outputs, never cached."""
+    from hdrcl.shoot.plan import _camera_label
+
+    if cache is None or first_info is None or _camera_label(first_info) == "unknown camera":
+        return None
+    return cache
 
 
 def solve_deferred(entry: ResponseEntry, job: SetJob, infos, grid, options: BatchOptions) -> Response:

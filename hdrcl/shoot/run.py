@@ -5,8 +5,10 @@
 **One response per camera body and ISO.** Sets are grouped by the first frame's
 camera (make, model, serial) and ISO. Each group's curve is solved once from samples
 pooled across the group's sets (:func:`hdrcl.core.solve.recover_response_pooled`) and
-saved beside the outputs as ``<camera>-ISO<n>.response.json``; ``--response`` gives one
-curve for everything instead. The pool is chosen from the *whole manifest*, never from
+saved beside the outputs as ``<camera>-ISO-<n>.response.json`` (a set without camera
+make and model is its folder's: ``<folder>.response.json``); ``--response`` gives one
+curve for everything instead, ``--response-cache DIR`` keeps the curves in DIR and uses
+one found there as it is. The pool is chosen from the *whole manifest*, never from
 the sets selected for this run (at most :data:`MAX_POOL_SETS` sets, evenly spaced in
 index order), and the solve is deterministic, so every farm chunk, Dask worker or
 rerun arrives at the same curve. A saved curve whose recorded calibration key (the
@@ -48,8 +50,9 @@ and reads its headers. One OpenCL context and built program serve the process.
 ``jobs > 1`` runs sets in worker processes (``spawn``: each worker makes its own OpenCL
 context once); ``scheduler`` runs them on a Dask cluster (:mod:`hdrcl.shoot.executors`).
 
-Outputs, named after each set's first frame (:func:`output_stems`), go directly into
-the output folder: ``<stem>.exr``, ``<stem>.jpg`` (preview) and ``report.json``.
+Outputs, named after each set's folder when every set has its own, else after its first
+frame, or by a ``name`` template (:func:`output_stems`), go directly into the output
+folder: ``<stem>.exr``, ``<stem>.jpg`` (preview) and ``report.json``.
 
 **Quality report** (``BatchOptions.report_dir``, ``--report DIR``). Whoever merges a set
 (this process, a worker process, a Dask worker) measures it (:func:`hdrcl.report.quality.measure`
@@ -86,7 +89,7 @@ from hdrcl.shoot.jobs import (
     _reference_text,
 )
 from hdrcl.shoot.plan import _plan, check_outputs_spare_inputs, load_source, parse_sets
-from hdrcl.shoot.pooling import _prepare_responses
+from hdrcl.shoot.pooling import _prepare_responses, cache_for
 from hdrcl.shoot.setquality import _contact_sheet
 from hdrcl.shoot.setrun import _failed, _merge_stage, _Opening, _read_stage, process_set
 from hdrcl.shoot.state import (
@@ -153,6 +156,8 @@ def run_batch(
     progress: Optional[Callable[[Optional[SetResult], int, int], None]] = None,
     times_file: Union[str, os.PathLike, None] = None,
     handle_signals: bool = False,
+    name: Optional[str] = None,
+    response_cache: Union[str, os.PathLike, None] = None,
 ) -> BatchReport:
     """Merge every bracket set of a shoot into ``out_dir``.
 
@@ -196,6 +201,14 @@ def run_batch(
     handle_signals : bool
         Install handlers for SIGTERM and SIGINT for the duration of the run (the CLI
         does); by default the caller's handlers are left alone.
+    name : str, optional
+        Output name template (``--name``; fields ``{folder}``, ``{first}``, ``{date}``,
+        ``{index}``, ``{camera}``, :func:`hdrcl.shoot.plan.output_stems`) [default:
+        ``{folder}`` when every set has a folder of its own, else ``{first}``].
+    response_cache : path, optional
+        Folder of responses, one per camera group (``<group>.response.json``): one found
+        there that fits the frames' bit depth is used as it is; otherwise the group is
+        calibrated as usual and its curve written there (instead of into ``out_dir``).
 
     With ``handle_signals`` (in the main thread), SIGTERM and SIGINT stop the run
     within a couple of seconds: worker processes are killed, temporary files of
@@ -224,6 +237,8 @@ def run_batch(
     options = options or BatchOptions()
     if jobs < 1:
         raise UsageError(f"--jobs must be at least 1, not {jobs}")
+    if response is not None and response_cache is not None:
+        raise UsageError("--response and --response-cache exclude each other: the given curve serves every set")
     if scheduler is not None and jobs > 1:
         raise UsageError("--jobs and --scheduler exclude each other: the Dask cluster decides the parallelism")
     if options.dtype not in ("auto", "half", "float"):
@@ -245,11 +260,11 @@ def run_batch(
             if os.path.exists(report_dir) and not os.path.isdir(report_dir):
                 raise UsageError(f"{report_dir}: --report is not a folder")
             options = replace(options, report_dir=report_dir)
-        manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap,
-                               exclude=[out_dir] + ([report_dir] if report_dir else []), times_file=times_file)
-        if not manifest.sets:  # one error line, and no output folder or report
-            raise ProcessingError(nothing_to_merge(source, manifest, recursive))
-        for folder, what in ((out_dir, "output"), (report_dir, "report")):
+        manifest = _manifest(source, recursive, frames_per_set, gap, times_file,
+                             [out_dir] + ([report_dir] if report_dir else []))
+        plan = _plan(manifest, out_dir, options, ranges, name)  # before any folder: a bad --name is exit 2
+        cache = os.path.abspath(os.fspath(response_cache)) if response_cache is not None else None
+        for folder, what in ((out_dir, "output"), (report_dir, "report"), (cache, "response cache")):
             if folder is None:
                 continue
             try:
@@ -257,15 +272,14 @@ def run_batch(
             except OSError as exc:
                 raise UsageError(f"{folder}: cannot create the {what} folder ({exc.strerror or exc})") from None
 
-        plan = _plan(manifest, out_dir, options, ranges)
         report_path = os.path.abspath(os.fspath(report)) if report is not None else os.path.join(out_dir, REPORT_NAME)
         check_outputs_spare_inputs(manifest, plan, out_dir, report_path=report_path, report_dir=report_dir,
-                                   responses=response is None, source=source)
+                                   responses=response is None, source=source, response_dir=cache)
         logger.info("%d set(s) in the manifest, %d selected; reference %s", len(plan.jobs), len(plan.selected),
                     _reference_text(plan.reference))
         # A camera with one set in the manifest is calibrated by that set's merge, from the
         # decode that feeds its fusion (each frame decoded once).
-        responses = _prepare_responses(plan, out_dir, options, response, defer=not calibrate_only)
+        responses = _prepare_responses(plan, out_dir, options, response, defer=not calibrate_only, cache=cache)
         unreadable = [f for u in manifest.unmerged if u.reason.startswith("corrupt") for f in u.files] \
             if ranges is None else []
         rep = BatchReport(unmerged=[{"files": [os.path.abspath(f) for f in u.files], "reason": u.reason}
@@ -330,6 +344,75 @@ def run_batch(
         return rep
 
 
+def describe_batch(source, out_dir, *, options: Optional[BatchOptions] = None, sets=None, response=None,
+                   response_cache=None, name: Optional[str] = None, recursive: bool = False,
+                   frames_per_set: Optional[int] = None, gap: Optional[float] = None, times_file=None) -> dict:
+    """What :func:`run_batch` would do with the same arguments, without merging or writing
+    anything (``hdrcl batch --dry-run``): per selected set its frames, exposure span,
+    output, response and how that is calibrated.
+
+    Returns
+    -------
+    dict
+        ``{"sets": [...], "unmerged": [...], "reference": "f/8 ISO 100"}``; each set has
+        ``index``, ``frames``, ``first``, ``last``, ``exposures`` (``[shortest, longest]``
+        seconds, or None when EXIF decides at merge time), ``output``, ``preview``,
+        ``response`` (group, file, source: given / cached / saved / calibrate) and
+        ``calibration`` (``given``, ``cached``, ``own`` or ``pooled`` with its sets).
+
+    Raises
+    ------
+    As :func:`run_batch` before it writes anything.
+    """
+    from hdrcl.shoot.pooling import _pool_of
+    from hdrcl.shoot.plan import response_path
+
+    options = options or BatchOptions()
+    if response is not None and response_cache is not None:
+        raise UsageError("--response and --response-cache exclude each other: the given curve serves every set")
+    ranges = parse_sets(sets) if isinstance(sets, str) else (list(sets) if sets is not None else None)
+    out_dir = os.path.abspath(os.fspath(out_dir))
+    report_dir = os.path.abspath(options.report_dir) if options.report_dir else None
+    manifest = _manifest(source, recursive, frames_per_set, gap, times_file,
+                         [out_dir] + ([report_dir] if report_dir else []))  # as run_batch
+    plan = _plan(manifest, out_dir, options, ranges, name)
+    folder = os.path.abspath(os.fspath(response_cache)) if response_cache is not None else out_dir
+    check_outputs_spare_inputs(manifest, plan, out_dir, report_path=os.path.join(out_dir, REPORT_NAME),
+                               report_dir=report_dir, responses=response is None, source=source,
+                               response_dir=folder)
+    rows = []
+    for job in plan.selected:
+        members = plan.groups[job.group]
+        cached = response_cache is not None and cache_for(plan.firsts.get(members[0]), folder) is not None
+        path = response_path(job.group, folder if cached else out_dir)
+        if response is not None:
+            resp = {"group": job.group, "file": os.fspath(response), "source": "given"}
+            calib = {"kind": "given"}
+        else:
+            there = os.path.isfile(path)
+            resp = {"group": job.group, "file": path,
+                    "source": ("cached" if cached else "saved") if there else "calibrate"}
+            calib = ({"kind": "cached"} if there and cached else
+                     {"kind": "own"} if len(members) == 1 else {"kind": "pooled", "sets": _pool_of(members)})
+        times = [t for t in job.exposures if t > 0]
+        rows.append({"index": job.index, "frames": len(job.files), "first": job.files[0], "last": job.files[-1],
+                     "exposures": [min(times), max(times)] if times else None, "output": job.output,
+                     "preview": job.preview, "response": resp, "calibration": calib})
+    return {"sets": rows, "reference": _reference_text(plan.reference),
+            "unmerged": [{"files": [os.path.abspath(f) for f in u.files], "reason": u.reason}
+                         for u in manifest.unmerged]}
+
+
+def _manifest(source, recursive, frames_per_set, gap, times_file, exclude):
+    """The source's manifest with at least one set (else ProcessingError: one line, and
+    no output folder or report)."""
+    manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap,
+                           exclude=exclude, times_file=times_file)
+    if not manifest.sets:
+        raise ProcessingError(nothing_to_merge(source, manifest, recursive))
+    return manifest
+
+
 def nothing_to_merge(source, manifest, recursive: bool = False) -> str:
     """Why a source yields no bracket set, in one line naming it: no photographs (and
     what the folder holds instead), or the groups it did find and why each is not a set
@@ -358,8 +441,8 @@ def nothing_to_merge(source, manifest, recursive: bool = False) -> str:
     kinds = ", ".join(e.lstrip(".").upper() for e in DEFAULT_EXTENSIONS[:5])
     if files:
         what = f"{len(files)} other file(s), such as {files[0]}"
-    elif folders and not recursive:
-        what = f"only subfolders ({folders[0]}{', ...' if len(folders) > 1 else ''}): add --recursive"
+    elif folders:  # a folder with photographs in its subfolders is scanned with them
+        what = f"only subfolders without photographs ({folders[0]}{', ...' if len(folders) > 1 else ''})"
     else:
         what = "it is empty"
     return f"{name}: no photographs to merge ({kinds} or camera RAW); {what}"

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import logging
 import os
-from typing import List, Optional, Sequence
+from typing import List, Optional, Sequence, Tuple
 from hdrcl.errors import InputError
 from hdrcl.shoot.manifest import Manifest, Unmerged, _rel
 from hdrcl.shoot.grouping import _exposure_range, _fmt_bias, group_frames
@@ -47,39 +47,81 @@ def _regular(p: str) -> bool:
         return True  # let the reader report it
 
 
-#: Exposure lists found beside the frames, in this order of preference.
-EXPOSURE_LISTS = ("image_list.txt", "times.txt")
-
-
 def _with_exposure_lists(infos, times_file):
-    """Frames named in an exposure list take their exposure from it."""
+    """Frames named in ``times_file`` take their exposure from it (it wins over EXIF);
+    frames without EXIF exposure time take theirs from a list beside them
+    (:func:`hdrcl.io.metadata.header_exposures`), their f-number too."""
     from dataclasses import replace
 
-    from hdrcl.io.metadata import read_times_file
+    from hdrcl.io.metadata import header_exposures, read_times_file
 
-    given = read_times_file(times_file) if times_file is not None else None
-    tables = {}
+    given = read_times_file(times_file) if times_file is not None else {}
+    listed = {}  # frames without EXIF exposure time, by folder: one read of its list
+    for info in infos:
+        if os.path.basename(info.path) not in given and info.exposure_time is None:
+            listed.setdefault(os.path.dirname(os.path.abspath(info.path)), []).append(info)
+    from_lists = {}
+    for folder, group in listed.items():
+        try:
+            exposures, used = header_exposures([i.path for i in group], group)
+        except InputError as exc:
+            logger.warning("exposure list not used: %s", exc)
+            continue
+        for u in used:
+            logger.info("%s: exposures of the frames it lists", u)
+        from_lists.update((i.path, e) for i, e in zip(group, exposures) if e is not None)
     out = []
     for info in infos:
-        folder = os.path.dirname(os.path.abspath(info.path))
-        if folder not in tables:
-            tables[folder] = {}
-            for name in EXPOSURE_LISTS:
-                p = os.path.join(folder, name)
-                if os.path.isfile(p):
-                    try:
-                        tables[folder] = read_times_file(p)
-                        logger.info("%s: exposures of the frames it lists", p)
-                    except InputError as exc:
-                        logger.warning("exposure list not used: %s", exc)
-                    break
-        name = os.path.basename(info.path)
-        e = (given or {}).get(name) or tables[folder].get(name)
+        e = given.get(os.path.basename(info.path)) or from_lists.get(info.path)
         if e is not None:
-            info = replace(info, exposure_time=float(e.factor),
-                           fnumber=info.fnumber if info.fnumber else e.fnumber)
+            info = replace(info, exposure_time=float(e.factor), fnumber=info.fnumber or e.fnumber)
         out.append(info)
     return out
+
+
+def photos_below(root: str, extensions: Sequence[str] = DEFAULT_EXTENSIONS,
+                 exclude: Sequence[str] = ()) -> Tuple[int, List[str]]:
+    """Photographs in the subfolders of ``root`` (not ``root`` itself, nor the ``exclude``
+    folders: a batch's output inside the shoot), and those subfolders (relative to
+    ``root``) that hold some: what a scan without ``recursive`` leaves out."""
+    skip = tuple(os.path.abspath(e) + os.sep for e in exclude if e)
+    below = [p for p in _list_files(root, True, extensions)
+             if os.path.dirname(p) != root and not os.path.abspath(p).startswith(skip)]
+    folders = sorted({os.path.relpath(os.path.dirname(p), root) for p in below})
+    return len(below), folders
+
+
+def descends(root, recursive: bool = False, extensions: Sequence[str] = DEFAULT_EXTENSIONS,
+             exclude: Sequence[str] = ()) -> Optional[str]:
+    """Whether a scan of ``root`` goes into its subfolders without being asked, and the
+    line that says so (None: it does not).
+
+    A folder that holds no photographs itself while its subfolders do (a shoot copied
+    as one folder per set, a card's DCIM) is scanned recursively, as ``-r`` does.
+    """
+    root = os.fspath(root)
+    if recursive or not os.path.isdir(root) or _list_files(root, False, extensions):
+        return None
+    n, folders = photos_below(root, extensions, exclude)
+    if not n:
+        return None
+    shown = ", ".join(folders[:3]) + (", ..." if len(folders) > 3 else "")
+    return (f"{root}: no photographs at its top; scanning its {len(folders)} subfolder(s) "
+            f"({shown}; {n} photographs), as -r does")
+
+
+def left_below(root, recursive: bool = False, extensions: Sequence[str] = DEFAULT_EXTENSIONS,
+               exclude: Sequence[str] = ()) -> Optional[str]:
+    """The line telling to add ``-r`` when a scan of ``root`` leaves photographs in
+    subfolders out (None: it leaves none out)."""
+    root = os.fspath(root)
+    if recursive or not os.path.isdir(root) or not _list_files(root, False, extensions):
+        return None
+    n, folders = photos_below(root, extensions, exclude)
+    if not n:
+        return None
+    shown = ", ".join(folders[:3]) + (", ..." if len(folders) > 3 else "")
+    return f"{root}: {n} photographs in subfolders ({shown}) are left out; add -r to include them"
 
 
 def scan_directory(path, *, recursive: bool = False, frames_per_set: Optional[int] = None,
@@ -94,7 +136,9 @@ def scan_directory(path, *, recursive: bool = False, frames_per_set: Optional[in
         Folder to scan.
     recursive : bool
         Include subfolders (a set may span folders, e.g. at a file-number rollover).
-        Hidden files and folders (names starting with ".") are skipped.
+        Hidden files and folders (names starting with ".") are skipped. A folder with
+        no photographs at its top but some in its subfolders is scanned recursively
+        without it (:func:`descends`).
     frames_per_set, gap
         Overrides, see :func:`group_frames`.
     extensions : sequence of str
@@ -103,12 +147,12 @@ def scan_directory(path, *, recursive: bool = False, frames_per_set: Optional[in
         Also compare the frames' content (small exposure-normalised thumbnails,
         :mod:`hdrcl.shoot.scene`); False groups by the headers alone.
     times_file : path, optional
-        Exposure list for frames without EXIF (see :data:`EXPOSURE_LISTS`).
+        Exposure list (wins over EXIF for the frames it names).
 
-    Exposure lists: a frame named in ``times_file``, or in an ``image_list.txt``
-    (HDRShop columns) or ``times.txt`` (``file seconds``) in its own folder, takes its
-    exposure (time, with gain and ND folded in) from the list; its f-number too when its
-    header has none.
+    Exposure lists: a frame named in ``times_file``, or one without EXIF exposure time
+    named in an ``image_list.txt`` (HDRShop columns) or ``times.txt`` (``file seconds``)
+    in its own folder, takes its exposure (time, with gain and ND folded in) from the
+    list; its f-number too when its header has none.
 
     Returns
     -------
@@ -129,6 +173,10 @@ def scan_directory(path, *, recursive: bool = False, frames_per_set: Optional[in
     if not os.path.isdir(root):
         raise InputError(f"{root}: no such folder" if not os.path.exists(root)
                          else f"{root}: not a folder")
+    note = descends(root, recursive, extensions)
+    if note:
+        logger.info("%s", note)
+        recursive = True
     files = _list_files(root, recursive, extensions)
     infos, bad = [], []
     for p in files:

@@ -38,30 +38,37 @@ def fitted_times(job: SetJob, opened, opts: BatchOptions, grid=None, resp=None) 
 
 
 def aligned_source(job: SetJob, opened, opts: BatchOptions, times):
-    """The set's frames in memory, shifted onto the middle exposure (and cropped).
+    """The set's frames in memory, warped onto the middle exposure (and cropped).
 
-    Returns ``(source, shifts, box)``: an :class:`hdrcl.core.pipeline.ArraySource`,
-    each frame's ``(dy, dx)`` and the crop box ``(y0, y1, x0, x1)`` or None.
+    The motion model is ``opts.align_model`` (``auto`` when the options have none; see
+    :mod:`hdrcl.core.handheld`). Returns ``(source, shifts, box, alignment)``: an
+    :class:`hdrcl.core.pipeline.ArraySource`, each frame's whole-pixel ``(dy, dx)``, the
+    crop box ``(y0, y1, x0, x1)`` or None, and the per-frame alignment records.
     """
     from hdrcl.core.bracket import _with_ignore
-    from hdrcl.core.merge import _align
+    from hdrcl.core.handheld import align_bracket
     from hdrcl.core.pipeline import ArraySource
     from hdrcl.io.reader import BracketReader
 
     with BracketReader(job.files, opened.infos) as reader:
         frames, valid = reader.read_all()
     valid = _with_ignore(frames, valid, opts.ignore_color)
-    frames, valid, shifts, crop = _align(frames, valid, times, opts.device, bool(opts.crop))
-    return ArraySource(frames, valid), shifts, crop
+    model = getattr(opts, "align_model", "auto") or "auto"
+    al = align_bracket(frames, valid, times, opts.device, bool(opts.crop), model, list(job.files), inplace=True)
+    del frames, valid
+    return ArraySource(al.frames, al.valid), al.shifts, al.crop, al.alignment
 
 
 def white_balance(job: SetJob, opened, source, times, resp, opts: BatchOptions, nch: int, h: int,
                   w: int) -> Tuple[Optional[np.ndarray], dict]:
-    """Per-channel factors that make ``opts.neutral`` grey (None without it), and the
-    metadata that records them."""
-    if opts.neutral is None:
+    """Per-channel factors that make ``opts.neutral`` grey, times the absolute scale
+    (cd/m^2 from the first frame's f-number and ISO) that a fisheye luminance map
+    (``opts.luminance``) implies; None with neither. Also the metadata that records them."""
+    absolute = bool(opts.luminance)
+    if opts.neutral is None and not absolute:
         return None, {}
     from hdrcl.core.scale import _radiometric_factors
 
     return _radiometric_factors(list(job.files), opened.infos, source, times, resp, opts.weight, opts.ignore_color,
-                                opts.device, nch, opts.neutral, None, False, h, w)
+                                opts.device, nch, opts.neutral, None, absolute, h, w,
+                                exposure_reference=job.reference)  # the times are relative to the shoot's

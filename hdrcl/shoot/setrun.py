@@ -261,10 +261,13 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
             else:
                 resp = _response_of(entry)
             times, fit_notes = fitted_times(job, opened, opts, grid=grid, resp=resp)
-            source, shifts = reader, None
+            source, shifts, alignment = reader, None, None
             if opts.align:
-                source, shifts, _box = aligned_source(job, opened, opts, times)
+                source, shifts, _box, alignment = aligned_source(job, opened, opts, times)
                 h, w = source.height, source.width
+            chain = opts.luminance_chain()  # a fisheye luminance map: this set's own accumulator
+            if chain is not None:
+                chain.bind(h, w, nch)  # the lens circle inside the (aligned, cropped) image
             factors, units = white_balance(job, opened, source, times, resp, opts, nch, h, w)
             work = h * w * len(job.files)  # a small set skips OpenCL's start-up
             backend = "numpy" if get_processor("fusion", opts.device, work=work) is None else "opencl"
@@ -275,7 +278,9 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
             meta.update({DIGEST_KEY: step.digest, "evOffset": round(opened.ev_offset, 6),
                          "exposureRef": _reference_text(job.reference)})
             if shifts is not None:
-                meta["alignShifts"] = [list(map(int, sh)) for sh in shifts]
+                from hdrcl.core.handheld import alignment_meta
+
+                meta.update(alignment_meta(shifts, alignment))
             small = AreaAverage(h, w, nch, opts.preview_size) if job.preview is not None else None
             # The quality report keeps the frames (or their sampling grid) as they stream
             # past, and a reduced radiance map: the preview's, or its own without one.
@@ -290,12 +295,14 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
             has_valid = (opts.ignore_color is not None or any(i.nchannels in (2, 4) for i in opened.infos)
                          or source is not reader)
 
-            def open_writer(dt, half_scale):
-                m = dict(meta)
+            def open_writer(dt, half_scale, ch=None):
+                m, cam, ww, hh = dict(meta), camera, w, h
+                if ch is not None:  # the chain's N x N map: its units, VIEW=, vertical illuminance
+                    m, cam, ww, hh = ch.writer_args(m, cam)
                 if half_scale != 1.0:
                     m["halfScale"] = half_scale
-                return RadianceWriter(job.output, w, h, nch, dtype=dt, compression=opts.compression, metadata=m,
-                                      timestamp=opened.stamp, colorspace=opts.colorspace, camera=camera)
+                return RadianceWriter(job.output, ww, hh, nch, dtype=dt, compression=opts.compression, metadata=m,
+                                      timestamp=opened.stamp, colorspace=opts.colorspace, camera=cam)
 
             def run(file_sink, first_pass):
                 sink = _Tee(file_sink, thumb) if first_pass else file_sink
@@ -312,7 +319,8 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
             # Half floats whenever the merged values fit (measured as they stream), else
             # fused again into float or rescaled half (hdrcl.core.encode).
             writer, counts, stored = fuse_to_file(open_writer, run, output=job.output, dtype=opts.dtype,
-                                                  reference=t_ref, keep_units=units.get("units", "relative") != "relative")
+                                                  reference=t_ref, keep_units=units.get("units", "relative") != "relative",
+                                                  chain=chain)
             try:
                 t1 = _time.perf_counter()
                 # Preview first: the EXR, moved into place last, marks the set complete.
@@ -338,10 +346,14 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
                         counts={k: int(counts.get(k, 0)) for k in keys},
                         ev_offset=round(opened.ev_offset, 6), digest=step.digest, response=job.group,
                         storage=about.storage_note)
+        if alignment is not None:
+            res.alignment = alignment  # per frame: hdrcl.core.handheld.describe
+        if chain is not None and chain.vertical_illuminance is not None:
+            res.vertical_illuminance = chain.vertical_illuminance
         if kept is not None:
             # After the EXR is committed: the report never holds back or spoils an output.
             t3 = _time.perf_counter()
-            bracket = kept.bracket(job.files, opened.infos, times, opts.ignore_color)
+            bracket = kept.bracket(job.files, opened.infos, opened.times, opts.ignore_color)
             del kept
             _quality_for(res, job, bracket, resp, times, thumb.result(), opts)
             seconds["quality"] = _time.perf_counter() - t3

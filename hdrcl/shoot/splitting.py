@@ -1,20 +1,28 @@
 """Where one bracket set ends and the next begins, in one camera's stream of frames.
 
-Two passes, every decision kept with its reason:
+Three passes, every decision kept with its reason:
 
 1. **Runs.** Consecutive frames stay together unless something ends the set: a change
-   of lens, focal length, image size, exposure mode or aperture (in a time ladder); an
-   exposure (or exposure bias) that repeats one already in the set; a ladder that
-   restarts (a monotonic hand ladder walking back, an auto-bracket pattern broken); the
-   *scene* changing (:mod:`hdrcl.shoot.scene`); or a gap longer than the default limit
-   (:data:`DEFAULT_GAP`, plus the exposure time after long exposures).
-2. **Bridges.** A run that ended only by a long gap is joined with the next when the
-   two together still form one exposure ladder (:func:`hdrcl.shoot.ladder.ladder_of`:
-   evenly spaced in ``t``, ``t * ISO`` or the exposure bias, in an order people shoot)
-   and the scene matches across the gap: hand-made ladders with 5-60 s between frames.
-   Without a thumbnail the scene cannot vouch, and gaps up to :data:`BRIDGE_UNSEEN`
-   seconds are bridged; with a matching scene, up to :data:`BRIDGE_SEEN` seconds (plus
-   the exposure time).
+   of lens, focal length, image size, to or from auto bracketing, or of the aperture (in
+   a time ladder); an exposure (or exposure bias) that repeats one already in the set; a
+   ladder that restarts (a monotonic hand ladder walking back, an auto-bracket pattern
+   broken; a one-way ladder carried on past its end by a plausible step is not broken);
+   the *scene* changing (:mod:`hdrcl.shoot.scene`); a gap longer than the default limit
+   (:data:`DEFAULT_GAP`, plus the exposure time after long exposures); a change between
+   auto and manual exposure (a run end that pass 3 may undo).
+2. **Duplicates.** A run that ended because the next frame repeated its *last* exposure
+   is joined with the next run when, without the repeat, the two form one ladder and
+   the scene has not changed: the shutter pressed twice before the dial moved. The
+   repeat stays in the set (``"repeats the frame before (1/500 s): kept as a
+   duplicate"``); a repeat of an earlier frame still starts a new set.
+3. **Bridges.** A run that ended only by a long gap (or an auto / manual change) is
+   joined with the next when the two together still form one exposure ladder
+   (:func:`hdrcl.shoot.ladder.ladder_of`: evenly spaced in ``t``, ``t * ISO`` or the
+   exposure bias, in an order people shoot; one way but uneven when the scene matches)
+   and the scene matches across the gap: hand-made ladders with 5-80 s between frames,
+   and pauses of minutes on one view while the ladder goes on. Without a thumbnail the
+   scene cannot vouch, and gaps up to :data:`BRIDGE_UNSEEN` seconds are bridged; with a
+   matching scene, up to :data:`BRIDGE_SEEN` seconds (plus the exposure time).
 
 With a ``--gap`` override the limit is exact and nothing is bridged.
 """
@@ -26,13 +34,16 @@ from typing import Callable, List, Optional
 
 from hdrcl.io.metadata import FrameInfo
 from hdrcl.shoot.compare import (DEFAULT_GAP, LONG_EXPOSURE, _BIAS_TOL, _MODE_NAMES, _STOP_TOL, _fmt_bias, _fmt_f,
-                                 _gap, _norm, _same_bias, _same_settings, _same_stops, _varies)
-from hdrcl.shoot.ladder import exposure_value, ladder_of
+                                 _gap, _norm, _same_bias, _same_settings, _same_stops, _varies, format_exposure)
+from hdrcl.shoot.ladder import MAX_STEP, MIN_STEP, exposure_value, ladder_of
 
 logger = logging.getLogger(__name__)
 
-#: Longest gap (s) bridged when the frames' scene matches.
-BRIDGE_SEEN = 120.0
+#: Longest gap (s) bridged when the frames' scene matches: a pause of a quarter of an
+#: hour on one view, the ladder going on after it, is still one set.
+BRIDGE_SEEN = 900.0
+#: Gaps longer than this (s) are called a pause in the reasons.
+PAUSE = 120.0
 #: Longest gap (s) bridged when the scene cannot be compared (no thumbnail).
 BRIDGE_UNSEEN = 60.0
 #: Auto-bracket frames closer than this (s) are one burst: the scene does not split them.
@@ -81,11 +92,8 @@ def _camera_reason(prev: FrameInfo, f: FrameInfo) -> Optional[str]:
 def _pattern_reason(cur: List[FrameInfo], f: FrameInfo) -> Optional[str]:
     """Exposure mode or aperture changed, an exposure repeats, the ladder restarts."""
     prev = cur[-1]
-    if (prev.exposure_mode is not None and f.exposure_mode is not None
-            and prev.exposure_mode != f.exposure_mode):
-        return ("exposure mode changed ("
-                f"{_MODE_NAMES.get(prev.exposure_mode, prev.exposure_mode)} -> "
-                f"{_MODE_NAMES.get(f.exposure_mode, f.exposure_mode)})")
+    if _mode_change(prev, f) and 2 in (prev.exposure_mode, f.exposure_mode):
+        return _mode_change(prev, f)
     for k, g in enumerate(cur):
         if _same_settings(g, f):
             return ("exposure repeats first frame" if k == 0
@@ -100,12 +108,50 @@ def _pattern_reason(cur: List[FrameInfo], f: FrameInfo) -> Optional[str]:
             and not _varies([g.fnumber for g in cur], lambda a, b: _same_stops(a, b, 2.0))
             and not _same_stops(prev.fnumber, f.fnumber, 2.0)):
         return f"aperture changed ({_fmt_f(prev.fnumber)} -> {_fmt_f(f.fnumber)})"
+    cur = unique(cur)  # a duplicate kept in the set (pass 2) is no step of its ladder
     if _ladder_turns(cur, f):
         return "exposure ladder restarts"
     if _bias_pattern_breaks(cur, f):
         return ("bracket pattern restarts (" + (f"{_fmt_bias(f.exposure_bias)} EV" if f.exposure_bias is not None
                                                  else "exposure") + " off the set's steps)")
     return None
+
+
+def _mode_change(prev: FrameInfo, f: FrameInfo) -> Optional[str]:
+    """``"exposure mode changed (auto -> manual)"`` and the like, or None."""
+    a, b = prev.exposure_mode, f.exposure_mode
+    if a is None or b is None or a == b:
+        return None
+    return f"exposure mode changed ({_MODE_NAMES.get(a, a)} -> {_MODE_NAMES.get(b, b)})"
+
+
+def _soft(reason: str) -> bool:
+    """A run ended by a long gap or by a change between auto and manual exposure: the
+    bridges (pass 3) may join it with the next when the ladder and the scene continue."""
+    return reason.startswith("gap ") or reason.startswith("exposure mode changed")
+
+
+def unique(frames: List[FrameInfo]) -> List[FrameInfo]:
+    """``frames`` without the frames that repeat the exposure of the frame before."""
+    out = frames[:1]
+    for f in frames[1:]:
+        if not _duplicate(out[-1], f):
+            out.append(f)
+    return out
+
+
+def _duplicate(a: FrameInfo, b: FrameInfo) -> bool:
+    """``b`` repeats ``a``: the same settings (and bias), or, in auto exposure with
+    compensation (time and ISO follow the metering), the same bias within half a stop."""
+    known = a.exposure_bias is not None and b.exposure_bias is not None
+    if known and not _same_bias(a.exposure_bias, b.exposure_bias):
+        return False
+    if _same_settings(a, b):
+        return True
+    if not known or a.exposure_mode != 0 or b.exposure_mode != 0:
+        return False
+    va, vb = exposure_value(a), exposure_value(b)
+    return va is not None and vb is not None and abs(va - vb) < 0.5
 
 
 def _ladder_turns(cur: List[FrameInfo], f: FrameInfo) -> bool:
@@ -150,7 +196,25 @@ def _bias_pattern_breaks(cur: List[FrameInfo], f: FrameInfo) -> bool:
         return False
     if lad.axis == "bias" and f.exposure_bias is None:
         return False
+    if _extends(lad, cur, f):
+        return False
     return ladder_of(cur + [f]) is None
+
+
+def _extends(lad, cur: List[FrameInfo], f: FrameInfo) -> bool:
+    """``f`` carries a one-way ladder on past its end by a plausible step (a phone that
+    reaches its longest shutter time and goes on in ISO from its own table of values
+    steps unevenly): no new bracket starts there."""
+    if lad.order not in ("ascending", "descending"):
+        return False
+    if lad.axis == "bias":
+        a, b = cur[-1].exposure_bias, f.exposure_bias
+    else:
+        a, b = exposure_value(cur[-1]), exposure_value(f)
+    if a is None or b is None:
+        return False
+    step = (b - a) if lad.order == "ascending" else (a - b)
+    return MIN_STEP <= step <= MAX_STEP
 
 
 def _content_reason(cur: List[FrameInfo], f: FrameInfo, compare: Compare):
@@ -182,7 +246,7 @@ def split_stream(frames: List[FrameInfo], gap: Optional[float], compare: Compare
         reason = _camera_reason(cur[-1], f)
         if reason is None and g is not None and g > _gap_limit(cur[-1], gap):
             reason = f"gap {g:.1f} s"
-        reason = reason or _pattern_reason(cur, f)
+        reason = reason or _pattern_reason(cur, f) or _mode_change(cur[-1], f)
         verdict = None
         if reason is None:
             verdict = _content_reason(cur, f, compare)
@@ -204,13 +268,52 @@ def split_stream(frames: List[FrameInfo], gap: Optional[float], compare: Compare
             cur, cur_gaps, joins = [f], [], []
     groups.append(_Group(cur, "end of files", cur_gaps, joins))
     groups = _coalesce_repeats(groups)
+    groups = _keep_duplicates(groups, compare)
     if gap is None:
         groups = _bridge(groups, compare)
     return groups
 
 
+def _keep_duplicates(groups: List[_Group], compare: Compare) -> List[_Group]:
+    """Join a run that ended because its next frame repeated its *last* exposure (pass 2).
+
+    The shutter pressed twice before the dial moved: when the frames after the repeat go
+    on with the ladder and the scene has not changed, the set keeps the repeat as a
+    duplicate (it merges like any frame) instead of being cut in two. A repeat of an
+    earlier frame (the ladder shot again) still starts a new set.
+    """
+    out: List[_Group] = []
+    for grp in groups:
+        why = _duplicate_reason(out[-1], grp, compare) if out else None
+        if why is None:
+            out.append(grp)
+        else:
+            out[-1] = _joined(out[-1], grp, why)
+    return out
+
+
+def _duplicate_reason(p: _Group, grp: _Group, compare: Compare) -> Optional[str]:
+    if not (p.reason.startswith("exposure repeats") or p.reason.startswith("exposure bias repeats")):
+        return None
+    last, f = p.frames[-1], grp.frames[0]
+    if len(unique(p.frames)) != len(p.frames) or not _duplicate(last, f):
+        return None
+    verdict = None if compare is None else compare(last, f)
+    if verdict is not None and verdict.kind == "changed":
+        return None
+    same = verdict is not None and verdict.kind == "same"
+    if ladder_of(unique(p.frames + grp.frames), even=not same) is None:
+        return None  # the frames after the repeat walk back over the ladder: a new set
+    what = (f"{_fmt_bias(f.exposure_bias)} EV" if f.exposure_bias is not None
+            and _varies([g.exposure_bias for g in p.frames], _same_bias) else format_exposure(f.exposure_time) + " s")
+    note = f"{_fmt_gap(_gap(last, f))}, repeats the frame before ({what}): kept as a duplicate"
+    if verdict is not None and verdict.kind != "unknown":
+        note += f", {verdict.describe()}"
+    return note
+
+
 def _bridge(groups: List[_Group], compare: Compare) -> List[_Group]:
-    """Join runs that only a long gap separated and that form one ladder (pass 2).
+    """Join runs that only a long gap separated and that form one ladder (pass 3).
 
     Runs linked by long gaps form a chain; of the ways to cut a chain into ladders the
     one with the largest sum of squared set sizes wins, so a stray frame before a hand
@@ -220,7 +323,7 @@ def _bridge(groups: List[_Group], compare: Compare) -> List[_Group]:
     i = 0
     while i < len(groups):
         e = i
-        while e + 1 < len(groups) and groups[e].reason.startswith("gap "):
+        while e + 1 < len(groups) and _soft(groups[e].reason):
             e += 1
         out.extend(_bridge_chain(groups[i:e + 1], compare))
         i = e + 1
@@ -269,7 +372,7 @@ def _bridge_parts(p: _Group, grp: _Group, compare: Compare):
         return None, None, None
     verdict = None if compare is None else compare(_nearest(p.frames, grp.frames[0]), grp.frames[0])
     # A scene that matches vouches for a hand-turned ladder whose steps are uneven.
-    lad = ladder_of(p.frames + grp.frames, even=verdict is None or verdict.kind != "same")
+    lad = ladder_of(unique(p.frames + grp.frames), even=verdict is None or verdict.kind != "same")
     return g, lad, verdict
 
 
@@ -287,7 +390,11 @@ def _bridge_reason(p: _Group, grp: _Group, compare: Compare) -> Optional[str]:
     if g > limit:
         return None
     scene = verdict.describe() if seen else "scene not compared"
-    return f"gap {g:.1f} s bridged: {lad.describe()}, {scene}"
+    what = f"gap {g:.1f} s" if g <= PAUSE else f"pause of {g / 60:.1f} min ({g:.1f} s)"
+    mode = _mode_change(p.frames[-1], f)
+    if mode:
+        what += f", {mode}"
+    return f"{what} bridged: {lad.describe()}, {scene}"
 
 
 def _no_bridge_note(p: _Group, grp: _Group, compare: Compare) -> str:

@@ -87,6 +87,8 @@ def set_digest(job: SetJob, options: BatchOptions, response_hash: str) -> str:
         "response": response_hash,
         "output": options.output_params(),
     }
+    if job.fnumber is not None:  # only then, so that the digests of EXIF shoots stay as they were
+        payload["fnumber"] = job.fnumber
     return _json_digest(payload)
 
 

@@ -1,0 +1,304 @@
+"""Calibrated luminance maps from fisheye brackets, in the one pass of the fusion.
+
+The lighting researchers' chain (Pierson et al. 2019; radiantlab's HDRICalibrationTool:
+hdrgen, then per image pcompos, pfilt, pcomb with ``fisheye_corr.cal``, the vignetting,
+neutral density and calibration ``.cal`` files, ``getinfo -a VIEW=``, evalglare's
+vertical illuminance) as a sink of the fused radiance strips (:class:`LuminanceChain`):
+
+1. ``--lens-circle CX,CY,DIAMETER`` (pixels of the merged image, origin top left, pixel
+   edges at integers): the square ``round(CX - D/2), round(CY - D/2)``, side
+   ``round(D)``, is kept and every pixel whose centre lies farther than ``D/2`` from
+   ``(CX, CY)`` is set to 0. The square must lie inside the image.
+2. ``--resize N`` (default 1000): the square is area-averaged into ``N x N`` as the strips
+   come (memory: the ``N x N`` output in float64).
+3. at the end, in this order: ``--fisheye-projection equisolid-to-equidistant``,
+   ``--vignetting``, ``--nd-filter``, ``--calibration-factor``
+   (:mod:`hdrcl.core.fisheye_math`, :mod:`hdrcl.io.radcal`).
+
+The strips must be in cd/m^2 (the merge's absolute scale, ``--absolute`` or
+``--reference-patch``; the chain multiplies by K). Files: ``.hdr`` holds the values
+divided by 179 (Radiance's convention: ``179 (0.265 R + 0.670 G + 0.065 B)`` is cd/m^2),
+with ``VIEW=`` and ``VERTICAL_ILLUMINANCE=`` lines and no ``EXPOSURE=``; EXR, TIFF and PFM
+hold cd/m^2 (EXR: ``hdrcl:units = cd/m2`` and OpenEXR's ``whiteLuminance = 1``).
+``--view`` (a Radiance view, e.g. ``"-vta -vh 186 -vv 186"``) defaults to
+``-vta -vh 180 -vv 180`` when the projection is corrected (the formula's edge is 90
+degrees off axis) and is left out otherwise. The vertical illuminance at the lens is
+computed for ``-vta`` views (:func:`hdrcl.core.fisheye_math.vertical_illuminance`).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from typing import Optional, Tuple
+
+import numpy as np
+
+from hdrcl.core import fisheye_math as fm
+from hdrcl.errors import ProcessingError, UsageError
+from hdrcl.io.radcal import Vignetting, calibration_factor_option, nd_filter_option, vignetting_option
+
+logger = logging.getLogger(__name__)
+
+PROJECTIONS = ("equisolid-to-equidistant",)
+DEFAULT_RESIZE = 1000
+MAX_RESIZE = 16384
+DEFAULT_VIEW = "-vta -vh 180 -vv 180"
+_VIEW_TYPES = ("v", "l", "a", "h", "s", "c")
+_VIEW_ARGS = {"-vp": 3, "-vd": 3, "-vu": 3, "-vh": 1, "-vv": 1, "-vo": 1, "-va": 1, "-vs": 1, "-vl": 1}
+
+
+def parse_lens_circle(value) -> Tuple[float, float, float]:
+    """``CX,CY,DIAMETER`` in pixels (a string or a 3-sequence)."""
+    try:
+        vals = tuple(float(v) for v in (value.split(",") if isinstance(value, str) else value))
+    except (TypeError, ValueError):
+        vals = ()
+    if len(vals) != 3 or not all(math.isfinite(v) for v in vals) or vals[2] < 2:
+        raise UsageError(f"--lens-circle: expected CX,CY,DIAMETER in pixels (DIAMETER >= 2), not '{value}'")
+    return vals
+
+
+def parse_view(text) -> Tuple[str, str, float, float]:
+    """A Radiance view (``-vta -vh 186 -vv 186``): ``(text, type, vh, vv)``."""
+    words = str(text).split()
+    vtype, vh, vv, i = "v", 45.0, 45.0, 0
+    while i < len(words):
+        w = words[i]
+        if len(w) == 4 and w.startswith("-vt") and w[3] in _VIEW_TYPES:
+            vtype, i = w[3], i + 1
+            continue
+        n = _VIEW_ARGS.get(w)
+        try:
+            args = [float(a) for a in words[i + 1:i + 1 + (n or 0)]]
+        except ValueError:
+            args = []
+        if n is None or len(args) != n or not all(math.isfinite(a) for a in args):
+            raise UsageError(f"--view: expected Radiance view options such as '-vta -vh 186 -vv 186', not '{text}'")
+        if w == "-vh":
+            vh = args[0]
+        elif w == "-vv":
+            vv = args[0]
+        i += 1 + n
+    if not (0 < vh <= 360 and 0 < vv <= 360) or not words:
+        raise UsageError(f"--view: the view angles must be in 0..360 degrees, not '{text}'")
+    return " ".join(words), vtype, vh, vv
+
+
+def chain_or_none(*, lens_circle=None, resize=None, projection=None, vignetting=None, nd_filter=None,
+                  calibration_factor=None, view=None, device=None) -> Optional["LuminanceChain"]:
+    """The chain of the command-line options, or None when none is given; the other
+    options without ``--lens-circle`` are a usage error naming them."""
+    if lens_circle is None:
+        given = [flag for flag, v in (("--resize", resize), ("--fisheye-projection", projection),
+                                      ("--vignetting", vignetting), ("--nd-filter", nd_filter),
+                                      ("--calibration-factor", calibration_factor), ("--view", view)) if v is not None]
+        if given:
+            raise UsageError(f"{given[0]}: needs --lens-circle (a fisheye luminance map)")
+        return None
+    return LuminanceChain.from_options(lens_circle=lens_circle, resize=DEFAULT_RESIZE if resize is None else resize,
+                                       projection=projection, vignetting=vignetting, nd_filter=nd_filter,
+                                       calibration_factor=calibration_factor, view=view, device=device)
+
+
+class LuminanceChain:
+    """The chain as a sink of fused strips; build it with :meth:`from_options`.
+
+    ``write_rows(y0, y1, strip)`` takes rows of the merged image (cd/m^2), in order;
+    :meth:`finish` returns the ``N x N`` map (cd/m^2, float32) and sets
+    :attr:`vertical_illuminance` (lux, or None when the view is not ``-vta``).
+    """
+
+    def __init__(self, lens_circle, resize, projection, vignetting: Optional[Vignetting], nd_filter,
+                 calibration_factor: float, view: Optional[str], device=None):
+        self.lens_circle, self.size, self.projection = lens_circle, resize, projection
+        self.vignetting, self.nd_filter, self.calibration_factor = vignetting, nd_filter, calibration_factor
+        self.view = parse_view(view) if view is not None else None
+        self.device = device
+        self.vertical_illuminance: Optional[float] = None
+        self.backend = "numpy"
+        self._acc = None
+        self._box = None
+        self._rows_seen = 0
+
+    @classmethod
+    def from_options(cls, *, lens_circle, resize=DEFAULT_RESIZE, projection=None, vignetting=None, nd_filter=None,
+                     calibration_factor=None, view=None, device=None) -> "LuminanceChain":
+        """Every option checked (UsageError names the flag; a bad ``.cal`` file is an
+        InputError naming it). ``lens_circle`` is required; the others may be None."""
+        circle = parse_lens_circle(lens_circle)
+        try:
+            n = int(resize)
+        except (TypeError, ValueError):
+            n = 0
+        if isinstance(resize, bool) or not (2 <= n <= MAX_RESIZE) or float(resize) != n:
+            raise UsageError(f"--resize: expected a whole number of pixels in 2..{MAX_RESIZE}, not '{resize}'")
+        if projection is not None and projection not in PROJECTIONS:
+            raise UsageError(f"--fisheye-projection: '{projection}' is not one of {', '.join(PROJECTIONS)}")
+        vig = vignetting_option(vignetting) if vignetting is not None else None
+        nd = nd_filter_option(nd_filter) if nd_filter is not None else None
+        k = calibration_factor_option(calibration_factor) if calibration_factor is not None else 1.0
+        if view is None and projection is not None:
+            view = DEFAULT_VIEW
+        chain = cls(circle, n, projection, vig, nd, k, view, device)
+        if vig is not None:
+            chain._check_vignetting()
+        return chain
+
+    # -- geometry ------------------------------------------------------------------
+    def _vig_geometry(self):
+        v, half = self.vignetting, self.size / 2.0
+        return (v.xc if v.xc is not None else half, v.yc if v.yc is not None else half,
+                v.radius if v.radius is not None else half)
+
+    def _check_vignetting(self) -> None:
+        """The correction must be finite and positive over the view (r in 0..1)."""
+        xc, yc, radius = self._vig_geometry()
+        f = fm.vignetting_factors(self.size, self.vignetting.coefficients, xc, yc, radius)
+        inside = fm.inside_view(self.size)
+        if not np.all(np.isfinite(f[inside]) & (f[inside] > 0)):
+            raise UsageError(f"--vignetting: the correction 1/(a0 + a1 r + ... + a8 r^8) of "
+                             f"{self.vignetting.source} is not finite and positive over the lens circle")
+
+    def crop_box(self) -> Tuple[int, int, int]:
+        """``(left, top, side)`` of the square around the lens circle, in pixels."""
+        cx, cy, d = self.lens_circle
+        return int(round(cx - d / 2.0)), int(round(cy - d / 2.0)), int(round(d))
+
+    def bind(self, height: int, width: int, nch: int) -> None:
+        """Check the circle against the merged image's size; reset the accumulator.
+
+        A circle cut by the image's edges (a circular fisheye on a smaller sensor) is
+        padded with black, as ``pcompos`` does; its centre must lie inside the image."""
+        left, top, side = self.crop_box()
+        cx, cy, d = self.lens_circle
+        if not (0 <= cx <= width and 0 <= cy <= height):
+            raise UsageError(f"--lens-circle: the centre {cx:g},{cy:g} lies outside the {width}x{height} image")
+        if left < 0 or top < 0 or left + side > width or top + side > height:
+            logger.info("--lens-circle: the circle %g,%g,%g runs outside the %dx%d image: padded with black",
+                        cx, cy, d, width, height)
+        self._box = (left, top, side)
+        self._image = (height, width)
+        self._acc = np.zeros((self.size, self.size, nch), np.float64)
+        self._rows_seen = 0
+
+    @property
+    def output_size(self) -> Tuple[int, int]:
+        return self.size, self.size
+
+    # -- the sink ------------------------------------------------------------------
+    def write_rows(self, y0: int, y1: int, data: np.ndarray) -> None:
+        if self._acc is None:  # not bound by the caller: the height is checked at the end
+            self.bind(max(y1, sum(self.crop_box()[1:])), data.shape[1], data.shape[2])
+        left, top, side = self._box
+        a, b = max(y0, top), min(y1, top + side)
+        self._rows_seen = y1
+        if a >= b:
+            return
+        c0, c1 = max(left, 0), min(left + side, data.shape[1])
+        if c0 == left and c1 == left + side:
+            rows = np.array(data[a - y0:b - y0, left:left + side], np.float32)
+        else:  # the square reaches past the image's sides: black there
+            rows = np.zeros((b - a, side, data.shape[2]), np.float32)
+            if c1 > c0:
+                rows[:, c0 - left:c1 - left] = data[a - y0:b - y0, c0:c1]
+        self._mask(rows, a)
+        # rows first (float32 sums of about S/N + 1 terms), then the columns of the
+        # fewer rows; the output accumulates in float64
+        k0, merged = fm.row_average(rows, side, self.size, a - top)
+        self._acc[k0:k0 + merged.shape[0]] += fm.column_average(merged, self.size)
+
+    def _mask(self, rows: np.ndarray, y: int) -> None:
+        """Zero the pixels of ``rows`` (image rows ``y ..``) whose centre lies outside the circle."""
+        cx, cy, d = self.lens_circle
+        left, _, side = self._box
+        dy = np.arange(y, y + rows.shape[0], dtype=np.float64) + 0.5 - cy
+        half = np.sqrt(np.maximum((d / 2.0) ** 2 - dy ** 2, 0.0)) * np.where(np.abs(dy) <= d / 2.0, 1, -1)
+        # inside: |x + 0.5 - cx| <= half, i.e. column indices lo .. hi - 1 (of the crop)
+        lo = np.clip(np.ceil(cx - half - 0.5) - left, 0, side).astype(np.int64)
+        hi = np.clip(np.floor(cx + half - 0.5) + 1 - left, 0, side).astype(np.int64)
+        for j in range(rows.shape[0]):
+            if hi[j] <= lo[j]:
+                rows[j] = 0.0
+            else:
+                rows[j, :lo[j]] = 0.0
+                rows[j, hi[j]:] = 0.0
+
+    def finish(self) -> np.ndarray:
+        """The corrected ``N x N`` map in cd/m^2 (float32); computes the vertical illuminance."""
+        if self._acc is None:
+            raise ProcessingError("the luminance chain received no image")
+        left, top, side = self._box
+        if self._rows_seen < min(top + side, getattr(self, "_image", (top + side,))[0]):
+            raise UsageError(f"--lens-circle: the square {left},{top} side {side} runs below the image "
+                             f"({self._rows_seen} rows)")
+        img = self._acc
+        proc = self._processor()
+        if self.projection is not None:
+            img = proc.project(img) if proc is not None else fm.equisolid_to_equidistant(img)
+        if self.vignetting is not None:
+            xc, yc, radius = self._vig_geometry()
+            coeffs = self.vignetting.coefficients
+            img = proc.vignette(img, coeffs, xc, yc, radius) if proc is not None else \
+                fm.apply_vignetting(img, coeffs, xc, yc, radius)
+        img = np.asarray(img, np.float64) * self._factors(img.shape[2])
+        if self.view is not None and self.view[1] == "a":
+            self.vertical_illuminance = fm.vertical_illuminance(img, self.view[2])
+        bad = ~np.isfinite(img)
+        if bad.any():
+            raise ProcessingError(f"the luminance chain produced {int(bad.sum())} non-finite value(s)")
+        return img.astype(np.float32)
+
+    def _factors(self, nch: int) -> np.ndarray:
+        nd = np.asarray(self.nd_filter if self.nd_filter is not None else (1.0, 1.0, 1.0), np.float64)
+        if nch == 1:
+            nd = np.array([float(nd @ fm.RADIANCE_LUMA)])
+        return nd * self.calibration_factor
+
+    def _processor(self):
+        """The OpenCL twin of the projection and vignetting steps, or None (NumPy)."""
+        if self.projection is None and self.vignetting is None:
+            return None
+        from hdrcl.cl.backend import get_processor
+
+        fusion = get_processor("fusion", self.device, work=self.size * self.size)
+        if fusion is None:
+            return None
+        from hdrcl.cl.fisheye import FisheyeProcessor
+
+        self.backend = "opencl"
+        return FisheyeProcessor(ctx=fusion.ctx)
+
+    # -- the file ------------------------------------------------------------------
+    def file_values(self, output: str, image: np.ndarray) -> np.ndarray:
+        """What the file stores: cd/m^2, or for ``.hdr`` cd/m^2 / 179 (Radiance)."""
+        if os.path.splitext(os.fspath(output))[1].lower() == ".hdr":
+            return (image.astype(np.float64) / fm.WHITE_EFFICACY).astype(np.float32)
+        return image
+
+    def describe(self) -> dict:
+        """The options, for metadata and reports."""
+        d = {"lensCircle": list(self.lens_circle), "resize": self.size, "projection": self.projection,
+             "vignetting": None if self.vignetting is None else {
+                 "coefficients": list(self.vignetting.coefficients), "centre_radius": list(self._vig_geometry()),
+                 "source": self.vignetting.source},
+             "ndFilter": None if self.nd_filter is None else list(self.nd_filter),
+             "calibrationFactor": self.calibration_factor}
+        return {k: v for k, v in d.items() if v is not None}
+
+    def writer_args(self, metadata: dict, camera: dict):
+        """``(metadata, camera, width, height)`` for the file's writer: the caller's
+        metadata and standard camera mapping adapted to the calibrated map."""
+        m = {k: v for k, v in (metadata or {}).items() if k not in ("referenceExposure", "halfScale")}
+        m["units"] = "cd/m2"
+        m["luminanceChain"] = json.dumps(self.describe(), sort_keys=True)
+        cam = {k: v for k, v in (camera or {}).items() if k not in ("exposure_time", "fnumber", "iso")}
+        cam["units"] = "cd/m2"
+        if self.view is not None:
+            m["view"] = self.view[0]
+            cam["view"] = self.view[0]
+        if self.vertical_illuminance is not None:
+            m["verticalIlluminance"] = round(self.vertical_illuminance, 6)
+            cam["vertical_illuminance"] = self.vertical_illuminance
+        return m, cam, self.size, self.size
