@@ -10,6 +10,9 @@
  *   A tap contributes when its weight wx_i wy_j is not 0 (wx_i and wy_j both not 0).
  *   covered: s > 0 and every contributing tap inside the frame (else the codes are 0);
  *   valid: covered and every contributing tap valid in the source mask (when HAS_VALID).
+ *   clipped: a channel with a contributing tap at or above CLIP_HI (fusion's clip level)
+ *   is ZMAX: a clipped code is only a lower bound, and blending it with its unclipped
+ *   neighbours would invent a believable mid-range value that fusion trusts.
  *
  * Speed (Intel CPU runtime, 24 MP RGB, a similarity): one work item per pixel,
  * coordinates and weights once per pixel, a pixel's channels as one float4 (one load
@@ -27,6 +30,7 @@
  *   -DPIXEL_T=uchar|ushort  code type (default uchar)     -DZMAX=255|65535
  *   -DNCH=n                 channels per pixel (default 3) -DHAS_VALID=0|1
  *   -DTAPS=4|2              Keys cubic (4 x 4 taps, default) or bilinear (2 x 2)
+ *   -DCLIP_HI=n             fusion's clip level (hdrcl.core.weights.clip_levels; default ZMAX)
  *
  * Arguments (units, layout)
  *   src      PIXEL_T [band_h][w][NCH]   source codes, channels interleaved
@@ -49,6 +53,9 @@
 #endif
 #ifndef TAPS
 #define TAPS 4 /* 4: Keys cubic, 2: bilinear */
+#endif
+#ifndef CLIP_HI
+#define CLIP_HI ZMAX
 #endif
 #define KEYS_A (-0.5f)
 #define SNAP (1.0f / 1024.0f)
@@ -140,10 +147,11 @@ inline Site site(const int x, const int y, const int h, const int w, const int b
 }
 
 inline void put(__global PIXEL_T *out, __global uchar *outvalid, const size_t o, const float *acc,
-                const int covered, const int good)
+                const float *top, const int covered, const int good)
 {
     for (int k = 0; k < NCH; ++k) {
-        const float z = covered ? clamp(floor(acc[k] + 0.5f), 0.0f, (float)ZMAX) : 0.0f;
+        const float z = !covered ? 0.0f : top[k] >= (float)CLIP_HI ? (float)ZMAX
+                        : clamp(floor(acc[k] + 0.5f), 0.0f, (float)ZMAX);
         out[o * NCH + k] = (PIXEL_T)z;
     }
     outvalid[o] = (uchar)((covered && good) | (covered << 1));
@@ -154,20 +162,23 @@ inline void pixel(const Site *t, __global const PIXEL_T *src, __global const uch
                   __global PIXEL_T *out, __global uchar *outvalid, const size_t o,
                   const int h, const int w, const int band_y0, const int band_h)
 {
-    float acc[NCH];
+    float acc[NCH], top[NCH]; /* top: the largest contributing tap per channel */
     for (int k = 0; k < NCH; ++k)
-        acc[k] = 0.0f;
+        acc[k] = top[k] = 0.0f;
     int covered = t->covered, good = 1;
     if (covered && t->inner && t->x0 + TAPS + SPARE <= w) {
         /* every tap inside: no test per tap */
 #if VEC_PATH
-        VF sum = ZEROV;
+        VF sum = ZEROV, hi = ZEROV;
         for (int j = 0; j < TAPS; ++j) {
             const size_t q = (size_t)(t->y0 + j - band_y0) * w + t->x0;
             __global const PIXEL_T *p = src + q * NCH;
             VF row = ZEROV;
-            for (int i = 0; i < TAPS; ++i)
-                row += t->wx[i] * LOADV(p + i * NCH);
+            for (int i = 0; i < TAPS; ++i) {
+                const VF z = LOADV(p + i * NCH);
+                row += t->wx[i] * z;
+                hi = (t->wx[i] != 0.0f && t->wy[j] != 0.0f) ? fmax(hi, z) : hi;
+            }
             sum += t->wy[j] * row;
 #if HAS_VALID
             if (t->wy[j] != 0.0f)
@@ -176,11 +187,12 @@ inline void pixel(const Site *t, __global const PIXEL_T *src, __global const uch
 #endif
         }
 #if NCH == 1
-        acc[0] = sum;
+        acc[0] = sum; top[0] = hi;
 #else
         acc[0] = sum.s0; acc[1] = sum.s1; acc[2] = sum.s2;
+        top[0] = hi.s0; top[1] = hi.s1; top[2] = hi.s2;
 #if NCH == 4
-        acc[3] = sum.s3;
+        acc[3] = sum.s3; top[3] = hi.s3;
 #endif
 #endif
 #else
@@ -188,8 +200,12 @@ inline void pixel(const Site *t, __global const PIXEL_T *src, __global const uch
             const size_t q = (size_t)(t->y0 + j - band_y0) * w + t->x0;
             for (int k = 0; k < NCH; ++k) {
                 float hk = 0.0f;
-                for (int i = 0; i < TAPS; ++i)
-                    hk += t->wx[i] * (float)src[(q + i) * NCH + k];
+                for (int i = 0; i < TAPS; ++i) {
+                    const float z = (float)src[(q + i) * NCH + k];
+                    hk += t->wx[i] * z;
+                    if (t->wx[i] != 0.0f && t->wy[j] != 0.0f)
+                        top[k] = fmax(top[k], z);
+                }
                 acc[k] += t->wy[j] * hk;
             }
 #if HAS_VALID
@@ -219,14 +235,17 @@ inline void pixel(const Site *t, __global const PIXEL_T *src, __global const uch
 #if HAS_VALID
                 good &= srcvalid[q] != 0;
 #endif
-                for (int k = 0; k < NCH; ++k)
-                    hk[k] += t->wx[i] * (float)src[q * NCH + k];
+                for (int k = 0; k < NCH; ++k) {
+                    const float z = (float)src[q * NCH + k];
+                    hk[k] += t->wx[i] * z;
+                    top[k] = fmax(top[k], z);
+                }
             }
             for (int k = 0; k < NCH; ++k)
                 acc[k] += t->wy[j] * hk[k];
         }
     }
-    put(out, outvalid, o, acc, covered, good);
+    put(out, outvalid, o, acc, top, covered, good);
 }
 
 __kernel void warp(__global const PIXEL_T *restrict src,

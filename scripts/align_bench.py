@@ -94,7 +94,7 @@ t = time.perf_counter()
 r = hdrcl.merge_files(spec["paths"], spec["out"], times=spec["times"], align=spec["align"], dtype="half")
 wall = time.perf_counter() - t
 rec = {"wall": wall, "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-       "align_s": r.seconds.get("align"), "backend": r.backend}
+       "align_s": r.stages.get("align"), "backend": r.backend}
 if r.alignment:
     rec["alignment"] = r.alignment
 print("RESULT " + json.dumps(rec))

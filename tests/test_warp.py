@@ -112,3 +112,31 @@ def test_crop_box_of_whole_pixel_shifts_is_exact():
 
     shifts = [(3, -5), (0, 0), (-7, 2)]
     assert W.crop_box((31, 47), [W.translation(dy, dx) for dy, dx in shifts]) == shift_box((31, 47), shifts)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_a_clipped_tap_makes_the_warped_channel_clipped(cl_device, dtype):
+    """A lamp clipped in a long exposure, moved half a pixel: a channel blended from a
+    clipped code (at or above fusion's clip level) comes out clipped, not as a made-up
+    mid-range value fusion would trust; kernel and twin alike."""
+    from hdrcl.cl.warp import WarpProcessor
+    from hdrcl.core.weights import clip_levels
+
+    top = int(np.iinfo(dtype).max)
+    lo, hi = clip_levels(top + 1)
+    frame = np.full((24, 32, 3), top // 2, dtype)
+    frame[:, 16:, 0] = top           # red clipped from x = 16
+    frame[:, 16:, 1] = hi            # green exactly at the clip level
+    frame[:, 16:, 2] = hi - 1        # blue just below it: interpolated as usual
+    m = W.translation(0.0, 0.5)      # reference x samples frame x + 0.5
+    twin, ok_t = W.warp_frame(frame, m, clip_hi=hi)
+    codes, ok_k, _ = WarpProcessor(ctx=cl_device).warp(frame, m, clip_hi=hi)
+    np.testing.assert_array_equal(codes, twin)
+    np.testing.assert_array_equal(ok_k, ok_t)
+    row = twin[12, 8:24]
+    # columns whose taps (x - 1 .. x + 2 around x + 0.5) reach x = 16 are clipped in red and green
+    assert (row[6:, 0] == top).all() and (row[6:, 1] == top).all()
+    assert (row[:6, 0] < hi).all()
+    plain, _ = W.warp_frame(frame, m)  # without the rule: values between the two sides
+    np.testing.assert_array_equal(twin[..., 2], plain[..., 2])  # blue: no tap clipped, interpolated
+    assert plain[12, 8 + 7, 0] < hi

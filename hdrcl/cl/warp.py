@@ -42,12 +42,14 @@ class WarpProcessor(OpenCLProcessor):
 
     def warp(self, frame: np.ndarray, matrix: np.ndarray, valid: Optional[np.ndarray] = None,
              strip_pixels: int = WARP_STRIP_PIXELS, taps: int = 4,
-             out: Optional[np.ndarray] = None) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+             out: Optional[np.ndarray] = None,
+             clip_hi: Optional[int] = None) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(codes, valid, covered)`` of ``frame`` ``(H, W, C)`` warped by ``matrix``
         (same shape and dtype; ``valid`` and ``covered`` ``(H, W)`` bool); ``taps`` 4
         (Keys' cubic) or 2 (bilinear). ``out``: a C-contiguous array of the frame's shape
         and dtype, not overlapping it, to write the codes into (a recycled frame: no
-        fresh pages to fault in)."""
+        fresh pages to fault in). ``clip_hi``: a channel with a contributing tap at or
+        above it comes out as the largest code (clipped; default: no such rule)."""
         frame = np.ascontiguousarray(frame)
         if frame.ndim == 2:
             frame = frame[:, :, None]
@@ -57,7 +59,8 @@ class WarpProcessor(OpenCLProcessor):
         ptype, zmax = _PIXEL_T[frame.dtype]
         has_valid = valid is not None
         knl = self.ctx.kernel("warp", "warp", (f"-DPIXEL_T={ptype}", f"-DZMAX={zmax}", f"-DNCH={c}",
-                                               f"-DHAS_VALID={int(has_valid)}", f"-DTAPS={int(taps)}"))
+                                               f"-DHAS_VALID={int(has_valid)}", f"-DTAPS={int(taps)}",
+                                               f"-DCLIP_HI={zmax if clip_hi is None else int(clip_hi)}"))
         m = [np.float32(v) for v in np.asarray(matrix, np.float64).ravel()]
         rows = max(1, min(h, int(strip_pixels) // max(w, 1)))
         px = frame.dtype.itemsize * c

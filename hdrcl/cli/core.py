@@ -241,7 +241,7 @@ def merge(images, output, response, save_response, response_cache, times, times_
                                       for p, (dy, dx) in zip(res.paths, res.shifts)) + " (dy, dx px)")
     if deghost:
         unresolved = cnt.get("ghost_unresolved")
-        say(f"  ghosts: {100.0 * cnt.get('ghost', 0) / max(h * w_, 1):.2f} % of pixels taken from the "
+        say(f"  ghosts: {100.0 * cnt.get('ghost', 0) / max(res.shape[0] * res.shape[1], 1):.2f} % of pixels taken from the "
             f"{ghost_reference or 'middle'} exposure"
             + (f" ({unresolved} pixel-channels unresolved)" if unresolved else ""))
     if cnt.get("clipped_high") or cnt.get("clipped_low"):

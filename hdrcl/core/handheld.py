@@ -104,7 +104,7 @@ def describe(name: str, model: str, m: np.ndarray, residual: float, h: int, w: i
     a = m[:2, :2]
     c = np.array([[(w - 1) / 2.0, (h - 1) / 2.0]])
     d = W.apply(m, c)[0] - c[0]
-    return {"file": name, "model": model, "matrix": [[round(float(v), 9) for v in row] for row in m],
+    return {"file": name, "model": model, "matrix": [[float(v) for v in row] for row in m],  # full precision: re-warps
             "rotation_deg": round(math.degrees(math.atan2(a[1, 0] - a[0, 1], a[0, 0] + a[1, 1])), 5),
             "scale": round(math.sqrt(abs(float(np.linalg.det(a)))), 7),
             "shift_px": [round(float(d[1]), 4), round(float(d[0]), 4)],
@@ -118,6 +118,8 @@ def _degenerate(m: np.ndarray, h: int, w: int) -> Optional[str]:
     rot = math.degrees(math.atan2(a[1, 0] - a[0, 1], a[0, 0] + a[1, 1]))
     if not np.all(np.isfinite(m)) or not SCALE_RANGE[0] <= scale <= SCALE_RANGE[1]:
         return f"degenerate transform (scale {scale:.3g})"
+    if float(np.linalg.det(a)) <= 0:
+        return "degenerate transform (a mirror image)"
     if abs(rot) > MAX_ROTATION:
         return f"degenerate transform (rotation {rot:.1f} degrees)"
     cs = W.corners(h, w)
@@ -348,13 +350,16 @@ def warp_one(frame, m, valid, warper, out=None):
             return frame, None if valid is None else np.asarray(valid, bool)
         base = np.ones(frame.shape[:2], bool) if valid is None else np.asarray(valid, bool)
         return _shift(np.asarray(frame), dy, dx), _shift(base, dy, dx, fill=False)
+    # Fusion's clip level: a channel blended from a clipped code is clipped (a lower bound
+    # blended with its neighbours would be a believable mid-range value fusion trusts).
+    clip_hi = W.clip_high(int(np.iinfo(np.asarray(frame).dtype).max))
     if warper is not None:
         if out is not None and (out.dtype != frame.dtype or out.size != np.size(frame)
                                 or not out.flags.c_contiguous or np.may_share_memory(out, frame)):
             out = None
-        res, ok, _ = warper.warp(frame, m, valid, taps=WARP_TAPS, out=out)
+        res, ok, _ = warper.warp(frame, m, valid, taps=WARP_TAPS, out=out, clip_hi=clip_hi)
         return res.reshape(frame.shape), ok
-    return W.warp_frame(frame, m, valid, taps=WARP_TAPS)
+    return W.warp_frame(frame, m, valid, taps=WARP_TAPS, clip_hi=clip_hi)
 
 
 class _Warps:
@@ -430,8 +435,16 @@ def align_bracket(frames, valid, times, device=None, crop: bool = False, model: 
     try:
         fits, _ = estimate([frames[i] for i in order], ref, model, device, [names[i] for i in order],
                            [valid[i] for i in order], on_final=warps.submit)
-    finally:
-        warps.finish()  # an error: the warps already started end before it is raised
+    except BaseException:
+        # The warps already started end before the error is raised; theirs (a device
+        # fault on the worker) is logged, not raised over it: the refusal naming the frame
+        # is the message.
+        try:
+            warps.finish()
+        except Exception as exc:  # noqa: BLE001
+            logger.debug("align: a warp failed while alignment stopped: %s", exc)
+        raise
+    warps.finish()
     shifts: List[tuple] = [(0, 0)] * n
     records: List[dict] = [{}] * n
     for pos, i in enumerate(order):

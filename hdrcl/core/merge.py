@@ -322,6 +322,9 @@ def merge_files(
     check_image_size(w, h, neutral=neutral, reference_patch=reference_patch)  # from the headers
     if chain is not None:
         chain.bind(h, w, nch)  # --lens-circle against the image, before any decoding
+        if reference_patch is None and not (first.fnumber and first.iso):
+            raise UsageError(f"{paths[0]}: a luminance map (--lens-circle) is in cd/m^2 from the first frame's "
+                             "f-number and ISO, which its EXIF does not give; use --reference-patch")
     if resp is not None:
         check_response_fits(resp, source_name, paths[0], first.bits, nch)
     if resp is None and _all_raw(paths):
@@ -523,8 +526,8 @@ def merge_files(
     result.stages = {k: seconds[k] for k in ("decode", "solve", "fuse", "encode", "write") if k in seconds}
     result.seconds = {"open": seconds["open"], "calibrate": seconds["calibrate"],
                       "fuse_and_write": _time.perf_counter() - t2}
-    if "align" in seconds:  # within "calibrate" (the frames are aligned before the solve)
-        result.seconds["align"] = seconds["align"]
+    if "align" in seconds:  # within "calibrate" (the frames are aligned before the solve): a stage
+        result.stages["align"] = seconds["align"]
     return result
 
 

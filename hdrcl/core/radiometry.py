@@ -73,8 +73,8 @@ def luminance(rgb: np.ndarray) -> np.ndarray:
 def exif_scale(fnumber: Optional[float], iso: Optional[float]) -> float:
     """cd/m^2 per radiance unit from the first frame's f-number and ISO."""
     if not fnumber or not iso:
-        raise UsageError("--absolute needs the first frame's f-number and ISO (EXIF FNumber, ISO); "
-                         "use --reference-patch instead")
+        raise UsageError("the absolute scale (--absolute, or a luminance map's --lens-circle) needs the first "
+                         "frame's f-number and ISO (EXIF FNumber, ISO); use --reference-patch instead")
     return METER_K * float(fnumber) ** 2 / float(iso)
 
 

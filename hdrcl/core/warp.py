@@ -68,8 +68,17 @@ def source_coords(matrix: np.ndarray, ys: np.ndarray, xs: np.ndarray):
     return sx, sy, ok
 
 
+def clip_high(zmax: int) -> int:
+    """Fusion's clip level for codes up to ``zmax`` (:func:`hdrcl.core.weights.clip_levels`):
+    a warped channel with a contributing tap at or above it is ``zmax`` (clipped)."""
+    from hdrcl.core.weights import clip_levels
+
+    return clip_levels(int(zmax) + 1)[1]
+
+
 def warp_rows(frame: np.ndarray, matrix: np.ndarray, y0: int, y1: int,
-              valid: Optional[np.ndarray] = None, taps: int = 4) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+              valid: Optional[np.ndarray] = None, taps: int = 4,
+              clip_hi: Optional[int] = None) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rows ``y0:y1`` of the warped ``frame`` ``(H, W, C)``: ``(codes, valid, covered)``.
 
     The twin of the ``warp`` kernel (module docstring), in float64; ``taps`` 4 (Keys'
@@ -89,6 +98,7 @@ def warp_rows(frame: np.ndarray, matrix: np.ndarray, y0: int, y1: int,
     covered = ok.copy()
     good = ok.copy()
     acc = np.zeros(ys.shape + (c,), np.float64)
+    top = np.zeros(ys.shape + (c,), np.float64)  # the largest contributing tap per channel
     for j, oy in enumerate(offs):  # separable: each tap row over x, then the rows over y
         py = iy + oy
         cy = np.clip(py, 0, h - 1)
@@ -101,15 +111,19 @@ def warp_rows(frame: np.ndarray, matrix: np.ndarray, y0: int, y1: int,
             cx = np.clip(px, 0, w - 1)
             if valid is not None:
                 good &= valid[cy, cx] | ~contrib
-            row += wx[i][..., None] * frame[cy, cx]
+            z = frame[cy, cx]
+            row += wx[i][..., None] * z
+            np.maximum(top, np.where(contrib[..., None], z, 0), out=top)
         acc += wy[j][..., None] * row
     codes = np.clip(np.floor(acc + 0.5), 0.0, zmax)
+    if clip_hi is not None:  # a clipped contributing tap: clipped (the kernel's docstring)
+        codes[top >= clip_hi] = zmax
     codes[~covered] = 0
     return codes.astype(frame.dtype), covered & good, covered
 
 
 def warp_frame(frame: np.ndarray, matrix: np.ndarray, valid: Optional[np.ndarray] = None,
-               rows: int = 256, taps: int = 4) -> Tuple[np.ndarray, np.ndarray]:
+               rows: int = 256, taps: int = 4, clip_hi: Optional[int] = None) -> Tuple[np.ndarray, np.ndarray]:
     """The whole warped frame and its validity ``(H, W)`` bool, in strips of ``rows``."""
     frame = np.asarray(frame)
     squeeze = frame.ndim == 2
@@ -120,7 +134,7 @@ def warp_frame(frame: np.ndarray, matrix: np.ndarray, valid: Optional[np.ndarray
     ok = np.empty((h, w), bool)
     for y0 in range(0, h, rows):
         y1 = min(h, y0 + rows)
-        out[y0:y1], ok[y0:y1], _ = warp_rows(frame, matrix, y0, y1, valid, taps)
+        out[y0:y1], ok[y0:y1], _ = warp_rows(frame, matrix, y0, y1, valid, taps, clip_hi)
     return (out[:, :, 0] if squeeze else out), ok
 
 
@@ -197,7 +211,7 @@ def crop_box(shape: Tuple[int, int], matrices: Sequence[np.ndarray]) -> Tuple[in
     lo = np.zeros(h)
     hi = np.full(h, w - 1.0)
     for m in matrices:
-        margin = 0.0 if is_integer_shift(m) else 1.0 + 1e-3
+        margin = 0.0 if is_integer_shift(m) else 1.0 + 4e-3  # float32 coordinates on the device
         a, b = _row_interval(m, y, h, w, margin - (1e-6 if margin == 0 else 0))
         lo, hi = np.maximum(lo, a), np.minimum(hi, b)
     x0 = np.ceil(lo - 1e-9).clip(0, w).astype(np.int64)

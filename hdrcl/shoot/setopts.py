@@ -59,6 +59,20 @@ def aligned_source(job: SetJob, opened, opts: BatchOptions, times):
     return ArraySource(al.frames, al.valid), al.shifts, al.crop, al.alignment
 
 
+def aligned_grid(job: SetJob, opened, source):
+    """The sampling grid (a grid :class:`~hdrcl.core.bracket.Bracket`) of an aligned
+    set's warped frames (``source``, :func:`aligned_source`): what its response solve and
+    its exposure measurement read, as ``merge --align`` does, so that both see the frames
+    as they are fused."""
+    from hdrcl.core.bracket import Bracket
+    from hdrcl.core.sampling import grid_stride
+
+    k = grid_stride(source.height, source.width)
+    return Bracket(frames=[f[::k, ::k] for f in source.frames], times=np.asarray(opened.times, np.float64),
+                   valid=[None if v is None else v[::k, ::k] for v in source.valid], paths=list(job.files),
+                   infos=opened.infos, grid=True)
+
+
 def white_balance(job: SetJob, opened, source, times, resp, opts: BatchOptions, nch: int, h: int,
                   w: int) -> Tuple[Optional[np.ndarray], dict]:
     """Per-channel factors that make ``opts.neutral`` grey, times the absolute scale

@@ -228,7 +228,7 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
     from hdrcl.io.writers import RadianceWriter, write_ldr
     from hdrcl.core.radiometry import ScaledSink
     from hdrcl.report.preview import AreaAverage, encode
-    from hdrcl.shoot.setopts import aligned_source, fitted_times, white_balance
+    from hdrcl.shoot.setopts import aligned_grid, aligned_source, fitted_times, white_balance
 
     job, opened, opts = step.job, step.opened, ctx.options
     seconds = step.seconds
@@ -240,7 +240,13 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
         with _FUSE_LOCK, BracketReader(job.files, opened.infos) as reader:
             nch = reader.nch
             grid = None
-            if (entry.deferred or opts.fit_exposures != "off") and not opts.align:
+            source, shifts, alignment = reader, None, None
+            if opts.align:  # warped first: the solve and the exposure fit read the aligned frames
+                source, shifts, _box, alignment = aligned_source(job, opened, opts, opened.times)
+                h, w = source.height, source.width
+                if entry.deferred or opts.fit_exposures != "off":
+                    grid = aligned_grid(job, opened, source)
+            elif entry.deferred or opts.fit_exposures != "off":
                 # One streaming pass decodes every frame once: its sampling grid serves the
                 # response solve and the exposure fit, its decoded codes the fusion.
                 from hdrcl.core.bracket import _grid_bracket
@@ -252,19 +258,11 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
                 from hdrcl.shoot.pooling import solve_deferred
 
                 ts = _time.perf_counter()
-                if grid is None:  # aligned sets hold their frames; the grid is read apart
-                    from hdrcl.shoot.pooling import _calibration_grid
-
-                    grid = _calibration_grid(job, opened, opts.ignore_color)
                 resp = solve_deferred(entry, job, opened.infos, (grid.frames, grid.times, grid.valid_all), opts)
                 seconds["solve"] = _time.perf_counter() - ts
             else:
                 resp = _response_of(entry)
             times, fit_notes = fitted_times(job, opened, opts, grid=grid, resp=resp)
-            source, shifts, alignment = reader, None, None
-            if opts.align:
-                source, shifts, _box, alignment = aligned_source(job, opened, opts, times)
-                h, w = source.height, source.width
             chain = opts.luminance_chain()  # a fisheye luminance map: this set's own accumulator
             if chain is not None:
                 chain.bind(h, w, nch)  # the lens circle inside the (aligned, cropped) image
