@@ -177,7 +177,7 @@ inline void pixel(const Site *t, __global const PIXEL_T *src, __global const uch
             for (int i = 0; i < TAPS; ++i) {
                 const VF z = LOADV(p + i * NCH);
                 row += t->wx[i] * z;
-                hi = (t->wx[i] != 0.0f && t->wy[j] != 0.0f) ? fmax(hi, z) : hi;
+                hi = fmax(hi, z); /* every tap; the contributing ones only where it matters */
             }
             sum += t->wy[j] * row;
 #if HAS_VALID
@@ -195,6 +195,22 @@ inline void pixel(const Site *t, __global const PIXEL_T *src, __global const uch
         acc[3] = sum.s3; top[3] = hi.s3;
 #endif
 #endif
+        /* A tap at the clip level (rare): was it a contributing one? (a weight of 0, at a
+         * coordinate snapped to an integer, leaves a tap out) */
+        int clipped = 0;
+        for (int k = 0; k < NCH; ++k)
+            clipped |= top[k] >= (float)CLIP_HI;
+        if (clipped) {
+            for (int k = 0; k < NCH; ++k)
+                top[k] = 0.0f;
+            for (int j = 0; j < TAPS; ++j) {
+                const size_t q = (size_t)(t->y0 + j - band_y0) * w + t->x0;
+                for (int i = 0; i < TAPS; ++i)
+                    if (t->wx[i] != 0.0f && t->wy[j] != 0.0f)
+                        for (int k = 0; k < NCH; ++k)
+                            top[k] = fmax(top[k], (float)src[(q + i) * NCH + k]);
+            }
+        }
 #else
         for (int j = 0; j < TAPS; ++j) {
             const size_t q = (size_t)(t->y0 + j - band_y0) * w + t->x0;
