@@ -109,6 +109,27 @@ class Stored:
     passes: int = 1
 
 
+def radiance_opener(output: str, width: int, height: int, nch: int, metadata: dict, camera: dict, *,
+                    compression: str, timestamp, colorspace: str) -> Callable:
+    """The ``open_writer(dtype, half_scale, chain=None)`` of :func:`fuse_to_file` for a
+    merge writing ``output``: a :class:`hdrcl.io.writers.RadianceWriter` of the merged
+    size, or of a luminance chain's ``N x N`` map with its metadata
+    (``chain.writer_args``); ``hdrcl:halfScale`` when a half is rescaled. ``metadata``
+    is read when the writer opens (later additions count)."""
+    from hdrcl.io.writers import RadianceWriter
+
+    def open_writer(dtype, half_scale, chain=None):
+        m, cam, w, h = dict(metadata), camera, width, height
+        if chain is not None:  # the chain's N x N map: its units, VIEW=, vertical illuminance
+            m, cam, w, h = chain.writer_args(m, cam)
+        if half_scale != 1.0:
+            m["halfScale"] = half_scale
+        return RadianceWriter(output, w, h, nch, dtype=dtype, compression=compression, metadata=m,
+                              timestamp=timestamp, colorspace=colorspace, camera=cam)
+
+    return open_writer
+
+
 def fuse_to_file(open_writer: Callable, run: Callable, *, output: str, dtype: str, reference: float,
                  keep_units: bool, chain=None):
     """Fuse into a radiance file, half whenever the data fit.

@@ -255,14 +255,14 @@ def merge_files(
         ``result.radiance`` and the thumbnail stay the full merged map.
     """
     from hdrcl.cl.backend import get_processor
-    from hdrcl.core.encode import fuse_to_file, reference_for
+    from hdrcl.core.encode import fuse_to_file, radiance_opener, reference_for
     from hdrcl.core.pipeline import ArraySink, ArraySource, Thumbnail, stream_merge
     from hdrcl.io.colorspace import check as check_space
     from hdrcl.io.outmeta import camera_from_infos
     from hdrcl.io.reader import BracketReader
     from hdrcl.io.atomic import check_output, stage_text
     from hdrcl.core.params import check_image_size, check_images, check_options, check_response_fits
-    from hdrcl.io.writers import RADIANCE_EXTENSIONS, RadianceWriter
+    from hdrcl.io.writers import RADIANCE_EXTENSIONS
 
     # Every option, before any file is opened (hdrcl.core.params: the CLI's table too).
     paths = check_images(paths, "paths", arrays=False)
@@ -449,14 +449,8 @@ def merge_files(
         camera = camera_from_infos(infos, owner=owner, units=unit, exposure_time=t_ref)
         when = first.capture_time.strftime("%Y:%m:%d %H:%M:%S") if first.capture_time else None
 
-        def open_writer(dt, half_scale, ch=None):
-            m, cam, ww, hh = dict(meta), camera, w, h
-            if ch is not None:  # the chain's N x N map: its units, VIEW=, vertical illuminance
-                m, cam, ww, hh = ch.writer_args(m, cam)
-            if half_scale != 1.0:
-                m["halfScale"] = half_scale
-            return RadianceWriter(output, ww, hh, nch, dtype=dt, compression=compression, metadata=m,
-                                  timestamp=when, colorspace=colorspace, camera=cam)
+        open_writer = radiance_opener(output, w, h, nch, meta, camera, compression=compression, timestamp=when,
+                                      colorspace=colorspace)
 
         def run(file_sink, first_pass):
             # --- fuse (the encode and write happen in the writer's thread as strips come)

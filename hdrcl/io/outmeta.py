@@ -127,11 +127,16 @@ def hdr_header_lines(camera: Optional[Mapping], colorspace: str, timestamp: Opti
 
 def hdr_metadata(path) -> dict:
     """The ``HDRCL=`` metadata of a Radiance file's header (its ``HDRCL=`` lines joined,
-    before the first blank line; at most 1 MB read), or {}."""
+    before the first blank line; the header alone is read, at most 1 MB), or {}."""
     import json
 
+    head = b""
     with open(path, "rb") as fh:
-        head = fh.read(1 << 20)
+        while b"\n\n" not in head and len(head) < 1 << 20:
+            chunk = fh.read(1 << 14)
+            if not chunk:
+                break
+            head += chunk
     key = HDR_METADATA_LINE.encode()
     parts = [raw[len(key):] for raw in head.split(b"\n\n", 1)[0].split(b"\n") if raw.startswith(key)]
     if not parts:

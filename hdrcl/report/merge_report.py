@@ -63,15 +63,6 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
         from hdrcl.core.handheld import apply_alignment
 
         frames, valid = apply_alignment(frames, valid, result.alignment, result.crop)
-    elif result.shifts is not None and kept is None:
-        from hdrcl.core.align import apply_shifts
-
-        frames, valid, _box = apply_shifts(frames, result.shifts, valid)
-        frames, valid = list(frames), list(valid)
-        if result.crop is not None:
-            y0, y1, x0, x1 = result.crop
-            frames = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in frames]
-            valid = [None if v is None else v[y0:y1, x0:x1] for v in valid]
     nominal = result.nominal if result.nominal is not None else result.times
     if shot_settings(infos, nominal) is None:  # --times or a times file overrode EXIF: label what was given
         infos = [replace(i, exposure_time=None) for i in infos]

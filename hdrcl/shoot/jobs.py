@@ -3,6 +3,7 @@ batch report, and the process-wide fusion lock.
 """
 from __future__ import annotations
 
+import functools
 import threading
 from collections import Counter
 from dataclasses import dataclass, field
@@ -136,12 +137,8 @@ class BatchOptions:
                                     ("align_model", self.align_model if self.align else "auto", "auto")):
             if value != default:
                 out[key] = value
-        chain = self.luminance_chain()
-        if chain is not None:  # the calibration files' numbers, not their names
-            d = dict(chain.describe(), view=chain.view[0] if chain.view else None)
-            if isinstance(d.get("vignetting"), dict):
-                d["vignetting"] = {k: v for k, v in d["vignetting"].items() if k != "source"}
-            out["luminance"] = d
+        if self.luminance:  # the calibration files' numbers, not their names
+            out["luminance"] = dict(_luminance_identity(tuple(sorted(self.luminance.items()))))
         return out
 
     def solve_params(self) -> dict:
@@ -149,6 +146,19 @@ class BatchOptions:
         return {"weight": self.weight, "samples": self.samples,
                 "smoothness": float(default_smoothness(self.weight) if self.smoothness is None else self.smoothness),
                 "seed": int(self.seed), "ignore_color": list(self.ignore_color) if self.ignore_color else None}
+
+
+@functools.lru_cache(maxsize=8)
+def _luminance_identity(options: tuple) -> dict:
+    """What a luminance chain's options mean (its ``describe()`` and view, the ``.cal``
+    files read once per process), for the outputs' digest."""
+    from hdrcl.core.fisheye import chain_or_none
+
+    chain = chain_or_none(**dict(options))
+    d = dict(chain.describe(), view=chain.view[0] if chain.view else None)
+    if isinstance(d.get("vignetting"), dict):
+        d["vignetting"] = {k: v for k, v in d["vignetting"].items() if k != "source"}
+    return d
 
 
 @dataclass

@@ -21,7 +21,7 @@ from hdrcl.shoot.jobs import (
     ResponseEntry,
     SetJob,
 )
-from hdrcl.shoot.plan import _Plan, _shoot_scale, response_path
+from hdrcl.shoot.plan import _camera_label, _Plan, _shoot_scale, response_path
 from hdrcl.shoot.state import (
     DIGEST_RECIPE,
     _atomic_json,
@@ -276,8 +276,6 @@ def cache_for(first_info, cache):
     or None: a group whose frames name no camera is grouped by its folder, and a folder's
     name says nothing about the camera (another shoot's "set01" may be another camera's),
     so it is calibrated each time and saved beside the outputs, never cached."""
-    from hdrcl.shoot.plan import _camera_label
-
     if cache is None or first_info is None or _camera_label(first_info) == "unknown camera":
         return None
     return cache

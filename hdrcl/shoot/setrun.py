@@ -220,12 +220,12 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
     (:mod:`hdrcl.shoot.setopts`).
     """
     from hdrcl.cl.backend import get_processor
-    from hdrcl.core.encode import fuse_to_file, reference_for
+    from hdrcl.core.encode import fuse_to_file, radiance_opener, reference_for
     from hdrcl.core.merge import MergeResult, _provenance
     from hdrcl.core.pipeline import stream_merge
     from hdrcl.io.reader import BracketReader
     from hdrcl.io.outmeta import camera_from_infos
-    from hdrcl.io.writers import RadianceWriter, write_ldr
+    from hdrcl.io.writers import write_ldr
     from hdrcl.core.radiometry import ScaledSink
     from hdrcl.report.preview import AreaAverage, encode
     from hdrcl.shoot.setopts import aligned_grid, aligned_source, fitted_times, white_balance
@@ -293,14 +293,8 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
             has_valid = (opts.ignore_color is not None or any(i.nchannels in (2, 4) for i in opened.infos)
                          or source is not reader)
 
-            def open_writer(dt, half_scale, ch=None):
-                m, cam, ww, hh = dict(meta), camera, w, h
-                if ch is not None:  # the chain's N x N map: its units, VIEW=, vertical illuminance
-                    m, cam, ww, hh = ch.writer_args(m, cam)
-                if half_scale != 1.0:
-                    m["halfScale"] = half_scale
-                return RadianceWriter(job.output, ww, hh, nch, dtype=dt, compression=opts.compression, metadata=m,
-                                      timestamp=opened.stamp, colorspace=opts.colorspace, camera=cam)
+            open_writer = radiance_opener(job.output, w, h, nch, meta, camera, compression=opts.compression,
+                                          timestamp=opened.stamp, colorspace=opts.colorspace)
 
             def run(file_sink, first_pass):
                 sink = _Tee(file_sink, thumb) if first_pass else file_sink
