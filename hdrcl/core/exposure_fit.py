@@ -263,8 +263,8 @@ def fit_exposures(
     if trusted is None:
         stops = (mapped - lt_nom) / ln2
         far = np.abs(stops) > tolerance
-        note = ("no three frames agree with each other's metadata; the metadata is kept "
-                "(give --response from a good set of this camera to check it)")
+        note = ("no three frames agree with each other's metadata; give --response from a good set of "
+                "this camera to check it")
         return ExposureFit(nominal, np.exp(mapped), stops, none, tolerance, trusted=none,
                            contradicted=far, note=note)
     # Second fit: the trusted frames fix the scale; the others are measured on it.
@@ -282,7 +282,7 @@ def fit_exposures(
         if res["corrected"] < IMPROVEMENT * res["nominal"]:
             flagged = far
         else:
-            note += "; the corrections did not lower the fit error, so the metadata is kept"
+            note += "; the corrections did not lower the fit error"
     used = np.where(flagged, lt_est, lt_nom)
     same = []
     for i in range(p):
@@ -333,7 +333,7 @@ def verify_exposures(frames, times, names, *, mode: str = "auto", valid=None, sa
         logger.log(level, "%s: metadata says %s but the pixels say %s (%+.2f stops); %s", base[k],
                        format_time(fit.nominal[k]), format_time(fit.fitted[k]), fit.stops[k],
                        "using the fitted exposure" if change or mode == "on" else
-                       "metadata kept (" + fit.note + ")")
+                       "metadata kept: " + fit.note)
     for i, j in fit.same:
         logger.log(level, "%s and %s are at the same exposure (the pixels say %s; the metadata says %s and %s)",
                        base[i], base[j], format_time(fit.fitted[i] if fit.flagged[i] else fit.nominal[i]),

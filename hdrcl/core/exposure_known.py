@@ -281,6 +281,7 @@ def estimate_exposures(
     weight: str = "gaussian",
     tolerance_stops: Optional[float] = None,
     names: Optional[Sequence[str]] = None,
+    labels: Optional[Sequence[str]] = None,
 ) -> KnownCurveFit:
     """Measure each frame's exposure with a known response; correct contradicted metadata.
 
@@ -327,15 +328,40 @@ def estimate_exposures(
         :data:`hdrcl.core.exposure_fit.EXPOSURE_TOLERANCE_STOPS`, 0.5).
     names : sequence of str, optional
         File names for the notes (default ``image 0``, ``image 1``, ...).
+    labels : sequence of str, optional
+        Per frame, the capture's settings as recorded, for the notes, where ``times`` are
+        equivalent exposures on another reference (a batch's shoot-wide f-number and
+        ISO); default the nominal times.
 
     Returns
     -------
     KnownCurveFit
     """
-    from hdrcl.io.metadata import format_time
+    nominal, tol, names = _checked_times(times, len(frames), tolerance_stops, names)
+    p = nominal.size
+    lt_nom = np.log(nominal)
+    none = np.zeros(p, bool)
+    if p < 2:  # nothing to compare a frame with
+        return KnownCurveFit(nominal, nominal.copy(), nominal.copy(), np.zeros(p), none, none, none,
+                             np.zeros(p, np.int64), tolerance=tol, scale_note=f"{p} frame(s): the metadata is kept")
+    xs, ws, oks, pixels = _usable_samples(_checked_frames(frames, response), response, weight, valid)
+    measured, lt_meas = _measure(xs, ws, oks, pixels, lt_nom)
+    trusted, a, b, scale_note = _pin_scale(lt_nom, lt_meas, measured, names)
+    # On the metadata's scale (and spacing, where the trusted frames set one).
+    lt_fit = np.where(measured, (lt_meas - a) / b, lt_nom)
+    stops = (lt_fit - lt_nom) / _LN2
+    flagged = measured & ~trusted & (np.abs(stops) > tol)
+    fit = KnownCurveFit(nominal=nominal, fitted=np.where(measured, np.exp(lt_fit), nominal),
+                        used=np.where(flagged, np.exp(lt_fit), nominal),  # the metadata kept bit for bit
+                        stops=stops, flagged=flagged, measured=measured, trusted=trusted, pixels=pixels,
+                        tolerance=tol, stretch=float(b), scale_note=scale_note)
+    _explain(fit, names, labels)
+    return fit
 
+
+def _checked_times(times, p: int, tolerance_stops, names):
+    """``(nominal seconds, tolerance in stops, base names)``, or a UsageError."""
     nominal = np.asarray(times, np.float64).reshape(-1)
-    p = len(frames)
     if nominal.size != p:
         raise UsageError(f"{nominal.size} exposure times for {p} frames")
     if not np.all(np.isfinite(nominal) & (nominal > 0)):
@@ -344,29 +370,33 @@ def estimate_exposures(
     if not (tol > 0 and np.isfinite(tol)):
         raise UsageError(f"the exposure tolerance must be a positive number of stops, not {tol:g}")
     names = [f"image {k}" for k in range(p)] if names is None else [os.path.basename(os.fspath(n)) for n in names]
-    lt_nom = np.log(nominal)
+    return nominal, tol, names
+
+
+def _checked_frames(frames, response: Response) -> list:
+    """The frames as ``(H, W, C)`` code arrays of one shape and of the response's depth."""
     arrs = [np.asarray(f) for f in frames]
     arrs = [f[..., None] if f.ndim == 2 else f for f in arrs]
-    none = np.zeros(p, bool)
-    if p < 2:  # nothing to compare a frame with
-        return KnownCurveFit(nominal, nominal.copy(), nominal.copy(), np.zeros(p), none, none, none,
-                             np.zeros(p, np.int64), tolerance=tol, scale_note=f"{p} frame(s): the metadata is kept")
-    shape = arrs[0].shape
-    if any(f.shape != shape for f in arrs):
+    if any(f.shape != arrs[0].shape for f in arrs):
         raise UsageError("the frames differ in size")
-    levels = response.levels
     if arrs[0].dtype not in (np.uint8, np.uint16) or any(f.dtype != arrs[0].dtype for f in arrs):
         raise UsageError("the frames must all be uint8 or all uint16 codes")
-    if int(np.iinfo(arrs[0].dtype).max) + 1 != levels:
+    if int(np.iinfo(arrs[0].dtype).max) + 1 != response.levels:
         raise UsageError(f"the response describes {response.bits}-bit images but the frames are "
                          f"{8 * arrs[0].dtype.itemsize}-bit")
-    nch = shape[2]
+    return arrs
+
+
+def _usable_samples(arrs: list, response: Response, weight: str, valid):
+    """Per frame: ``g(Z)`` of (at most :data:`MAX_PIXELS`) pixels, their weights, which are
+    usable (valid, in the curve's body), and how many pixel-channels are."""
+    p, shape = len(arrs), arrs[0].shape
+    levels, nch = response.levels, shape[2]
     tables = response.table_for(nch)
     wtab = weight_values(np.arange(levels), levels, weight)
     scale = (levels - 1) / 255.0
     lo, hi = SPAN_BODY[0] * scale, SPAN_BODY[1] * scale
     masks = _masks(valid, p, shape[:2])
-
     npx = shape[0] * shape[1]
     idx = None
     if npx > MAX_PIXELS:
@@ -385,7 +415,13 @@ def estimate_exposures(
         ws.append(wtab[z])
         oks.append(ok)
     pixels = np.array([int(ok.sum()) for ok in oks], np.int64)
+    return xs, ws, oks, pixels
 
+
+def _measure(xs, ws, oks, pixels, lt_nom):
+    """``(measured, ln dt)``: the largest connected set of frames measured from their
+    pairs' ratios (the others keep ``lt_nom``)."""
+    p = len(xs)
     pairs = []
     for j in range(p):
         for k in range(j + 1, p):
@@ -396,74 +432,77 @@ def estimate_exposures(
             pairs.append((j, k, d, var))
     comps = _components(p, [(j, k) for j, k, _, _ in pairs])
     main = max(comps, key=lambda c: (len(c), int(pixels[c].sum())))
-    measured = none.copy()
+    measured = np.zeros(p, bool)
     lt_meas = lt_nom.copy()
     if len(main) >= 2:
         measured[main] = True
         lt_meas[main] = _solve_pairs(main, [q for q in pairs if measured[q[0]]])
+    return measured, lt_meas
 
-    trusted = none.copy()
-    notes: List[str] = []
+
+def _pin_scale(lt_nom, lt_meas, measured, names):
+    """``(trusted, a, b, note)``: the frames whose metadata fix the scale, the line
+    ``ln dt_measured = a + b ln dt_nominal`` they lie on, and how the scale was fixed."""
+    trusted = np.zeros(lt_nom.size, bool)
     m_idx = np.flatnonzero(measured)
-    a, b = 0.0, 1.0
     if m_idx.size == 0:
-        scale_note = "no two frames share enough well-exposed pixels; the metadata is kept"
-    else:
-        group, a, b = _agreeing_line(lt_nom[m_idx], lt_meas[m_idx], TRUST_STOPS * _LN2)
-        if group is not None:
-            trusted[m_idx[group]] = True
-            scale_note = f"scale fixed by the {int(group.sum())} frames whose metadata agree with the pixels"
-        else:
-            # The lower median: one frame's own metadata (two frames a stop apart by
-            # their labels but identical: one is kept, the other corrected).
-            r = lt_nom[m_idx] - lt_meas[m_idx]
-            anchor = m_idx[np.argsort(r, kind="stable")[(r.size - 1) // 2]]
-            a = float(lt_meas[anchor] - lt_nom[anchor])
-            scale_note = (f"no three frames agree with each other's metadata; the scale is that of "
-                          f"{names[anchor]}, the median of the {m_idx.size} measured frames")
-    # On the metadata's scale (and spacing, where the trusted frames set one).
-    lt_fit = np.where(measured, (lt_meas - a) / b, lt_nom)
-    stops = (lt_fit - lt_nom) / _LN2
-    flagged = measured & ~trusted & (np.abs(stops) > tol)
-    used_lt = np.where(flagged, lt_fit, lt_nom)
+        return trusted, 0.0, 1.0, "no two frames share enough well-exposed pixels"
+    group, a, b = _agreeing_line(lt_nom[m_idx], lt_meas[m_idx], TRUST_STOPS * _LN2)
+    if group is not None:
+        trusted[m_idx[group]] = True
+        return trusted, a, b, f"scale fixed by the {int(group.sum())} frames whose metadata agree with the pixels"
+    # The lower median: one frame's own metadata (two frames a stop apart by their labels
+    # but identical: one is kept, the other corrected).
+    r = lt_nom[m_idx] - lt_meas[m_idx]
+    anchor = m_idx[np.argsort(r, kind="stable")[(r.size - 1) // 2]]
+    a = float(lt_meas[anchor] - lt_nom[anchor])
+    return trusted, a, 1.0, (f"no three frames agree with each other's metadata; the scale is that of "
+                             f"{names[anchor]}, the median of the {m_idx.size} measured frames")
 
-    for k in np.flatnonzero(flagged):
-        notes.append(f"{names[k]}: metadata says {format_time(nominal[k])} but the pixels say "
-                     f"{format_time(np.exp(lt_fit[k]))} ({stops[k]:+.2f} stops); the measured exposure is used")
-    if flagged.any() and not trusted.any():
-        notes.append(f"exposure scale: {scale_note}")
+
+def _explain(fit: KnownCurveFit, names, labels) -> None:
+    """Fill ``fit.notes`` (every change, every pair at one exposure, every frame not
+    measured) and ``fit.same``. ``labels``: per frame, the capture's own settings as
+    recorded (``1/4000 s f/1.4 ISO 1600``) where the times are equivalents on another
+    reference; default the nominal time."""
+    from hdrcl.io.metadata import format_time
+
+    nominal, tol, b = fit.nominal, fit.tolerance, fit.stretch
+    said = [format_time(t) for t in nominal] if labels is None else [str(x) for x in labels]
+    lt_nom, lt_fit = np.log(nominal), np.log(fit.fitted)
+    used_lt = np.log(fit.used)
+    notes = fit.notes
+    m_idx = np.flatnonzero(fit.measured)
+    trusted = fit.trusted
+    for k in np.flatnonzero(fit.flagged):
+        pixels_say = "" if labels is not None else f"{format_time(fit.fitted[k])} "
+        notes.append(f"{names[k]}: metadata says {said[k]} but the pixels say {pixels_say}"
+                     f"({fit.stops[k]:+.2f} stops); the measured exposure is used")
+    if fit.flagged.any() and not trusted.any():
+        notes.append(f"exposure scale: {fit.scale_note}")
     if trusted.any() and abs(b - 1.0) * np.ptp(lt_nom[trusted]) > 2 * TRUST_STOPS * _LN2:
-        who = "the frames" if trusted.sum() == measured.sum() else _list_names([names[k] for k in
-                                                                               np.flatnonzero(trusted)])
+        who = "the frames" if trusted.sum() == fit.measured.sum() else _list_names([names[k] for k in
+                                                                                   np.flatnonzero(trusted)])
         notes.append(f"the pixels space {who} {b:.2f}x as far apart in exposure as the metadata does, evenly: "
                      "the response may not fit these frames (another camera, ISO or picture style) or every "
                      "time is off by that factor; their metadata is kept")
-    same = []
     for i in m_idx:
         for j in m_idx:
-            if j <= i:
-                continue
-            if (abs(lt_nom[i] - lt_nom[j]) > tol * _LN2
-                    and abs(lt_fit[i] - lt_fit[j]) < SAME_STOPS * _LN2):
-                same.append((int(i), int(j)))
+            if j > i and (abs(lt_nom[i] - lt_nom[j]) > tol * _LN2
+                          and abs(lt_fit[i] - lt_fit[j]) < SAME_STOPS * _LN2):
+                fit.same.append((int(i), int(j)))
                 notes.append(f"{names[i]} and {names[j]} are at the same exposure (the pixels say "
-                             f"{format_time(np.exp(used_lt[i]))}; the metadata says "
-                             f"{format_time(nominal[i])} and {format_time(nominal[j])})")
+                             f"{format_time(np.exp(used_lt[i]))}; the metadata says {said[i]} and {said[j]})")
     if m_idx.size:  # with nothing measured there is nothing to compare a frame with
-        for k in np.flatnonzero(~measured):
-            if pixels[k] < MIN_OVERLAP:
+        for k in np.flatnonzero(~fit.measured):
+            if fit.pixels[k] < MIN_OVERLAP:
                 why = (f"too few pixels in the curve's body (codes {SPAN_BODY[0]}..{SPAN_BODY[1]}) "
-                       f"to measure its exposure ({int(pixels[k])})")
+                       f"to measure its exposure ({int(fit.pixels[k])})")
             else:
                 why = "shares too few well-exposed pixels with the other frames to measure its exposure"
-            notes.append(f"{names[k]}: {why}; its metadata ({format_time(nominal[k])}) is kept")
+            notes.append(f"{names[k]}: {why}; its metadata ({said[k]}) is kept")
     else:
-        notes.append(f"{scale_note} (for all {p} frames)")
-    fitted = np.where(measured, np.exp(lt_fit), nominal)
-    used = np.where(flagged, fitted, nominal)  # the metadata kept bit for bit
-    return KnownCurveFit(nominal=nominal, fitted=fitted, used=used, stops=stops,
-                         flagged=flagged, measured=measured, trusted=trusted, pixels=pixels, same=same,
-                         tolerance=tol, stretch=float(b), notes=notes, scale_note=scale_note)
+        notes.append(f"{fit.scale_note}; the metadata is kept for all {nominal.size} frames")
 
 
 def _list_names(names: Sequence[str], limit: int = 8) -> str:
@@ -523,7 +562,7 @@ def untrusted_metadata(response: Response, fit: Optional[ExposureFit] = None,
 
 def exposures_for_merge(frames, times, response: Response, *, mode: str = "auto", valid=None,
                         weight: str = "gaussian", tolerance_stops: Optional[float] = None,
-                        names: Optional[Sequence[str]] = None):
+                        names: Optional[Sequence[str]] = None, labels: Optional[Sequence[str]] = None):
     """The exposures a merge with a known curve (``--response``, a batch's pooled one)
     fuses with, and the notes to show, from :func:`estimate_exposures` on ``frames``
     (in practice the set's sampling grid, from the decode that also feeds the fusion).
@@ -545,7 +584,7 @@ def exposures_for_merge(frames, times, response: Response, *, mode: str = "auto"
     names = [f"image {k}" for k in range(times.size)] if names is None else \
         [os.path.basename(os.fspath(n)) for n in names]
     fit = estimate_exposures(frames, times, response, valid=valid, weight=weight,
-                             tolerance_stops=tolerance_stops, names=names)
+                             tolerance_stops=tolerance_stops, names=names, labels=labels)
     order = np.argsort(times, kind="stable")
     measured = fit.measured[order]
     steps = np.diff(np.log(fit.fitted[order][measured]))

@@ -1,0 +1,56 @@
+"""Messages that say what is so (issue 29): notes name the capture's own settings, and no
+warning nests one conclusion inside another."""
+import logging
+
+import numpy as np
+
+from hdrcl.core import synthetic as s
+from hdrcl.core.exposure_fit import verify_exposures
+from hdrcl.core.exposure_known import estimate_exposures
+from hdrcl.core.response import Response, knot_positions
+
+CAM = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
+
+
+def _true_response(cam=CAM):
+    knots = knot_positions(cam.bits)
+    z = np.clip(knots, 0.5, cam.levels - 1.5)
+    mid = np.argmin(np.abs(knots - cam.levels / 2))
+    g = np.stack([cam.g(z, c) for c in range(3)])
+    return Response(bits=cam.bits, g=g - g[:, mid:mid + 1], knots=knots, channels=("R", "G", "B"))
+
+
+def test_known_curve_notes_quote_the_recorded_settings_not_equivalents():
+    """A batch measures a frame on the shoot's reference f-number and ISO: its times are
+    equivalents (1/826.5 s for a frame shot at 1/4000 s f/1.4 ISO 1600). The notes must
+    quote what the camera recorded."""
+    rad = s.radiance_field(60, 80, decades=4.0, seed=5)
+    labelled = s.stops(5, 1.0, centre=1.0 / float(np.median(rad)))
+    truth = labelled.copy()
+    truth[3] *= 2.0
+    frames = s.bracket(rad, truth, CAM, noise=0.5, seed=6)
+    labels = [f"1/{4000 >> k} s f/1.4 ISO 1600" for k in range(5)]
+    fit = estimate_exposures(frames, labelled, _true_response(), labels=labels)
+    assert list(np.flatnonzero(fit.flagged)) == [3]
+    assert fit.notes[0].startswith("image 3: metadata says 1/500 s f/1.4 ISO 1600 but the pixels say (+1.0")
+    # without labels the nominal times are quoted, as before
+    plain = estimate_exposures(frames, labelled, _true_response())
+    assert "metadata says" in plain.notes[0] and "f/1.4" not in plain.notes[0]
+
+
+def test_no_consensus_warning_is_not_nested(caplog):
+    """'metadata kept (no three frames agree ...; the metadata is kept (give --response ...))'
+    said the same thing twice, one inside the other."""
+    rad = s.radiance_field(60, 80, decades=3.0, seed=4)
+    c = 1.0 / float(np.median(rad))
+    truth = c * np.array([0.5, 1.0, 2.0, 4.0])
+    frames = s.bracket(rad, truth, CAM, noise=0.5, seed=5)
+    labelled = truth * np.array([1.0, 2.0, 1.0, 0.5])
+    with caplog.at_level(logging.DEBUG):
+        verify_exposures(frames, labelled, [f"f{k}.png" for k in range(4)], warn=True)
+    text = [r.getMessage() for r in caplog.records]
+    kept = [t for t in text if "metadata kept" in t]
+    assert kept, text
+    for t in text:
+        assert t.count("metadata is kept") + t.count("metadata kept") <= 1, t
+        assert "((" not in t and not ("(" in t and t.count("(") > t.count(")")), t
