@@ -127,3 +127,29 @@ def test_runnable_example(block, tmp_path):
     if "no-warnings" in opts:
         assert res.stderr == "", f"{line} promises no warning:\n{res.stderr}"
     assert took < 60, f"{line} took {took:.0f} s: mark it not runnable"
+
+
+SCRATCH = ("example-out/", "demo-out/", "$O/", "$O")
+
+
+def test_readme_examples_write_into_a_scratch_folder():
+    """A new user running the README in the project's root must not litter it with files
+    that git does not ignore (issue 29): every output of a README example goes under a
+    folder that .gitignore lists."""
+    ignored = (REPO / ".gitignore").read_text(encoding="utf-8").split()
+    assert "example-out/" in ignored and "demo-out/" in ignored
+    outs = re.compile(r"(?:^|\s)(?:-o|--output|--report|--save-response|--clip-mask)\s+(\S+)")
+    for where, body, opts in ALL:
+        if not where.startswith("README.md:") or opts is None:
+            continue
+        for m in outs.finditer(body):
+            assert m.group(1).startswith(SCRATCH), f"{where}: writes {m.group(1)} outside a scratch folder"
+        for m in re.finditer(r"^hdrcl (?:demo|sample-shoot)\s+(\S+)", body, re.M):
+            assert m.group(1).startswith(SCRATCH), f"{where}: writes {m.group(1)} outside a scratch folder"
+
+
+def test_readme_says_where_the_sample_data_comes_from():
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    i = text.index("../shared/data/memorial")
+    near = text[max(0, i - 800): i + 800]
+    assert "Debevec" in near and "hdrcl demo" in near, "the README must say how to get or replace the sample data"
