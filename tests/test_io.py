@@ -72,11 +72,16 @@ def test_exif_round_trip_through_jpeg(tmp_path):
 
 
 def test_info_without_exif_and_datetime_fallback(tmp_path):
+    """A converted PNG's DateTime is when the converter wrote it (a folder of them share
+    one stamp), not a capture time (issue 27); a camera's own file's DateTime is."""
     path = _write(tmp_path / "plain.png", _noise((5, 7, 3)),
                   [("DateTime", "2023:01:02 03:04:05")])
     info = read_info(path)
     assert info.exposure_time is None and info.fnumber is None and info.iso is None
-    assert info.capture_time == dt.datetime(2023, 1, 2, 3, 4, 5)
+    assert info.capture_time is None
+    path = _write(tmp_path / "camera.tif", _noise((5, 7, 3)),
+                  [("DateTime", "2023:01:02 03:04:05"), ("Make", "Canon"), ("Model", "EOS 5D")])
+    assert read_info(path).capture_time == dt.datetime(2023, 1, 2, 3, 4, 5)
 
 
 def test_read_rgb_jpeg_and_16bit_png(tmp_path):

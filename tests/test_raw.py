@@ -13,6 +13,7 @@ import pytest
 import hdrcl
 from hdrcl.core import synthetic
 from hdrcl.core.response import Response, linear_response
+from hdrcl.io.exif import snap_reciprocal
 from hdrcl.errors import InputError
 from hdrcl.io import raw as hr
 
@@ -162,7 +163,7 @@ def test_exposure_time_from_rawpy_and_missing(rawpy_mod, radiance, tmp_path):
     path = rawgen.write_dng(tmp_path / "t.dng", cfa, exposure_time=1 / 30)
     assert hr.read_raw_info(path).exposure_time == 1 / 30
     with rawpy_mod.imread(path) as raw:
-        assert hr._snap_reciprocal(raw.other.shutter_speed) == 1 / 30
+        assert snap_reciprocal(raw.other.shutter_speed) == 1 / 30
     path = rawgen.write_dng(tmp_path / "n.dng", cfa, exposure_time=None)
     info = hr.read_raw_info(path)
     assert info.exposure_time is None  # --times / --times-file must give it

@@ -37,6 +37,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from hdrcl.errors import InputError, check_readable
+from hdrcl.io.exif import capture_time, snap_reciprocal
 from hdrcl.io.metadata import FrameInfo
 from hdrcl.io.raw import is_raw
 
@@ -208,16 +209,6 @@ def _read_error(inp, path: str) -> Optional[str]:
     return f"{path}: {kind} {fmt} data ({detail})"
 
 
-def _snap_reciprocal(t: float) -> float:
-    """EXIF rationals arrive as float32: turn 0.0333333 back into exactly 1/30."""
-    t = float(str(np.float32(t)))  # shortest decimal that round-trips the float32
-    if 0.0 < t < 1.0:
-        n = round(1.0 / t)
-        if n >= 1 and abs(1.0 / t - n) <= 1e-4 * n:
-            return 1.0 / n
-    return t
-
-
 def _attr(spec, *names):
     for n in names:
         v = spec.getattribute(n)
@@ -248,24 +239,12 @@ def _as_str(v) -> Optional[str]:
 
 
 def _capture_time(spec) -> Optional[_dt.datetime]:
-    text = _as_str(_attr(spec, "Exif:DateTimeOriginal", "DateTime"))
-    if not text:
-        return None
-    try:
-        when = _dt.datetime.strptime(text[:19], "%Y:%m:%d %H:%M:%S")
-    except ValueError:
-        try:
-            when = _dt.datetime.fromisoformat(text)
-        except ValueError:
-            logger.debug("unparsable capture time %r", text)
-            return None
-    sub = _as_str(_attr(spec, "Exif:SubsecTimeOriginal", "Exif:SubsecTime"))
-    if sub:
-        digits = "".join(ch for ch in sub if ch.isdigit())
-        if digits:
-            # SubsecTime is the decimal fraction's digits: "25" means 0.25 s.
-            when = when.replace(microsecond=int(round(float("0." + digits) * 1e6)) % 1000000)
-    return when
+    """EXIF's DateTimeOriginal; the file's DateTime only where a camera wrote the file
+    (:func:`hdrcl.io.exif.capture_time`)."""
+    camera = bool(_as_str(spec.getattribute("Make")) or _as_str(spec.getattribute("Model")))
+    return capture_time(_as_str(spec.getattribute("Exif:DateTimeOriginal")),
+                        _as_str(_attr(spec, "Exif:SubsecTimeOriginal", "Exif:SubsecTime")),
+                        _as_str(spec.getattribute("DateTime")), camera)
 
 
 def _info_from_spec(spec, path: str) -> FrameInfo:
@@ -282,7 +261,7 @@ def _info_from_spec(spec, path: str) -> FrameInfo:
         )
     t = _as_float(_attr(spec, "ExposureTime", "Exif:ExposureTime"))
     if t is not None and t > 0:
-        t = _snap_reciprocal(t)
+        t = snap_reciprocal(t)
     mode = _as_float(spec.getattribute("Exif:ExposureMode"))
     extra = {}
     for key in ("Orientation", "oiio:BitsPerSample", "Exif:ExposureProgram",

@@ -57,6 +57,7 @@ from typing import NamedTuple, Optional, Sequence, Union
 import numpy as np
 
 from hdrcl.errors import InputError, check_readable
+from hdrcl.io.exif import capture_time, snap_reciprocal
 from hdrcl.io.metadata import FrameInfo
 
 logger = logging.getLogger(__name__)
@@ -294,16 +295,6 @@ def _exif(name: str) -> dict:
         return {}
 
 
-def _snap_reciprocal(t: float) -> float:
-    """float32 shutter times from LibRaw: turn 0.033333335 back into exactly 1/30."""
-    t = float(str(np.float32(t)))
-    if 0.0 < t < 1.0:
-        n = round(1.0 / t)
-        if n >= 1 and abs(1.0 / t - n) <= 1e-4 * n:
-            return 1.0 / n
-    return t
-
-
 def _positive(v) -> Optional[float]:
     try:
         f = float(v)
@@ -313,18 +304,11 @@ def _positive(v) -> Optional[float]:
 
 
 def _capture_time(exif: dict) -> Optional[_dt.datetime]:
-    text = exif.get("datetime_original") or exif.get("datetime")
-    if not isinstance(text, str):
-        return None
-    try:
-        when = _dt.datetime.strptime(text[:19], "%Y:%m:%d %H:%M:%S")
-    except ValueError:
-        return None
-    sub = exif.get("subsec_original") if exif.get("datetime_original") else None
-    digits = "".join(ch for ch in str(sub or "") if ch.isdigit())
-    if digits:
-        when = when.replace(microsecond=int(round(float("0." + digits) * 1e6)) % 1000000)
-    return when
+    """The header's DateTimeOriginal, else its DateTime: a RAW file is always a camera's."""
+    original = exif.get("datetime_original")
+    return capture_time(original if isinstance(original, str) else None,
+                        exif.get("subsec_original") if original else None,
+                        exif.get("datetime") if isinstance(exif.get("datetime"), str) else None, True)
 
 
 def _frame_info(name: str, raw, exif: dict, height: int, width: int, nchannels: int) -> FrameInfo:
@@ -339,7 +323,7 @@ def _frame_info(name: str, raw, exif: dict, height: int, width: int, nchannels: 
         # they are only asked for when the header left something out.
         try:
             other = raw.other
-            t = t or (_snap_reciprocal(other.shutter_speed) if _positive(other.shutter_speed) else None)
+            t = t or (snap_reciprocal(other.shutter_speed) if _positive(other.shutter_speed) else None)
             fnumber = fnumber or _positive(other.aperture)
             iso = iso or _positive(other.iso_speed)
             focal = focal or _positive(other.focal_length)
