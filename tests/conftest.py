@@ -83,3 +83,36 @@ def scene():
     times = s.stops(7, 2.0, centre=1.0 / float(np.median(rad)))
     frames = s.bracket(rad, times, cam, noise=0.5, seed=2)
     return {"camera": cam, "radiance": rad, "times": times, "frames": frames}
+
+
+@pytest.fixture(scope="session")
+def radiance_bin():
+    """The folder of Radiance's own programs (pcomb, pvalue, getinfo, evalglare, ...) from
+    the ``pyradiance`` wheel: the oracle for hdrcl's Radiance conventions. Skips with the
+    reason when it is missing, unless ``HDRCL_REQUIRE_RADIANCE`` is set (CI), where that is
+    a failure."""
+    import os
+    import shutil
+
+    why = None
+    try:
+        import pyradiance  # noqa: F401
+    except Exception as exc:  # not installed, or a wheel that does not load here
+        why = f"pyradiance is not importable ({exc}); pip install '.[radiance]'"
+    folder = None
+    if why is None:
+        from pathlib import Path
+
+        import pyradiance
+
+        folder = Path(pyradiance.__file__).parent / "bin"
+        if not (folder / "pcomb").exists():
+            found = shutil.which("pcomb")
+            folder = Path(found).parent if found else None
+        if folder is None:
+            why = "pyradiance is installed but its Radiance programs (pcomb) were not found"
+    if why is not None:
+        if os.environ.get("HDRCL_REQUIRE_RADIANCE", "") not in ("", "0"):
+            pytest.fail(f"HDRCL_REQUIRE_RADIANCE is set but {why}")
+        pytest.skip(f"{why}; set HDRCL_REQUIRE_RADIANCE=1 to make this an error")
+    return folder
