@@ -102,7 +102,12 @@ def test_cal_readers_on_their_forms(tmp_path):
     v.write_text(VIG)
     got = radcal.read_vignetting(v)
     assert (got.xc, got.yc, got.radius) == (500.0, 500.0, 500.0)
-    assert got.coefficients == (1.0, 0.01, -0.1, 0.03, -0.2, 0.32, -0.21, 0.05, -1.2e-3)
+    a = (1.0, 0.01, -0.1, 0.03, -0.2, 0.32, -0.21, 0.05, -1.2e-3)
+    f = got.factors(1000)
+    # pcomb's coordinates: x = column, y = 999 - row (0 at the bottom)
+    for row, col in ((0, 0), (499, 500), (100, 730), (999, 3)):
+        r = np.hypot(col - 500, (999 - row) - 500) / 500
+        np.testing.assert_allclose(f[row, col], 1 / np.polyval(a[::-1], r), rtol=1e-12)
     nd = tmp_path / "nd.cal"
     nd.write_text("ro=812.3*ri(1);\n go = 905.1 * gi(1) ; bo=1.1e3*bi(1);")
     assert radcal.read_nd_filter(nd) == (812.3, 905.1, 1100.0)
@@ -121,18 +126,23 @@ TAIL = "ro=sf*ri(1); go=sf*gi(1); bo=sf*bi(1);"
 
 
 @pytest.mark.parametrize("reader,text", [
-    (radcal.read_vignetting, R_LINE + "sf = 1/(0.1*r^2);" + TAIL),  # no constant term
-    (radcal.read_vignetting, R_LINE + "sf = 1/(cos(r) + 1);" + TAIL),  # not a polynomial
-    (radcal.read_vignetting, R_LINE + "sf = 1/(0.1*r^9 + 1);" + TAIL),  # beyond r^8
-    (radcal.read_vignetting, R_LINE + "sf = 1/(0.1*r^2 + 0.2*r^2 + 1);" + TAIL),  # a power twice
     (radcal.read_vignetting, "r = sqrt(sq(x-500)+sq(y-500))/0; sf = 1/(0.1*r^2 + 1);" + TAIL),  # radius 0
-    (radcal.read_vignetting, "ro=ri(1)*1.2; go=gi(1)*1.2; bo=bi(1)*1.2;"),
+    (radcal.read_vignetting, "ro=ri(1)*1.2; go=gi(1)*1.2; bo=bi(1)*1.2;"),  # no position
+    (radcal.read_vignetting, R_LINE + "sf = 1/(0.1*r^2 + 1);" + "ro=sf*ri(1)+0.1; go=sf*gi(1); bo=sf*bi(1);"),
+    (radcal.read_vignetting, R_LINE + "sf = 1/(0.1*r^2 + 1);" + "ro=sf*gi(1); go=sf*gi(1); bo=sf*bi(1);"),
+    (radcal.read_vignetting, R_LINE + "sf = 1/(0.1*r^2 + 1) ro=sf*ri(1);"),  # ';' missing
     (radcal.read_nd_filter, "ro=812*ri(1); go=905*gi(1);"),
     (radcal.read_nd_filter, "ro=812*ri(1)+1; go=905*gi(1); bo=1000*bi(1);"),
     (radcal.read_nd_filter, "ro=-812*ri(1); go=905*gi(1); bo=1000*bi(1);"),
+    (radcal.read_nd_filter, "ro=x*ri(1); go=905*gi(1); bo=1000*bi(1);"),  # depends on the position
+    (radcal.read_nd_filter, "ro=li(1); go=gi(1); bo=bi(1);"),  # not a factor of its channel
     (radcal.read_calibration_factor, "ro=ri(1)*1.18; go=gi(1)*1.2; bo=bi(1)*1.18;"),
     (radcal.read_calibration_factor, "ro=ri(1)*1.18; go=gi(1)*1.18; bo=bi(1)*1.18; { unclosed"),
-    (radcal.read_calibration_factor, "K=1.18; ro=ri(1)*K; go=gi(1)*K; bo=bi(1)*K;"),
+    (radcal.read_calibration_factor, "ro=ri(1)*K; go=gi(1)*K; bo=bi(1)*K;"),  # K undefined
+    (radcal.read_calibration_factor, "ro=ri(1)*1.18; go=gi(1)*1.18; bo=bi(1)*1.18 $"),
+    (radcal.read_calibration_factor, "ro=ri(1)*1.18; go=gi(1)*1.18; bo=bi(1)*1.18 }"),
+    (radcal.read_calibration_factor, "ro=ri(2)*1.18; go=gi(1)*1.18; bo=bi(1)*1.18;"),
+    (radcal.read_calibration_factor, "ro=foo(1)*1.18; go=gi(1)*1.18; bo=bi(1)*1.18;"),
 ])
 def test_cal_readers_refuse_other_forms_in_one_line(tmp_path, reader, text):
     path = tmp_path / "other.cal"

@@ -37,15 +37,23 @@ import numpy as np
 
 from hdrcl.core import fisheye_math as fm
 from hdrcl.errors import ProcessingError, UsageError
-from hdrcl.io.radcal import Vignetting, calibration_factor_option, nd_filter_option, vignetting_option
+from hdrcl.io.radcal import (Vignetting, calibration_factor_option, check_factor_range, nd_filter_option,
+                             vignetting_option)
 
 logger = logging.getLogger(__name__)
 
 PROJECTIONS = ("equisolid-to-equidistant",)
 DEFAULT_RESIZE = 1000
 MAX_RESIZE = 16384
+#: The largest lens circle (pixels): beyond any camera's sensor (a 400 MP frame is 24,500 wide).
+MAX_DIAMETER = 100000
 DEFAULT_VIEW = "-vta -vh 180 -vv 180"
 _VIEW_TYPES = ("v", "l", "a", "h", "s", "c")
+#: Radiance's view parser's limits (``setview``): (largest -vh, -vh may equal it,
+#: largest -vv, -vv may equal it); 0 < angle always; None: no limit (-vtl, in world units).
+_VIEW_LIMITS = {"v": (180.0, False, 180.0, False), "h": (180.0, True, 180.0, True),
+                "a": (360.0, True, 360.0, True), "c": (360.0, True, 180.0, False),
+                "s": (360.0, False, 360.0, False), "l": (None, True, None, True)}
 _VIEW_ARGS = {"-vp": 3, "-vd": 3, "-vu": 3, "-vh": 1, "-vv": 1, "-vo": 1, "-va": 1, "-vs": 1, "-vl": 1}
 
 
@@ -55,8 +63,9 @@ def parse_lens_circle(value) -> Tuple[float, float, float]:
         vals = tuple(float(v) for v in (value.split(",") if isinstance(value, str) else value))
     except (TypeError, ValueError):
         vals = ()
-    if len(vals) != 3 or not all(math.isfinite(v) for v in vals) or vals[2] < 2:
-        raise UsageError(f"--lens-circle: expected CX,CY,DIAMETER in pixels (DIAMETER >= 2), not '{value}'")
+    if len(vals) != 3 or not all(math.isfinite(v) for v in vals) or not 2 <= vals[2] <= MAX_DIAMETER:
+        raise UsageError(f"--lens-circle: expected CX,CY,DIAMETER in pixels (DIAMETER 2..{MAX_DIAMETER}), "
+                         f"not '{value}'")
     return vals
 
 
@@ -81,8 +90,13 @@ def parse_view(text) -> Tuple[str, str, float, float]:
         elif w == "-vv":
             vv = args[0]
         i += 1 + n
-    if not (0 < vh <= 360 and 0 < vv <= 360) or not words:
-        raise UsageError(f"--view: the view angles must be in 0..360 degrees, not '{text}'")
+    if not words:
+        raise UsageError("--view: expected Radiance view options such as '-vta -vh 186 -vv 186', not ''")
+    for name, angle, (limit, closed) in (("-vh", vh, _VIEW_LIMITS[vtype][:2]), ("-vv", vv, _VIEW_LIMITS[vtype][2:])):
+        if not angle > 0 or (limit is not None and (angle > limit or (angle == limit and not closed))):
+            bound = "" if limit is None else f" {'up to' if closed else 'below'} {limit:g} degrees"
+            raise UsageError(f"--view: {name} {angle:g} is not a -vt{vtype} view's size (Radiance's view parser "
+                             f"takes more than 0{bound}): '{text}'")
     return " ".join(words), vtype, vh, vv
 
 
@@ -139,6 +153,8 @@ class LuminanceChain:
         vig = vignetting_option(vignetting) if vignetting is not None else None
         nd = nd_filter_option(nd_filter) if nd_filter is not None else None
         k = calibration_factor_option(calibration_factor) if calibration_factor is not None else 1.0
+        for f in {min(nd or (1.0,)), max(nd or (1.0,))}:
+            check_factor_range(k * f, "--calibration-factor" if nd is None else "--nd-filter with --calibration-factor")
         if view is None and projection is not None:
             view = DEFAULT_VIEW
         chain = cls(circle, n, projection, vig, nd, k, view, device)
@@ -148,18 +164,37 @@ class LuminanceChain:
 
     # -- geometry ------------------------------------------------------------------
     def _vig_geometry(self):
+        """The file's centre and radius constants, or the map's ``N/2`` where it has none."""
         v, half = self.vignetting, self.size / 2.0
         return (v.xc if v.xc is not None else half, v.yc if v.yc is not None else half,
                 v.radius if v.radius is not None else half)
 
     def _check_vignetting(self) -> None:
-        """The correction must be finite and positive over the view (r in 0..1)."""
-        xc, yc, radius = self._vig_geometry()
-        f = fm.vignetting_factors(self.size, self.vignetting.coefficients, xc, yc, radius)
+        """The correction must be finite and positive over the view (r in 0..1); a file
+        made for another map size is warned about."""
+        warning = self.vignetting.check_geometry(self.size)
+        if warning:
+            logger.warning("%s", warning)
+        f = self._vignetting_factors()
         inside = fm.inside_view(self.size)
         if not np.all(np.isfinite(f[inside]) & (f[inside] > 0)):
-            raise UsageError(f"--vignetting: the correction 1/(a0 + a1 r + ... + a8 r^8) of "
-                             f"{self.vignetting.source} is not finite and positive over the lens circle")
+            what = "the correction 1/(a0 + a1 r + ... + a8 r^8)" if self.vignetting.program is None else \
+                "the correction ro/ri(1), go/gi(1), bo/bi(1)"
+            raise UsageError(f"--vignetting: {what} of {self.vignetting.source} is not finite and positive "
+                             f"over the lens circle")
+
+    def _vignetting_factors(self) -> np.ndarray:
+        """``(N, N, 3)`` factors of the vignetting step (float64); outside the view,
+        where the map is black, a non-finite factor is 0."""
+        v = self.vignetting
+        if v.program is not None:
+            f = v.factors(self.size)
+        else:
+            xc, yc, radius = self._vig_geometry()
+            f = np.repeat(fm.vignetting_factors(self.size, v.coefficients, xc, yc, radius)[..., None], 3, axis=2)
+        outside = ~fm.inside_view(self.size)
+        f[outside[..., None] & ~np.isfinite(f)] = 0.0
+        return f
 
     def crop_box(self) -> Tuple[int, int, int]:
         """``(left, top, side)`` of the square around the lens circle, in pixels."""
@@ -175,6 +210,9 @@ class LuminanceChain:
         cx, cy, d = self.lens_circle
         if not (0 <= cx <= width and 0 <= cy <= height):
             raise UsageError(f"--lens-circle: the centre {cx:g},{cy:g} lies outside the {width}x{height} image")
+        if d > 2.0 * math.hypot(width, height):
+            raise UsageError(f"--lens-circle: the diameter {d:g} is more than twice the {width}x{height} image's "
+                             f"diagonal (a lens circle lies mostly on the sensor)")
         if left < 0 or top < 0 or left + side > width or top + side > height:
             logger.info("--lens-circle: the circle %g,%g,%g runs outside the %dx%d image: padded with black",
                         cx, cy, d, width, height)
@@ -237,7 +275,10 @@ class LuminanceChain:
         proc = self._processor()
         if self.projection is not None:
             img = proc.project(img) if proc is not None else fm.equisolid_to_equidistant(img)
-        if self.vignetting is not None:
+        if self.vignetting is not None and self.vignetting.program is not None:
+            f = self._vignetting_factors()
+            img = np.asarray(img, np.float64) * (f if img.shape[2] == 3 else (f @ fm.RADIANCE_LUMA)[..., None])
+        elif self.vignetting is not None:
             xc, yc, radius = self._vig_geometry()
             coeffs = self.vignetting.coefficients
             img = proc.vignette(img, coeffs, xc, yc, radius) if proc is not None else \
@@ -280,12 +321,19 @@ class LuminanceChain:
     def describe(self) -> dict:
         """The options, for metadata and reports."""
         d = {"lensCircle": list(self.lens_circle), "resize": self.size, "projection": self.projection,
-             "vignetting": None if self.vignetting is None else {
-                 "coefficients": list(self.vignetting.coefficients), "centre_radius": list(self._vig_geometry()),
-                 "source": self.vignetting.source},
+             "vignetting": None if self.vignetting is None else self._describe_vignetting(),
              "ndFilter": None if self.nd_filter is None else list(self.nd_filter),
              "calibrationFactor": self.calibration_factor}
         return {k: v for k, v in d.items() if v is not None}
+
+    def _describe_vignetting(self) -> dict:
+        v = self.vignetting
+        d = {"centre_radius": list(self._vig_geometry()), "source": v.source}
+        if v.program is not None:
+            d["program"] = v.program.canonical()
+        else:
+            d["coefficients"] = list(v.coefficients)
+        return d
 
     def writer_args(self, metadata: dict, camera: dict):
         """``(metadata, camera, width, height)`` for the file's writer: the caller's

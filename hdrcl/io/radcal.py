@@ -1,19 +1,23 @@
 """Readers of the three Radiance ``.cal`` files of a luminance-map chain (Pierson et al.
 2019; radiantlab's HDRICalibrationTool), and of the same values given inline.
 
-Exactly three forms are understood; anything else is refused with one line naming the
-file and what was expected (there is no general ``calc`` language here):
+The files are read in Radiance's ``.cal`` language as ``pcomb -f`` reads it
+(:mod:`hdrcl.io.calexpr`: definitions, functions such as the lab's ``sq(x)=x*x;``,
+nested comments, ``xres/2``, any parenthesising) and must define ``ro``, ``go``, ``bo``
+as a factor times their own channel (``ro = f(x, y) * ri(1)``), checked by evaluating
+the file:
 
-* **vignetting** ``r = sqrt(sq(x-XC)+sq(y-YC))/RADIUS; sf = 1/(a8*r^8 + ... + a1*r + 1);
-  ro = sf*ri(1); go = sf*gi(1); bo = sf*bi(1);``. Terms of the polynomial may come in
-  any order, any subset of powers 1..8 may be present, the constant must be there.
-  ``x``, ``y`` are pixel positions in the cropped, resized picture (Radiance: ``y`` counts
-  from the bottom row).
-* **neutral density** ``ro=KR*ri(1); go=KG*gi(1); bo=KB*bi(1);`` (or ``ri(1)*KR``).
-* **calibration factor** ``ro=ri(1)*K; go=gi(1)*K; bo=bi(1)*K;`` (the same K thrice).
+* **vignetting**: the factor depends on the pixel position (``x``, ``y`` as pcomb:
+  column and row of the cropped, resized map, ``y = 0`` the bottom row); the factor map
+  is the file evaluated on the map (:meth:`Vignetting.factors`). The centre and radius
+  constants the file compares ``x``, ``y`` with (``x-500``, ``/500``) are compared with
+  the map's: a file made for another size is warned about.
+* **neutral density**: one factor per channel (``ro=KR*ri(1); go=KG*gi(1); bo=KB*bi(1);``,
+  identity ``ro=ri(1); ...`` too).
+* **calibration factor**: the same factor for the three channels.
 
-Numbers may be written as Radiance does (``1.2e-3``, ``.5``, a leading sign), spaces and
-line breaks are free, Radiance comments ``{...}`` are ignored.
+A file outside the language, or whose outputs are not such factors, is refused with one
+line naming the file (and for the language the line and token), exit code 3.
 
 Inline values (the command-line options accept either a file or numbers):
 
@@ -22,95 +26,114 @@ Inline values (the command-line options accept either a file or numbers):
   output picture (``N/2``).
 * ``--nd-filter KR,KG,KB`` (or one K for all three).
 * ``--calibration-factor K``.
+
+:func:`check_factor_range` range-checks the factors against what the output format can
+hold (luminances of :data:`SCENE_RANGE` times the factors must stay normal numbers).
 """
 from __future__ import annotations
 
+import logging
+import math
 import os
-import re
 from dataclasses import dataclass
 from typing import Optional, Tuple
 
+import numpy as np
+
 from hdrcl.errors import InputError, UsageError
+from hdrcl.io import calexpr
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["Vignetting", "read_vignetting", "read_nd_filter", "read_calibration_factor",
-           "vignetting_option", "nd_filter_option", "calibration_factor_option"]
+           "vignetting_option", "nd_filter_option", "calibration_factor_option", "check_factor_range",
+           "SCENE_RANGE"]
 
-NUM = r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
-_N = f"({NUM})"
 MAX_POWER = 8
+#: Luminances (cd/m^2) a calibrated map must be able to hold: starlit ground to above the sun's disc.
+SCENE_RANGE = (1e-6, 1e10)
+#: Smallest normal and largest finite value per output extension (RGBE: its exponent byte;
+#: half EXR is checked by the writer, which falls back to float for a luminance map).
+FORMAT_RANGE = {".hdr": (2.0 ** -126, 1.7e38), ".pic": (2.0 ** -126, 1.7e38), ".rgbe": (2.0 ** -126, 1.7e38)}
+FLOAT32_RANGE = (float(np.finfo(np.float32).tiny), float(np.finfo(np.float32).max))
+_OUT = (("ro", "ri"), ("go", "gi"), ("bo", "bi"))
+_PROBE = (2.0, 3.0, 5.0)
 
 
 @dataclass(frozen=True)
 class Vignetting:
-    """``sf = 1 / (a0 + a1 r + ... + a8 r^8)``, ``r = |(x, y) - (xc, yc)| / radius``.
+    """A vignetting correction: inline ``sf = 1 / (a0 + a1 r + ... + a8 r^8)``,
+    ``r = |(x, y) - (xc, yc)| / radius`` (``coefficients``), or a ``.cal`` file
+    (``program``, with the geometry constants it was found to use, None where it has none).
 
-    ``xc``, ``yc``, ``radius`` None: the output picture's centre and half width."""
+    ``xc``, ``yc``, ``radius`` None for inline values: the output picture's centre and half width."""
 
-    coefficients: Tuple[float, ...]  # a0, a1, ..., a8
+    coefficients: Optional[Tuple[float, ...]]  # a0, a1, ..., a8; None for a file
     xc: Optional[float] = None
     yc: Optional[float] = None
     radius: Optional[float] = None
     source: str = "inline"
+    program: Optional[calexpr.CalProgram] = None
+
+    def factors(self, n: int) -> np.ndarray:
+        """``(N, N, 3)`` multipliers of the file on an ``N x N`` map (float64; non-finite
+        values are left for the caller to judge)."""
+        return _factor_map(self.program, self.source, n, n, "vignetting")
+
+    def check_geometry(self, n: int) -> Optional[str]:
+        """A warning when the file's centre/radius constants are not the ``N x N`` map's."""
+        if self.program is None:
+            return None
+        half, tol = n / 2.0, max(1.0, 0.01 * n)
+        wrong = [(k, v) for k, v in (("centre x", self.xc), ("centre y", self.yc), ("radius", self.radius))
+                 if v is not None and abs(v - half) > tol]
+        if not wrong:
+            return None
+        made = 2 * (self.radius if self.radius is not None else (self.xc if self.xc is not None else self.yc))
+        return (f"{self.source}: its {', '.join(f'{k} {v:g}' for k, v in wrong)} fit a {made:g}-pixel map, "
+                f"not this {n}x{n} one (centre and radius {half:g}): the correction is applied as the file says")
 
 
-def _text(path: str, what: str) -> str:
-    try:
-        with open(path, "r", encoding="utf-8-sig") as f:
-            text = f.read(1 << 16)
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text {what} .cal file") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    text = re.sub(r"\{[^{}]*\}", " ", text)  # Radiance comments (not nested)
-    if "{" in text or "}" in text:
-        raise InputError(f"{path}: unbalanced comment braces in the {what} .cal file")
-    return "".join(text.split())
+def _factor_map(prog, path: str, xres: int, yres: int, what: str) -> np.ndarray:
+    """The per-channel factors ``ro/ri`` .. of a program, checked to be factors: the
+    outputs for inputs ``(1, 1, 1)`` and :data:`_PROBE` must scale with their own channel."""
+    for out, _ in _OUT:
+        if not (prog.defines(out) or prog.defines("lo")):
+            raise InputError(f"{path}: a {what} .cal file must define {out} (as '{out}=K*{out[0]}i(1);')")
+    one = prog.evaluate([o for o, _ in _OUT], xres=xres, yres=yres, inputs=(1.0, 1.0, 1.0))
+    probe = prog.evaluate([o for o, _ in _OUT], xres=xres, yres=yres, inputs=_PROBE)
+    with np.errstate(all="ignore"):
+        for (out, inp), p in zip(_OUT, _PROBE):
+            a, b = one[out], probe[out]
+            ok = np.isfinite(a) & np.isfinite(b)
+            if not np.allclose(b[ok], p * a[ok], rtol=1e-9, atol=0.0):
+                raise InputError(f"{path}: not a {what} factor file: {out} must be a factor times {inp}(1) "
+                                 f"(as '{out}=K*{inp}(1);'), with no other channel or offset")
+    return np.stack([one[o] for o, _ in _OUT], axis=-1)
 
 
-def _statements(text: str) -> list:
-    return [s for s in text.split(";") if s]
-
-
-def _refuse(path: str, what: str, expected: str):
-    raise InputError(f"{path}: not a {what} .cal file of the form '{expected}'")
-
-
-def _channel(stmt: str, out: str, inp: str) -> Optional[float]:
-    """The factor K of ``out=K*inp(1)`` or ``out=inp(1)*K``, else None."""
-    m = re.fullmatch(rf"{out}=(?:{_N}\*{inp}\(1\)|{inp}\(1\)\*{_N})", stmt)
-    if not m:
-        return None
-    return float(m.group(1) if m.group(1) is not None else m.group(2))
-
-
-def _factors(path: str, what: str, expected: str) -> Tuple[float, float, float]:
-    stmts = _statements(_text(path, what))
-    if len(stmts) != 3:
-        _refuse(path, what, expected)
-    got = [_channel(s, o, i) for s, (o, i) in zip(stmts, (("ro", "ri"), ("go", "gi"), ("bo", "bi")))]
-    if any(v is None for v in got):
-        _refuse(path, what, expected)
-    return tuple(got)
-
-
-ND_FORM = "ro=KR*ri(1); go=KG*gi(1); bo=KB*bi(1);"
-K_FORM = "ro=ri(1)*K; go=gi(1)*K; bo=bi(1)*K;"
-VIG_FORM = ("r = sqrt(sq(x-XC)+sq(y-YC))/RADIUS; sf = 1/(a8*r^8 + ... + a1*r + 1); "
-            "ro = sf*ri(1); go = sf*gi(1); bo = sf*bi(1);")
+def _constant_factors(path: str, what: str) -> Tuple[float, float, float]:
+    prog = calexpr.parse_file(path)
+    f = _factor_map(prog, path, 8, 8, what)
+    if not np.all(f == f[:1, :1]):
+        raise InputError(f"{path}: a {what} .cal file is one factor per channel; this one depends on "
+                         f"the pixel position (x, y)")
+    return tuple(float(v) for v in f[0, 0])
 
 
 def read_nd_filter(path) -> Tuple[float, float, float]:
     """``(KR, KG, KB)`` of a neutral density .cal file (:class:`InputError` otherwise)."""
     path = os.fspath(path)
-    return _positive(_factors(path, "neutral density", ND_FORM), path, "neutral density")
+    return _positive(_constant_factors(path, "neutral density"), path, "neutral density")
 
 
 def read_calibration_factor(path) -> float:
     """``K`` of a calibration factor .cal file (the same factor for R, G and B)."""
     path = os.fspath(path)
-    k = _positive(_factors(path, "calibration factor", K_FORM), path, "calibration factor")
+    k = _positive(_constant_factors(path, "calibration factor"), path, "calibration factor")
     if len(set(k)) != 1:
-        raise InputError(f"{path}: a calibration factor .cal file has one K for all channels, not {k}")
+        raise InputError(f"{path}: a calibration factor .cal file has one K for all channels, not "
+                         f"{', '.join(f'{v:g}' for v in k)}")
     return k[0]
 
 
@@ -120,49 +143,37 @@ def _positive(values, path: str, what: str):
     return tuple(values)
 
 
-_U = r"(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"  # an unsigned number
-_TERM = re.compile(rf"([+-]{{0,2}})(?:(?:({_U})\*)?r(?:\^(\d+))?|({_U}))")  # "+ -0.1*r^2" too
-
-
-def _poly(expr: str, path: str) -> Tuple[float, ...]:
-    """Coefficients a0..a8 of a sum of terms ``c*r^k``, ``c*r``, ``r^k``, ``r`` and ``c``."""
-    coeffs = [0.0] * (MAX_POWER + 1)
-    seen, pos = set(), 0
-    while pos < len(expr):
-        m = _TERM.match(expr, pos)
-        if not m or m.end() == pos or (pos > 0 and not m.group(1)):
-            _refuse(path, "vignetting", VIG_FORM)
-        sign, factor, power, constant = m.groups()
-        if constant is not None:
-            k, value = 0, float(constant)
-        else:
-            k, value = (int(power) if power else 1), (float(factor) if factor else 1.0)
-        if k > MAX_POWER or k in seen:
-            _refuse(path, "vignetting", VIG_FORM)
-        seen.add(k)
-        coeffs[k] = -value if sign.count("-") % 2 else value
-        pos = m.end()
-    if 0 not in seen:
-        _refuse(path, "vignetting", VIG_FORM)
-    return tuple(coeffs)
-
-
 def read_vignetting(path) -> Vignetting:
-    """The vignetting correction of a .cal file of the form :data:`VIG_FORM`."""
+    """The vignetting correction of a .cal file (factors that depend on ``x``, ``y``)."""
     path = os.fspath(path)
-    stmts = _statements(_text(path, "vignetting"))
-    if len(stmts) != 5:
-        _refuse(path, "vignetting", VIG_FORM)
-    m = re.fullmatch(rf"r=sqrt\(sq\(x-{_N}\)\+sq\(y-{_N}\)\)/{_N}", stmts[0])
-    s = re.fullmatch(r"sf=1/\((.+)\)", stmts[1])
-    tail = [re.fullmatch(rf"{o}=(?:sf\*{i}\(1\)|{i}\(1\)\*sf)", t)
-            for t, (o, i) in zip(stmts[2:], (("ro", "ri"), ("go", "gi"), ("bo", "bi")))]
-    if not m or not s or not all(tail):
-        _refuse(path, "vignetting", VIG_FORM)
-    xc, yc, radius = (float(v) for v in m.groups())
-    if not radius > 0:
-        raise InputError(f"{path}: the vignetting RADIUS must be positive, not {radius:g}")
-    return Vignetting(_poly(s.group(1), path), xc, yc, radius, source=path)
+    prog = calexpr.parse_file(path)
+    geo = calexpr.geometry_constants(prog)
+    probe = int(round(2 * geo["radius"])) if geo.get("radius") and 2 <= 2 * geo["radius"] <= 4096 else 64
+    if geo.get("radius") is not None and not geo["radius"] > 0:
+        raise InputError(f"{path}: the vignetting radius must be positive, not {geo['radius']:g}")
+    f = _factor_map(prog, path, probe, probe, "vignetting")
+    if np.all(f == f[:1, :1]):
+        raise InputError(f"{path}: not a vignetting .cal file: its factors do not depend on the pixel "
+                         f"position (x, y) (a neutral density or calibration factor file?)")
+    return Vignetting(None, geo.get("xc"), geo.get("yc"), geo.get("radius"), source=path, program=prog)
+
+
+def check_factor_range(factor: float, flag: str = "--calibration-factor", output=None) -> float:
+    """``factor`` (the calibration factor, or its product with the ND factors) refused
+    with :class:`UsageError` naming ``flag`` when luminances of :data:`SCENE_RANGE` times
+    it are not normal finite numbers of the output's format (``output``: a path or an
+    extension; None: float32, what every format hdrcl writes a luminance map in holds at
+    most). Checked before anything is decoded."""
+    ext = os.path.splitext(os.fspath(output))[1].lower() if output is not None and \
+        os.path.splitext(os.fspath(output))[1] else (str(output).lower() if output else "")
+    lo, hi = FORMAT_RANGE.get(ext, FLOAT32_RANGE)
+    scale = 1.0 / 179.0 if ext in FORMAT_RANGE else 1.0  # .hdr stores cd/m^2 / 179
+    f = float(factor)
+    if not (math.isfinite(f) and f > 0 and SCENE_RANGE[0] * f * scale >= lo and SCENE_RANGE[1] * f * scale <= hi):
+        where = f"a {ext} file" if ext else "a float32 map"
+        raise UsageError(f"{flag}: a factor of {f:g} puts luminances of {SCENE_RANGE[0]:g}..{SCENE_RANGE[1]:g} "
+                         f"cd/m2 outside what {where} holds ({lo:.3g}..{hi:.3g})")
+    return f
 
 
 def _numbers(text: str, flag: str, counts, what: str) -> Tuple[float, ...]:
@@ -216,8 +227,8 @@ def nd_filter_option(value, flag: str = "--nd-filter") -> Tuple[float, float, fl
 def calibration_factor_option(value, flag: str = "--calibration-factor") -> float:
     """``--calibration-factor FILE.cal|K`` -> K (positive)."""
     if _is_file_arg(value):
-        return read_calibration_factor(_check_file(os.fspath(value), flag))
+        return check_factor_range(read_calibration_factor(_check_file(os.fspath(value), flag)), flag)
     k = _numbers(value, flag, (1,), "K") if isinstance(value, str) else (float(value),)
     if not 0 < k[0] < float("inf"):
         raise UsageError(f"{flag}: expected a positive factor K, not '{value}'")
-    return k[0]
+    return check_factor_range(k[0], flag)
