@@ -18,7 +18,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from hdrcl.core.response import SPAN_BODY, Response, _check_smoothness, _segments, knot_positions
-from hdrcl.core.solve import solve_curve
+from hdrcl.core.solve import small_solve, solve_curve
 from hdrcl.core.weights import weight_values
 from hdrcl.errors import UsageError
 
@@ -197,7 +197,7 @@ def _joint_fit(z: np.ndarray, prior_lt: np.ndarray, prior_w: np.ndarray, bits: i
     c = (a1.T @ a2).toarray()
     s_mat = (a1.T @ a1).toarray() - (c / d) @ c.T + np.eye(keep.size) * 1e-10
     rhs = a1.T @ b - c @ ((a2.T @ b) / d)
-    x = np.linalg.solve(s_mat, rhs)
+    x = small_solve(s_mat, rhs)
     return x[k:]
 
 

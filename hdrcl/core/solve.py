@@ -23,7 +23,7 @@ from hdrcl.errors import InputError, ProcessingError, UsageError
 logger = logging.getLogger(__name__)
 
 
-def _small_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def small_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``np.linalg.solve`` on one BLAS thread: a levels x levels system solves in a few
     milliseconds alone, but several times slower on OpenBLAS's thread pool, more so on a
     machine whose cores are busy decoding and fusing (measured 4.5 ms vs 41 ms, 256 x 256)."""
@@ -119,7 +119,7 @@ def solve_curve(
     schur = ata[:k, :k].toarray() - (gb @ dinv @ gb.T).toarray()
     rhs = atb[:k] - gb @ (atb[k:] / d)
     try:
-        g = _small_solve(schur, rhs)
+        g = small_solve(schur, rhs)
     except np.linalg.LinAlgError:
         raise ProcessingError("the response solve is singular (the samples leave some code levels free); "
                               "give more --smoothness or frames with more detail") from None
