@@ -189,7 +189,7 @@ class _Parser:
                 self.i += 1
             self.take(")", "')'")
             params = tuple(names)
-        if name in _PIXEL_VARS or name in BUILTINS or name in _CONSTS:
+        if name in _PIXEL_VARS or name in _INPUTS:
             self.fail(f"'{name}' is pcomb's own and cannot be defined", (kind, name, line))
         if self.tok[1] not in ("=", ":") or self.tok[0] != "op":
             self.fail("'=' or ':' expected")
@@ -294,9 +294,9 @@ class CalProgram:
     def _check(self, node: Node, params) -> None:
         if node.kind == "var":
             name = node.value
-            if name in params or name in _CONSTS or name in _PIXEL_VARS:
-                return
             d = self.definitions.get(name)
+            if name in params or name in _PIXEL_VARS or (name in _CONSTS and (d is None or d.is_function)):
+                return
             if d is None or d.is_function:
                 what = "a function used as a variable" if d is not None or name in BUILTINS else "undefined variable"
                 raise InputError(f"{self.path}, line {node.line}: {what} '{name}'")
@@ -373,9 +373,9 @@ class _Env:
             return self.y
         if name in ("xres", "yres"):
             return getattr(self, name)
-        if name in _CONSTS:
-            return _CONSTS[name]
         d = self.prog.definitions.get(name)
+        if (d is None or d.is_function) and name in _CONSTS:
+            return _CONSTS[name]
         if d is None or d.is_function:
             raise InputError(f"{self.prog.path}, line {line}: undefined variable '{name}'")
         if name in self.active:
