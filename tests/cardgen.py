@@ -60,6 +60,35 @@ together they form one plausible bracket, whatever the gaps):
     ladder: four frames, one set (twice).
 ``mixed_missed``
     All of :data:`MISSED` on one card, with stray frames.
+
+Patterns of what people do that the grouping still split (issue 27, :data:`PEOPLE`), with
+the same rule for the truth (runs join whenever the scene matches and no exposure
+repeats, whatever their order or step size):
+
+``compact_thirds``
+    A compact by hand, 1/3-stop steps 9-81 s apart: one set (then another view).
+``last_small_step``
+    A one-stop hand ladder 1/15 .. 1/1000 s whose last step is a third of a stop
+    (1/1000 -> 1/1250 s), 9-40 s apart: one set.
+``turn_first``
+    A ladder shot 1, 2, 1/2 s, then on down to 1/60 s: one set.
+``stray_first``
+    A first frame at 1/1250 s, then 1/125 .. 1/1000 s: one set.
+``moon``
+    A ladder 1/4 -> 1/250 s, then 1/2 -> 8 s (no exposure repeats), one view: one set.
+``phone_comp_steps``
+    Phones in auto mode with 0.5 and 0.25 EV compensation steps: the metering's coarse
+    (shutter, ISO) table repeats pairs while the compensation goes on monotonically:
+    one set each, the repeats kept as duplicates.
+``dark_pedestal``
+    A tripod ladder 1/1024 .. 1/4 s whose sensor has a pedestal of 15 codes: the
+    darkest frames are mostly pedestal and noise. One set.
+``mixed_people``
+    All of :data:`PEOPLE` on one card, with stray frames.
+
+:func:`write_folder_views` writes one folder per set, the frames converted to PNG (no
+camera, no exposure in the header, every frame's ``DateTime`` the same conversion
+stamp) with an ``image_list.txt`` each: two overlapping views of one scene.
 """
 from __future__ import annotations
 
@@ -70,7 +99,8 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-__all__ = ["SCENARIOS", "write_card", "write_shots", "scenario", "Shot", "Frame"]
+__all__ = ["SCENARIOS", "MISSED", "PEOPLE", "write_card", "write_shots", "scenario", "Shot", "Frame",
+           "write_folder_views"]
 
 WIDTH, HEIGHT = 96, 64
 T0 = _dt.datetime(2025, 3, 14, 9, 0, 0)
@@ -117,6 +147,8 @@ class Shot:
     brightness: float = 1.0  # the scene's radiance, relative to the default
     tone: float = 0.0  # strength of the camera's S-shaped tone curve (0: plain gamma 2.2)
     drift: float = 0.0  # stops by which parts of the scene change between frames (clouds, lights)
+    pedestal: float = 0.0  # the sensor's black level in codes (0..255): the darkest frames show it
+    noise: float = 1.0  # noise in codes
 
 
 def _ladder(times, *, gaps, iso=100.0, mode=1, fnumber=8.0, first_gap=200.0, isos=None, biases=None):
@@ -184,6 +216,8 @@ def scenario(name: str, rng: np.random.Generator) -> List[Shot]:
                 Shot(_ladder([1 / 15, 1 / 8, 1 / 4], gaps=[20.0, 30.0], first_gap=40.0), label="view 3")]
     if name in MISSED:
         return _missed(name, rng)
+    if name in PEOPLE:
+        return _people(name, rng)
     raise ValueError(name)
 
 
@@ -194,6 +228,11 @@ SCENARIOS = ("manual_long_gaps", "back_to_back", "auto_iso", "exposure_comp", "s
 #: form one plausible bracket, whatever the gaps.
 MISSED = ("manual_irregular", "paused_ladder", "phone_repeat", "phone_iso", "phone_lenses", "phone_12",
           "compact_4")
+
+#: Patterns of what people do that the grouping still split (issue 27), with the truth
+#: the rule gives: runs join whenever the scene matches and no exposure repeats.
+PEOPLE = ("compact_thirds", "last_small_step", "turn_first", "stray_first", "moon", "phone_comp_steps",
+          "dark_pedestal")
 
 PHONE2 = {"make": "OnePlus", "model": "LE2123", "serial": None, "lens": None, "focal_length": 5.11}
 COMPACT = {"make": "SONY", "model": "DSC-RX100M3", "serial": None, "lens": "24-70mm F1.8-2.8",
@@ -296,6 +335,52 @@ def _missed(name: str, rng: np.random.Generator) -> List[Shot]:
     raise ValueError(name)
 
 
+def _people(name: str, rng: np.random.Generator) -> List[Shot]:
+    """The scenarios of :data:`PEOPLE` (see the module docstring)."""
+    if name == "compact_thirds":
+        # A compact by hand: 1/3-stop steps, 9-81 s apart (the photographer checks each
+        # frame). Then another view, a one-stop ladder.
+        ts = [nominal(1 / 1000 * 2 ** (k / 3)) for k in range(10)]
+        return [Shot(_ladder(ts, gaps=rng.uniform(9, 81, 9), iso=125, fnumber=4.0, first_gap=30.0),
+                     camera=dict(COMPACT), label="compact, 1/3-stop steps, 9-81 s apart"),
+                Shot(_ladder([1 / 500, 1 / 250, 1 / 125], gaps=[3.0, 3.0], iso=125, fnumber=4.0, first_gap=200.0),
+                     camera=dict(COMPACT), label="next view")]
+    if name == "last_small_step":
+        ts = [nominal(1 / 15 / 2 ** k) for k in range(7)] + [1 / 1250]
+        return [Shot(_ladder(ts, gaps=rng.uniform(9, 40, 7), first_gap=30.0), label="last step 1/1000 -> 1/1250 s")]
+    if name == "turn_first":
+        ts = [1.0, 2.0, 0.5] + [nominal(0.5 / 2 ** k) for k in range(1, 6)]
+        return [Shot(_ladder(ts, gaps=rng.uniform(3, 30, 7), first_gap=30.0), label="1, 2, 1/2 s, then down",
+                     brightness=1 / 40)]
+    if name == "stray_first":
+        ts = [1 / 1250, 1 / 125, 1 / 250, 1 / 500, 1 / 1000]
+        return [Shot(_ladder(ts, gaps=rng.uniform(3, 30, 4), first_gap=30.0), label="1/1250 s first, then 1/125 down")]
+    if name == "moon":
+        ts = [nominal(1 / 4 / 2 ** k) for k in range(7)] + [nominal(0.5 * 2 ** k) for k in range(5)]
+        return [Shot(_ladder(ts, gaps=rng.uniform(2, 6, 11), first_gap=30.0), label="1/4 -> 1/250 s, then 1/2 -> 8 s",
+                     brightness=1 / 30, contrast=1.4)]
+    if name == "phone_comp_steps":
+        # Auto mode with compensation: the metering picks (shutter, ISO) from a coarse
+        # table, so neighbouring compensation values often give one pair. One-stop
+        # shutter table with 0.5 EV steps; third-stop table with 0.25 EV steps.
+        shots = []
+        for step, n, base, table, first in ((0.5, 9, 1 / 250, 1.0, 30.0), (0.25, 9, 1 / 120, 1 / 3, 150.0)):
+            frames = []
+            for i in range(n):
+                ev = -step * (n // 2) + step * i
+                e = base * 2.0 ** ev * 2.0 ** rng.normal(0, 0.03)
+                t = 2.0 ** (table * round(np.log2(e) / table))
+                frames.append(Frame(time=nominal(t), iso=50.0, fnumber=1.7, bias=float(ev), mode=0,
+                                    gap=first if i == 0 else float(rng.uniform(2, 12))))
+            shots.append(Shot(frames, camera=dict(PHONE), label=f"auto mode, {step} EV steps", brightness=1 / 4))
+        return shots
+    if name == "dark_pedestal":
+        ts = [1 / 1024 * 2 ** k for k in range(9)]
+        return [Shot(_ladder(ts, gaps=rng.uniform(2, 5, 8), first_gap=30.0), label="ladder on a 15-code pedestal",
+                     pedestal=15.0, noise=2.0, brightness=1 / 6)]
+    raise ValueError(name)
+
+
 def _mixed(rng, names=SCENARIOS) -> List[Shot]:
     shots = []
     for k, name in enumerate(names):
@@ -360,7 +445,7 @@ def _tone(lin: np.ndarray, strength: float) -> np.ndarray:
 
 
 def _write(path, radiance, fr: Frame, when: _dt.datetime, camera: dict, rng, subsec_digits: int = 3,
-           tone: float = 0.0, drift: float = 0.0):
+           tone: float = 0.0, drift: float = 0.0, pedestal: float = 0.0, noise: float = 1.0):
     import OpenImageIO as oiio
 
     exposure = fr.time * (fr.iso / 100.0) * (8.0 / fr.fnumber) ** 2
@@ -368,7 +453,7 @@ def _write(path, radiance, fr: Frame, when: _dt.datetime, camera: dict, rng, sub
     if drift:
         rad = _drifted(rad, drift, rng)
     lin = np.clip(rad * exposure * 4.0, 0.0, 1.0)
-    pixels = 255.0 * _tone(lin, tone) + rng.normal(0.0, 1.0, rad.shape)
+    pixels = pedestal + (255.0 - pedestal) * _tone(lin, tone) + rng.normal(0.0, noise, rad.shape)
     data = np.clip(np.round(pixels), 0, 255).astype(np.uint8)
     spec = oiio.ImageSpec(WIDTH, HEIGHT, 3, oiio.UINT8)
     spec.attribute("ExposureTime", oiio.TypeFloat, float(fr.time))
@@ -412,9 +497,12 @@ def write_card(folder, name: str, seed: int = 0) -> Dict:
         shots = _mixed(rng)
     elif name == "mixed_missed":
         shots = _mixed(rng, MISSED)
+    elif name == "mixed_people":
+        shots = _mixed(rng, PEOPLE)
     else:
         shots = scenario(name, rng)
-    return write_shots(folder, shots, seed=seed, scrambled=name in ("subsecond", "mixed", "mixed_missed"), rng=rng)
+    return write_shots(folder, shots, seed=seed, scrambled=name in ("subsecond", "mixed", "mixed_missed",
+                                                                           "mixed_people"), rng=rng)
 
 
 def write_shots(folder, shots: List[Shot], seed: int = 0, scrambled: bool = False, rng=None) -> Dict:
@@ -440,7 +528,8 @@ def write_shots(folder, shots: List[Shot], seed: int = 0, scrambled: bool = Fals
             base = f"IMG_{n:04d}.jpg" if not scrambled else f"P{(n * 7919) % 10007:05d}.jpg"
             digits = 2 if n % 3 == 0 else 3
             _write(os.path.join(folder, base), _zoomed(scene, fr.zoom), fr, start, fr.camera or shot.camera, rng,
-                   subsec_digits=digits, tone=shot.tone, drift=shot.drift)
+                   subsec_digits=digits, tone=shot.tone, drift=shot.drift, pedestal=shot.pedestal,
+                   noise=shot.noise)
             parts.setdefault(fr.part, []).append(base)
             index[base] = n
             prev_end = start + _dt.timedelta(seconds=fr.time)

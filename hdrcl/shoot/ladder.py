@@ -16,6 +16,11 @@ bracketing, no bias) must be monotonic or centre out.
 
 :func:`ladder_of` is used to *join* runs that a long gap separated (a hand-made ladder
 with 5-60 s between frames) and to explain the join. It never splits by itself.
+
+Where the scene vouches for the frames (their thumbnails match), the order and the step
+size no longer matter: :func:`distinct_of` accepts any run in which no exposure repeats
+(a compact's third-stop ladder, a last step of a third of a stop, a ladder shot 1, 2,
+1/2 s then on down, a moon ladder 1/4 -> 1/250 s then 1/2 -> 8 s).
 """
 from __future__ import annotations
 
@@ -25,7 +30,7 @@ from typing import List, Optional, Sequence
 
 from hdrcl.io.metadata import FrameInfo
 
-__all__ = ["Ladder", "exposure_value", "ladder_of", "MIN_STEP", "MAX_STEP"]
+__all__ = ["Ladder", "exposure_value", "ladder_of", "distinct_of", "MIN_STEP", "MAX_STEP"]
 
 #: Smallest ladder step (stops) taken as a bracket: a third of a stop is noise in the
 #: metering of phone auto mode, not a bracket.
@@ -35,6 +40,11 @@ MAX_STEP = 4.5
 # Nominal shutter speeds and ISO values are rounded (1/60 is 2**-5.9): values closer
 # than this many stops are the same.
 _TOL = 0.22
+# Two exposures closer than this (stops) repeat each other (as ``_STOP_TOL`` of
+# hdrcl.shoot.compare: nominal third stops such as 1/15 and 1/13 s are 0.21 stops apart);
+# two exposure bias values closer than _BIAS_REPEAT EV repeat each other.
+_REPEAT = 0.15
+_BIAS_REPEAT = 0.1
 
 
 @dataclass(frozen=True)
@@ -138,6 +148,41 @@ def ladder_of(frames: Sequence[FrameInfo], even: bool = True) -> Optional[Ladder
             return None
     v0 = values[0]
     return Ladder(axis=axis, step=round(step, 2), order=order,
+                  values=tuple(round(v - v0, 2) for v in values))
+
+
+def distinct_of(frames: Sequence[FrameInfo]) -> Optional[Ladder]:
+    """The frames as one ladder in any order and with any step, or None: what the scene
+    vouches for (see the module docstring).
+
+    None when: fewer than two frames, the aperture changes, a value is missing, two
+    values repeat each other (closer than 0.15 stops, or 0.1 EV of exposure bias), the
+    sorted values leave a hole wider than :data:`MAX_STEP` stops (no frame overlaps the
+    next), or, in auto exposure without a varying bias, two values lie closer than
+    :data:`MIN_STEP` (the metering's drift, not a bracket). ``order`` is
+    ``"ascending"``, ``"descending"`` or ``"any order"``; ``step`` the median spacing.
+    """
+    frames = list(frames)
+    if len(frames) < 2:
+        return None
+    fn = [f.fnumber for f in frames if f.fnumber]
+    if fn and any(abs(2 * math.log2(n / fn[0])) > 0.3 for n in fn):
+        return None
+    axis, values = _axis(frames)
+    if axis is None:
+        return None
+    s = sorted(values)
+    diffs = [b - a for a, b in zip(s, s[1:])]
+    least = _BIAS_REPEAT if axis == "bias" else _REPEAT
+    if axis == "exposure" and all(f.exposure_mode == 0 for f in frames):
+        least = MIN_STEP
+    if min(diffs) < least or max(diffs) > MAX_STEP:
+        return None
+    steps = [b - a for a, b in zip(values, values[1:])]
+    order = ("ascending" if all(d > 0 for d in steps) else "descending" if all(d < 0 for d in steps)
+             else "any order")
+    v0 = values[0]
+    return Ladder(axis=axis, step=round(sorted(diffs)[len(diffs) // 2], 2), order=order,
                   values=tuple(round(v - v0, 2) for v in values))
 
 

@@ -3,7 +3,9 @@
 Two frames of one bracket show the same scene from a tripod (or nearly so, hand held);
 the next set usually shows another. :func:`compare` tells them apart from thumbnails
 of :data:`GRID` cells (luminance, area-averaged, so a few pixels of hand shake do not
-matter), using the pixels well exposed in both frames:
+matter), using the cells well exposed in both frames: above each frame's own floor (its
+darkest cell, up to a pedestal's level, plus a margin, :func:`floor`: a sensor's pedestal
+and its noise are no exposure) and below the clip:
 
 * the **rank correlation of the local structure**: the differences between neighbouring
   cells of the exposure-normalised log values. A camera's response is monotonic, so one
@@ -41,12 +43,16 @@ import numpy as np
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["GRID", "Thumb", "Verdict", "read_thumb", "compare", "SceneCache"]
+__all__ = ["GRID", "Thumb", "Verdict", "read_thumb", "compare", "floor", "SceneCache"]
 
 #: Thumbnail size (rows, columns).
 GRID = (24, 32)
-# Code values (0..1) that count as well exposed.
+# Code values (0..1) that count as well exposed: above the frame's own floor (its darkest
+# cell, the sensor's pedestal in a dark frame, up to _PEDESTAL, plus _LO) and below _HI.
 _LO, _HI = 0.04, 0.94
+# Highest pedestal (code value) a frame's darkest cell is taken for: sensors' black levels
+# in 8-bit renderings lie at 0-20 codes; a darker cell above this is the scene itself.
+_PEDESTAL = 0.08
 #: Same scene: rank correlation of the local structure at least this; changed: below
 #: RHO_CHANGED. (Measured: one scene 1-2 stops apart 0.77-1.0 on the real sets and 0.79-1.0
 #: on the synthetic cards; different scenes at most 0.27 real and 0.39 synthetic.)
@@ -158,11 +164,21 @@ def _structure(a: Thumb, b: Thumb, ok: np.ndarray):
     return float(np.corrcoef(ra, rb)[0, 1]), offset, len(da)
 
 
+def floor(t: Thumb) -> float:
+    """The code value above which a cell of ``t`` counts as exposed: :data:`_LO` above
+    the frame's darkest cell (up to :data:`_PEDESTAL`). A sensor's pedestal (black at
+    15 codes of 255) and its noise fill a dark frame; counted as well exposed they would
+    "change the scene" between two dark frames of one bracket. A frame whose darkest
+    cell is black keeps the plain floor :data:`_LO`; in a bright frame, whose darkest
+    cell lies above the pedestal, every cell counts as before."""
+    return min(float(t.lum.min()), _PEDESTAL) + _LO
+
+
 def compare(a: Optional[Thumb], b: Optional[Thumb]) -> Verdict:
     """Whether two thumbnails show the same scene (see the module docstring)."""
     if a is None or b is None or a.lum.shape != b.lum.shape:
         return Verdict("unknown")
-    ok = (a.lum > _LO) & (a.lum < _HI) & (b.lum > _LO) & (b.lum < _HI)
+    ok = (a.lum > floor(a)) & (a.lum < _HI) & (b.lum > floor(b)) & (b.lum < _HI)
     n = int(ok.sum())
     if n < max(24, 0.06 * ok.size):
         return _few_cells(a, b, ok, n)

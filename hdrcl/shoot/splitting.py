@@ -9,20 +9,27 @@ Three passes, every decision kept with its reason:
    broken; a one-way ladder carried on past its end by a plausible step is not broken);
    the *scene* changing (:mod:`hdrcl.shoot.scene`); a gap longer than the default limit
    (:data:`DEFAULT_GAP`, plus the exposure time after long exposures); a change between
-   auto and manual exposure (a run end that pass 3 may undo).
+   auto and manual exposure (a run end that pass 3 may undo). A frame that repeats the
+   (shutter, aperture, ISO) of the frame before with a *new* exposure compensation that
+   carries the set's compensation on one way (a phone in auto mode with 0.25-0.5 EV
+   steps, whose metering table gives neighbouring steps one setting) is a duplicate, not
+   a repeat: it stays in the set.
 2. **Duplicates.** A run that ended because the next frame repeated its *last* exposure
    is joined with the next run when, without the repeat, the two form one ladder and
    the scene has not changed: the shutter pressed twice before the dial moved. The
    repeat stays in the set (``"repeats the frame before (1/500 s): kept as a
    duplicate"``); a repeat of an earlier frame still starts a new set.
-3. **Bridges.** A run that ended only by a long gap (or an auto / manual change) is
-   joined with the next when the two together still form one exposure ladder
-   (:func:`hdrcl.shoot.ladder.ladder_of`: evenly spaced in ``t``, ``t * ISO`` or the
-   exposure bias, in an order people shoot; one way but uneven when the scene matches)
-   and the scene matches across the gap: hand-made ladders with 5-80 s between frames,
-   and pauses of minutes on one view while the ladder goes on. Without a thumbnail the
-   scene cannot vouch, and gaps up to :data:`BRIDGE_UNSEEN` seconds are bridged; with a
-   matching scene, up to :data:`BRIDGE_SEEN` seconds (plus the exposure time).
+3. **Bridges.** A run that ended only by a long gap, an auto / manual change or a hand
+   ladder turning back is joined with the next when the two together still form one
+   exposure ladder (:func:`hdrcl.shoot.ladder.ladder_of`: evenly spaced in ``t``, ``t *
+   ISO`` or the exposure bias, in an order people shoot) and the scene does not say
+   otherwise; when the scene *matches* (the two runs' frames nearest in exposure),
+   order and step size no longer matter: no exposure may repeat
+   (:func:`hdrcl.shoot.ladder.distinct_of`). Hand-made ladders with 5-80 s between
+   frames, third-stop steps, a ladder shot 1, 2, 1/2 s then on down, pauses of minutes
+   on one view while the ladder goes on. Without a thumbnail the scene cannot vouch, and
+   gaps up to :data:`BRIDGE_UNSEEN` seconds are bridged; with a matching scene, up to
+   :data:`BRIDGE_SEEN` seconds (plus the exposure time).
 
 With a ``--gap`` override the limit is exact and nothing is bridged.
 """
@@ -35,7 +42,7 @@ from typing import Callable, List, Optional
 from hdrcl.io.metadata import FrameInfo
 from hdrcl.shoot.compare import (DEFAULT_GAP, LONG_EXPOSURE, _BIAS_TOL, _MODE_NAMES, _STOP_TOL, _fmt_bias, _fmt_f,
                                  _gap, _norm, _same_bias, _same_settings, _same_stops, _varies, format_exposure)
-from hdrcl.shoot.ladder import MAX_STEP, MIN_STEP, exposure_value, ladder_of
+from hdrcl.shoot.ladder import MAX_STEP, MIN_STEP, distinct_of, exposure_value, ladder_of
 
 logger = logging.getLogger(__name__)
 
@@ -71,8 +78,9 @@ def _gap_limit(prev: FrameInfo, override: Optional[float]) -> float:
 
 
 def _hard_reason(cur: List[FrameInfo], f: FrameInfo) -> Optional[str]:
-    """What ends the set whatever the gap: settings, repeats, a broken ladder."""
-    return _camera_reason(cur[-1], f) or _pattern_reason(cur, f)
+    """What ends the set whatever the gap and the scene: settings, repeats, an auto
+    bracket's pattern broken (a hand ladder turning back is not: the bridges decide)."""
+    return _camera_reason(cur[-1], f) or _pattern_reason(cur, f, turns=False)
 
 
 def _camera_reason(prev: FrameInfo, f: FrameInfo) -> Optional[str]:
@@ -89,13 +97,15 @@ def _camera_reason(prev: FrameInfo, f: FrameInfo) -> Optional[str]:
     return None
 
 
-def _pattern_reason(cur: List[FrameInfo], f: FrameInfo) -> Optional[str]:
-    """Exposure mode or aperture changed, an exposure repeats, the ladder restarts."""
+def _pattern_reason(cur: List[FrameInfo], f: FrameInfo, turns: bool = True) -> Optional[str]:
+    """Exposure mode or aperture changed, an exposure repeats, the ladder restarts (a
+    hand ladder turning back only with ``turns``)."""
     prev = cur[-1]
     if _mode_change(prev, f) and 2 in (prev.exposure_mode, f.exposure_mode):
         return _mode_change(prev, f)
+    compensated = _compensation_duplicate(cur, f)
     for k, g in enumerate(cur):
-        if _same_settings(g, f):
+        if _same_settings(g, f) and not compensated:
             return ("exposure repeats first frame" if k == 0
                     else f"exposure repeats frame {k + 1} of the set")
     biases = [g.exposure_bias for g in cur]
@@ -109,12 +119,26 @@ def _pattern_reason(cur: List[FrameInfo], f: FrameInfo) -> Optional[str]:
             and not _same_stops(prev.fnumber, f.fnumber, 2.0)):
         return f"aperture changed ({_fmt_f(prev.fnumber)} -> {_fmt_f(f.fnumber)})"
     cur = unique(cur)  # a duplicate kept in the set (pass 2) is no step of its ladder
-    if _ladder_turns(cur, f):
+    if turns and _ladder_turns(cur, f):
         return "exposure ladder restarts"
     if _bias_pattern_breaks(cur, f):
         return ("bracket pattern restarts (" + (f"{_fmt_bias(f.exposure_bias)} EV" if f.exposure_bias is not None
                                                  else "exposure") + " off the set's steps)")
     return None
+
+
+def _compensation_duplicate(cur: List[FrameInfo], f: FrameInfo) -> bool:
+    """``f`` repeats the settings of the frame before with a new exposure compensation
+    that carries the set's compensation on one way: a phone in auto mode whose metering
+    gives two neighbouring compensation steps one (shutter, ISO) pair. A duplicate."""
+    prev = cur[-1]
+    if f.exposure_bias is None or not _same_settings(prev, f):
+        return False
+    biases = [g.exposure_bias for g in cur] + [f.exposure_bias]
+    if any(b is None for b in biases):
+        return False
+    steps = [b - a for a, b in zip(biases, biases[1:])]
+    return all(d >= _BIAS_TOL for d in steps) or all(d <= -_BIAS_TOL for d in steps)
 
 
 def _mode_change(prev: FrameInfo, f: FrameInfo) -> Optional[str]:
@@ -126,9 +150,11 @@ def _mode_change(prev: FrameInfo, f: FrameInfo) -> Optional[str]:
 
 
 def _soft(reason: str) -> bool:
-    """A run ended by a long gap or by a change between auto and manual exposure: the
-    bridges (pass 3) may join it with the next when the ladder and the scene continue."""
-    return reason.startswith("gap ") or reason.startswith("exposure mode changed")
+    """A run ended by a long gap, by a change between auto and manual exposure or by a
+    hand ladder turning back: the bridges (pass 3) may join it with the next when the
+    ladder and the scene continue."""
+    return (reason.startswith("gap ") or reason.startswith("exposure mode changed")
+            or reason == "exposure ladder restarts")
 
 
 def unique(frames: List[FrameInfo]) -> List[FrameInfo]:
@@ -257,6 +283,9 @@ def split_stream(frames: List[FrameInfo], gap: Optional[float], compare: Compare
                 reason = verdict.describe()
         if reason is None:
             note = _fmt_gap(g)
+            if _compensation_duplicate(cur, f):
+                note += (f", repeats the settings of the frame before ({format_exposure(f.exposure_time)} s) with a "
+                         f"new compensation ({_fmt_bias(f.exposure_bias)} EV): kept as a duplicate")
             if verdict is not None and verdict.kind != "unknown":
                 note += f", {verdict.describe()}"
             cur.append(f)
@@ -302,7 +331,8 @@ def _duplicate_reason(p: _Group, grp: _Group, compare: Compare) -> Optional[str]
     if verdict is not None and verdict.kind == "changed":
         return None
     same = verdict is not None and verdict.kind == "same"
-    if ladder_of(unique(p.frames + grp.frames), even=not same) is None:
+    frames = unique(p.frames + grp.frames)
+    if ladder_of(frames, even=not same) is None and not (same and _any_order(frames)):
         return None  # the frames after the repeat walk back over the ladder: a new set
     what = (f"{_fmt_bias(f.exposure_bias)} EV" if f.exposure_bias is not None
             and _varies([g.exposure_bias for g in p.frames], _same_bias) else format_exposure(f.exposure_time) + " s")
@@ -370,10 +400,39 @@ def _bridge_parts(p: _Group, grp: _Group, compare: Compare):
     g = _gap(p.frames[-1], grp.frames[0])
     if g is None:
         return None, None, None
-    verdict = None if compare is None else compare(_nearest(p.frames, grp.frames[0]), grp.frames[0])
-    # A scene that matches vouches for a hand-turned ladder whose steps are uneven.
-    lad = ladder_of(unique(p.frames + grp.frames), even=verdict is None or verdict.kind != "same")
+    verdict = None if compare is None else compare(*_nearest_pair(p.frames, grp.frames))
+    # A scene that matches vouches for a hand-turned ladder whose steps are uneven, in
+    # any order, as long as no exposure repeats.
+    same = verdict is not None and verdict.kind == "same"
+    frames = unique(p.frames + grp.frames)
+    lad = ladder_of(frames, even=not same) or (_any_order(frames) if same else None)
     return g, lad, verdict
+
+
+def _any_order(frames: List[FrameInfo]):
+    """:func:`distinct_of` where one exposure mode shot every frame; a frame metered in
+    auto before (or after) a manual ladder joins it only by continuing it (a test shot
+    inside the ladder's span stays alone)."""
+    if len({f.exposure_mode for f in frames if f.exposure_mode is not None}) > 1:
+        return None
+    return distinct_of(frames)
+
+
+def _nearest_pair(a: List[FrameInfo], b: List[FrameInfo]):
+    """The frame of ``a`` and the frame of ``b`` nearest each other in exposure (the
+    latest of ``a`` and the earliest of ``b`` on ties): the pair whose thumbnails have
+    the most cells well exposed in both."""
+    best, pair = None, (a[-1], b[0])
+    for j, y in enumerate(b):
+        vy = exposure_value(y)
+        for i in range(len(a) - 1, -1, -1):
+            vx = exposure_value(a[i])
+            if vx is None or vy is None:
+                continue
+            d = abs(vx - vy)
+            if best is None or d < best - 1e-9:
+                best, pair = d, (a[i], y)
+    return pair
 
 
 def _bridge_reason(p: _Group, grp: _Group, compare: Compare) -> Optional[str]:
