@@ -215,11 +215,14 @@ def test_hdr_holds_radiance_in_the_179_convention(tmp_path):
     assert ev == [pytest.approx(chain.vertical_illuminance, rel=1e-5)]
     inp = oiio.ImageInput.open(str(tmp_path / "lum.hdr"))  # OpenImageIO still reads it
     assert inp is not None and inp.spec().width == 100
+    stored = inp.read_image(0, 0, 0, 3, "float")  # the values as stored
     inp.close()
-    stored, _ = read_radiance(tmp_path / "lum.hdr")
     lum_ref = fm.radiance_luminance(ref)
     inside = lum_ref > 0
     np.testing.assert_allclose((fm.radiance_luminance(stored) * 179.0)[inside], lum_ref[inside], rtol=0.01)
+    cd, meta = read_radiance(tmp_path / "lum.hdr")  # read back in cd/m^2
+    assert meta["whiteEfficacy"] == 179.0
+    np.testing.assert_allclose(fm.radiance_luminance(cd)[inside], lum_ref[inside], rtol=0.01)
     np.testing.assert_allclose(read_luminance(tmp_path / "lum.hdr")[inside], lum_ref[inside], rtol=0.01)
 
 

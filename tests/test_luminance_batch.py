@@ -94,8 +94,8 @@ def test_batch_of_fisheye_sets_equals_the_steps_one_by_one(fisheye_shoot, cl_dev
         want = _one_by_one(img, CX, CY, D, N, VIG, ND, K)
         got, gmeta = read_radiance(entry["output"])
         assert got.shape == (N, N, 3) and gmeta["units"] == "cd/m2"
-        # Radiance's convention: 179 lm/W; RGBE keeps 8 bits of mantissa.
-        np.testing.assert_allclose(got * 179.0, want, rtol=1.5e-2, atol=1e-3 * float(want.max()))
+        # stored in Radiance's convention (179 lm/W), read back in cd/m^2; RGBE keeps 8 bits of mantissa.
+        np.testing.assert_allclose(got, want, rtol=1.5e-2, atol=1e-3 * float(want.max()))
         assert entry["vertical_illuminance"] == pytest.approx(fm.vertical_illuminance(want, 180.0), rel=5e-3)
         head = open(entry["output"], "rb").read(4096).split(b"\n\n")[0].decode()
         assert "VIEW= -vta -vh 180 -vv 180" in head and "VERTICAL_ILLUMINANCE=" in head

@@ -13,7 +13,9 @@ set of one camera the same ``t_ref`` (one radiometric scale across a shoot), and
 recorded in standard metadata: OpenEXR's ``expTime`` (with ``aperture`` and
 ``isoSpeed``) and ``hdrcl:referenceExposure``, Radiance's ``EXPOSURE=`` line (stored =
 original x EXPOSURE, Radiance's own convention), and the TIFF's hdrcl JSON. PFM files
-have no metadata and hold ``E`` as is; so do maps in absolute units (cd/m^2). A
+have no metadata and hold ``E`` as is; so do maps in absolute units (cd/m^2), except a
+``.hdr``, which holds them in Radiance's units (cd/m^2 / 179, :func:`hdr_factor`,
+``whiteEfficacy`` on its ``HDRCL=`` line, no ``EXPOSURE=`` line). A
 calibrated fisheye luminance map (``chain=``, :mod:`hdrcl.core.fisheye`) is absolute
 too: written once its ``N x N`` result is known (:func:`fuse_through_chain`), with no
 reference exposure and no ``EXPOSURE=`` line.
@@ -43,6 +45,17 @@ logger = logging.getLogger(__name__)
 
 #: Output types whose metadata can say what 1.0 means (they hold ``E x t_ref``).
 SCALED_EXTENSIONS = (".exr", ".hdr", ".tif", ".tiff")
+#: Radiance's luminous efficacy of its white (lm/W): a ``.hdr`` in Radiance's units holds
+#: cd/m^2 / 179 (``179 (0.265 R + 0.670 G + 0.065 B)`` is the luminance).
+RADIANCE_WHITE_EFFICACY = 179.0
+
+
+def hdr_factor(output: str, units: str) -> float:
+    """What a map's values are multiplied by in the file: ``1/179`` for a ``.hdr`` in
+    absolute units (``units`` cd/m2: Radiance reads it as radiance in its 179 lm/W
+    convention), 1 otherwise."""
+    ext = os.path.splitext(os.fspath(output))[1].lower()
+    return 1.0 / RADIANCE_WHITE_EFFICACY if ext == ".hdr" and units.startswith("cd/m2") else 1.0
 
 
 def default_reference(times: Sequence[float]) -> float:
@@ -165,7 +178,9 @@ def fuse_to_file(open_writer: Callable, run: Callable, *, output: str, dtype: st
     optimistic = ext == ".exr" and dtype in ("auto", "half")
     first = "half" if optimistic or dtype == "auto" else dtype
     writer = open_writer(first, 1.0)
-    meter = RangeMeter(writer, reference, check=optimistic)
+    # a .hdr in cd/m^2 holds Radiance's radiance (cd/m^2 / 179)
+    file_scale = hdr_factor(output, "cd/m2" if keep_units else "relative")
+    meter = RangeMeter(writer, reference * file_scale, check=optimistic)
     try:
         counts = run(meter, True)
     except BaseException:
@@ -180,7 +195,7 @@ def fuse_to_file(open_writer: Callable, run: Callable, *, output: str, dtype: st
                     note=hp.message.replace("may reach", "reaches") if hp.message else None, passes=2)
     logger.info("%s: %s", output, stored.note)
     writer = open_writer(hp.dtype, hp.scale)
-    again = RangeMeter(writer, reference * hp.scale, check=False)
+    again = RangeMeter(writer, reference * hp.scale * file_scale, check=False)
     try:
         counts = run(again, False)
     except BaseException:

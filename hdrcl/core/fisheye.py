@@ -314,9 +314,10 @@ class LuminanceChain:
     # -- the file ------------------------------------------------------------------
     def file_values(self, output: str, image: np.ndarray) -> np.ndarray:
         """What the file stores: cd/m^2, or for ``.hdr`` cd/m^2 / 179 (Radiance)."""
-        if os.path.splitext(os.fspath(output))[1].lower() == ".hdr":
-            return (image.astype(np.float64) / fm.WHITE_EFFICACY).astype(np.float32)
-        return image
+        from hdrcl.core.encode import hdr_factor
+
+        factor = hdr_factor(output, "cd/m2")
+        return image if factor == 1.0 else (image.astype(np.float64) * factor).astype(np.float32)
 
     def describe(self) -> dict:
         """The options, for metadata and reports."""

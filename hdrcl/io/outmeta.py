@@ -43,7 +43,7 @@ from hdrcl.io.colorspace import chromaticities
 from hdrcl.io.colorspace import check as check_space
 from hdrcl.errors import ProcessingError
 
-__all__ = ["software", "standard_attributes", "hdr_header_lines", "patch_hdr_header", "hdr_colorspace",
+__all__ = ["software", "standard_attributes", "hdr_header_lines", "patch_hdr_header", "hdr_colorspace", "hdr_header",
            "inapplicable_options", "camera_from_infos"]
 
 #: Longest Radiance header we read back (bytes).
@@ -96,13 +96,16 @@ def hdr_header_lines(camera: Optional[Mapping], colorspace: str, timestamp: Opti
     ``metadata`` (the ``hdrcl:*`` values) goes on one ``HDRCL=`` line as JSON."""
     prim = " ".join(f"{v:.4f}" for v in chromaticities(check_space(colorspace)))
     # Radiance's convention: stored value = original x EXPOSURE. hdrcl stores radiance
-    # (relative to 1 s) times the reference exposure; absolute maps are stored as they are.
-    # A calibrated luminance map (``units`` cd/m2, hdrcl.core.fisheye) holds Radiance's
-    # radiance as it is: no EXPOSURE= line at all, and its VIEW= and vertical illuminance.
+    # (relative to 1 s) times the reference exposure. A map in cd/m^2 (--absolute,
+    # --reference-patch, the luminance chain) holds Radiance's radiance, cd/m^2 / 179
+    # (:data:`WHITE_EFFICACY_KEY` on its HDRCL= line), with no EXPOSURE= line at all:
+    # evalglare refuses a picture whose EXPOSURE= line a Radiance tool has indented.
     cam = camera or {}
     exposure = float(cam.get("exposure_time") or 1.0)
     lines = [f"SOFTWARE={software()}"]
-    if cam.get("units") != "cd/m2":
+    absolute = str(cam.get("units", "")).startswith("cd/m2") or \
+        str((metadata or {}).get("units", "")).startswith("cd/m2")
+    if not absolute:  # EXPOSURE= only where it means what Radiance means (not 1 on a cd/m^2 map)
         lines.append(f"EXPOSURE={exposure:.6e}")
     lines.append(f"PRIMARIES= {prim}")
     if cam.get("view"):
@@ -116,6 +119,8 @@ def hdr_header_lines(camera: Optional[Mapping], colorspace: str, timestamp: Opti
         lines.append(f"# owner: {_clean(owner)}")
     # OpenImageIO's RGBE reader loses the header at a line of a multiple of 128 bytes.
     lines = [line + " " if len(line) % 128 == 0 else line for line in lines]
+    if absolute:  # the values are Radiance's radiance: stored x 179 = cd/m^2 (hdrcl.core.encode)
+        metadata = {**dict(metadata or {}), WHITE_EFFICACY_KEY: 179.0}
     if metadata:
         import json
 
@@ -125,11 +130,13 @@ def hdr_header_lines(camera: Optional[Mapping], colorspace: str, timestamp: Opti
     return lines
 
 
-def hdr_metadata(path) -> dict:
-    """The ``HDRCL=`` metadata of a Radiance file's header (its ``HDRCL=`` lines joined,
-    before the first blank line; the header alone is read, at most 1 MB), or {}."""
-    import json
+#: The HDRCL= key of a ``.hdr`` in cd/m^2 that stores Radiance's radiance (cd/m^2 / 179).
+#: Older hdrcl wrote ``--absolute``/``--reference-patch`` maps in cd/m^2 directly (without
+#: the key and without ``luminanceChain``); :func:`hdr_header` tells them apart.
+WHITE_EFFICACY_KEY = "whiteEfficacy"
 
+
+def _header_bytes(path) -> bytes:
     head = b""
     with open(path, "rb") as fh:
         while b"\n\n" not in head and len(head) < 1 << 20:
@@ -137,15 +144,59 @@ def hdr_metadata(path) -> dict:
             if not chunk:
                 break
             head += chunk
+    return head.split(b"\n\n", 1)[0]
+
+
+def hdr_header(path) -> dict:
+    """What a Radiance file's header says, as Radiance's programs read it:
+
+    ``exposure``: the product of its ``EXPOSURE=`` lines at the start of a line (an
+    indented one belongs to an input's header that a Radiance tool copied: Radiance
+    ignores it), 1.0 when there is none; ``exposures``: the values; ``view``: the last
+    ``VIEW=`` (or None); ``metadata``: hdrcl's ``HDRCL=`` JSON (:func:`hdr_metadata`)."""
+    lines = _header_bytes(path).split(b"\n")
+    exposures, view = [], None
+    for raw in lines:
+        if raw.startswith(b"EXPOSURE="):
+            try:
+                value = float(raw[len(b"EXPOSURE="):].split()[0])
+            except (ValueError, IndexError):
+                continue
+            if value > 0 and value < float("inf"):
+                exposures.append(value)
+        elif raw.startswith(b"VIEW="):
+            view = raw[len(b"VIEW="):].decode("ascii", "replace").strip()
+    product = 1.0
+    for v in exposures:
+        product *= v
+    return {"exposure": product, "exposures": exposures, "view": view, "metadata": _hdrcl_json(lines)}
+
+
+def _hdrcl_json(lines) -> dict:
+    """The ``HDRCL=`` lines joined; lines a Radiance tool indented (its input's header)
+    count when there are none at the start of a line: the least indented set is read."""
+    import json
+
     key = HDR_METADATA_LINE.encode()
-    parts = [raw[len(key):] for raw in head.split(b"\n\n", 1)[0].split(b"\n") if raw.startswith(key)]
-    if not parts:
+    found = {}
+    for raw in lines:
+        body = raw.lstrip(b"\t ")
+        if body.startswith(key):
+            found.setdefault(len(raw) - len(body), []).append(body[len(key):])
+    if not found:
         return {}
+    parts = found[min(found)]
     try:
         value = json.loads(b"".join(parts).decode("ascii"))
     except (ValueError, UnicodeDecodeError):
         return {}
     return value if isinstance(value, dict) else {}
+
+
+def hdr_metadata(path) -> dict:
+    """The ``HDRCL=`` metadata of a Radiance file's header (its ``HDRCL=`` lines joined,
+    before the first blank line; the header alone is read, at most 1 MB), or {}."""
+    return _hdrcl_json(_header_bytes(path).split(b"\n"))
 
 
 def patch_hdr_header(path: str, lines: Sequence[str]) -> None:

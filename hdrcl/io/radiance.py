@@ -9,6 +9,7 @@ import numpy as np
 
 from hdrcl.errors import InputError
 from hdrcl.io.frames import _open_input, _read_error
+from hdrcl.io.outmeta import hdr_header
 from hdrcl.io.writers import METADATA_PREFIX
 
 
@@ -67,7 +68,10 @@ def read_radiance(path, *, require_float: bool = False) -> tuple:
     pixels : numpy.ndarray
         ``(H, W, C)`` float32, C = 1 or 3 (alpha and other channels dropped); radiance
         relative to a 1 s exposure, i.e. the stored values divided by
-        :func:`stored_scale` (the reference exposure and any ``hdrcl:halfScale``).
+        :func:`stored_scale` (the reference exposure and any ``hdrcl:halfScale``), or
+        cd/m^2 for a map in absolute units. A Radiance file is decoded as Radiance does
+        (:func:`rgbe_centre`), divided by the product of its ``EXPOSURE=`` lines, and a
+        map in cd/m^2 multiplied by :func:`hdr_luminance_factor`.
     metadata : dict
         The ``hdrcl:*`` attributes without the prefix (or the JSON kept in a TIFF's
         ImageDescription); empty when there are none.
@@ -95,11 +99,20 @@ def read_radiance(path, *, require_float: bool = False) -> tuple:
             raise InputError(problem)
         metadata = _with_hdr_line(name, _spec_metadata(spec))
         exposure_line = _positive(spec.getattribute("hdr:exposure"))
+        rgbe = _is_rgbe(name)
     finally:
         inp.close()
     data = np.asarray(data, dtype=np.float32)
     if data.ndim == 2:
         data = data[:, :, None]
+    if rgbe:
+        data = rgbe_centre(data)
+        header = hdr_header(name)
+        exposure_line = header["exposure"]
+        metadata = dict(metadata)
+        absolute_hdr = str(metadata.get("units", "")).startswith("cd/m2")
+        if absolute_hdr:  # cd/m^2 = stored x 179 / EXPOSURE (or, older hdrcl, stored / EXPOSURE)
+            exposure_line /= hdr_luminance_factor(metadata)
     pixels = np.ascontiguousarray(data[:, :, channels])
     if require_float:
         bad = int(np.count_nonzero(~np.isfinite(pixels)))
@@ -109,6 +122,36 @@ def read_radiance(path, *, require_float: bool = False) -> tuple:
     if divisor != 1.0:
         pixels = (pixels.astype(np.float64) / divisor).astype(np.float32)
     return pixels, metadata
+
+
+def _is_rgbe(name: str) -> bool:
+    with open(name, "rb") as f:
+        return f.read(2) == b"#?"
+
+
+def rgbe_centre(data: np.ndarray) -> np.ndarray:
+    """OpenImageIO's decoding of RGBE (``m x 2^(e-136)``) made Radiance's
+    (``(m + 0.5) x 2^(e-136)``, ``colr_color`` in Radiance's color.c): the shared
+    exponent is recovered from the largest channel (a normalised mantissa, 128..255, as
+    every RGBE encoder writes) and half a step is added to each channel of a pixel that
+    is not black. Exact in float32 (9 significant bits)."""
+    rgb = np.asarray(data, np.float32)
+    top = rgb.max(axis=-1, keepdims=True) if rgb.shape[-1] > 1 else rgb
+    with np.errstate(divide="ignore", invalid="ignore"):
+        step = np.where(top > 0, np.exp2(np.floor(np.log2(np.where(top > 0, top, 1.0))) - 7.0), 0.0)
+    return (rgb + 0.5 * step).astype(np.float32)
+
+
+def hdr_luminance_factor(metadata: dict) -> float:
+    """cd/m^2 per stored unit (after EXPOSURE) of a ``.hdr`` hdrcl wrote in cd/m^2: 179
+    (Radiance's convention: files with ``whiteEfficacy`` or ``luminanceChain`` on their
+    HDRCL= line), or 1 for the ``--absolute``/``--reference-patch`` maps of older hdrcl,
+    which stored cd/m^2 directly (their HDRCL= line has ``units`` cd/m2 and neither key)."""
+    from hdrcl.io.outmeta import WHITE_EFFICACY_KEY
+
+    if WHITE_EFFICACY_KEY in metadata or "luminanceChain" in metadata:
+        return float(metadata.get(WHITE_EFFICACY_KEY) or 179.0)
+    return 1.0
 
 
 def _positive(value) -> Optional[float]:

@@ -70,8 +70,9 @@ def read_luminance(path) -> np.ndarray:
     pixels, meta = read_radiance(name, require_float=True)
     ext = os.path.splitext(name)[1].lower()
     units = str(meta.get("units", ""))
-    if ext == ".hdr" and (not units or "luminanceChain" in meta):
-        # Radiance's convention (a foreign picture, or hdrcl's luminance chain): 179 lm/W.
+    if ext == ".hdr" and not units:
+        # a foreign picture: Radiance's convention, 179 lm/W (hdrcl's own .hdr in cd/m^2
+        # are read in cd/m^2 by read_radiance, older ones included)
         return radiance_luminance(pixels) * WHITE_EFFICACY
     if not units.startswith("cd/m2"):
         white = white_luminance(name)
