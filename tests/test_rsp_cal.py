@@ -169,3 +169,17 @@ def test_inline_values_refused_name_the_flag(option, value, flag):
 def test_missing_cal_file_is_an_input_error(tmp_path):
     with pytest.raises(InputError, match="nope.cal"):
         radcal.nd_filter_option(str(tmp_path / "nope.cal"))
+
+
+def test_rsp_with_huge_coefficients_is_one_error_without_numpy_warnings(tmp_path):
+    """Issue 29: 1e308 coefficients printed two NumPy overflow warnings before the error."""
+    import warnings
+
+    path = tmp_path / "huge.rsp"
+    path.write_text("3 1e308 1e308 1e308 0.0\n" * 3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InputError) as err:
+            Response.load(path)
+    msg = str(err.value)
+    assert msg.startswith(str(path)) and "\n" not in msg and "overflows" in msg

@@ -49,7 +49,11 @@ class RspFit:
 def g_from_polynomial(coeffs, levels: int = 256) -> np.ndarray:
     """``g`` at every code from a polynomial ``c0 .. cN`` (ascending), ``g(levels/2) = 0``."""
     x = np.arange(levels, dtype=np.float64) / (levels - 1)
-    p = np.polynomial.polynomial.polyval(x, np.asarray(coeffs, np.float64))
+    with np.errstate(all="ignore"):  # huge coefficients: one error below, no NumPy warnings
+        p = np.polynomial.polynomial.polyval(x, np.asarray(coeffs, np.float64))
+        finite = bool(np.all(np.isfinite(p))) and bool(np.all(np.isfinite(np.diff(p))))
+    if not finite:
+        raise ValueError("the polynomial overflows between codes 0 and the top (coefficients too large)")
     good = (p > 0) & np.concatenate(([True], np.diff(p) > 0))
     # z1: the lowest code from which p is positive and increasing all the way up
     bad = np.flatnonzero(~good)
