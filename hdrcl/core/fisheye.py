@@ -301,9 +301,9 @@ class LuminanceChain:
         """The OpenCL twin of the projection and vignetting steps, or None (NumPy)."""
         if self.projection is None and self.vignetting is None:
             return None
-        from hdrcl.cl.backend import get_processor
+        from hdrcl.core.pipeline import fusion_processor
 
-        fusion = get_processor("fusion", self.device, work=self.size * self.size)
+        fusion = fusion_processor(self.device, self.size * self.size)
         if fusion is None:
             return None
         from hdrcl.cl.fisheye import FisheyeProcessor

@@ -30,6 +30,24 @@ def _pick_channels(spec, path: str) -> list:
     )
 
 
+def pick_channels(spec, path: str) -> list:
+    """Indices of the grey or R, G, B channels of an OpenImageIO header (alpha and other
+    channels left out); :class:`InputError` naming ``path`` when there are none."""
+    return _pick_channels(spec, path)
+
+
+def radiance_header(path) -> tuple:
+    """``(width, height, channels)`` of a radiance map from its header alone (channels:
+    1 or 3, as :func:`read_radiance` returns them)."""
+    name = os.fspath(path)
+    inp = _open_input(name)
+    try:
+        spec = inp.spec()
+        return int(spec.width), int(spec.height), len(_pick_channels(spec, name))
+    finally:
+        inp.close()
+
+
 def read_radiance_colorspace(path, *, require_float: bool = False) -> tuple:
     """:func:`read_radiance`'s pixels and the file's colour space, ``rec709`` or ``acescg``.
 
