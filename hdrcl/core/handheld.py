@@ -55,18 +55,33 @@ SNAP_PX = 0.15
 #: A frame sharing fewer usable samples than this with its neighbour cannot be
 #: measured: it takes the neighbour's motion (model ``inherited``), with a warning.
 MIN_MEASURABLE = 200
+#: A fit over fewer samples than this (of :data:`hdrcl.core.register.MAX_SAMPLES`) is
+#: accepted only when a second, independent estimate agrees with it within
+#: :data:`AGREE_PX` (full-size pixels; :func:`_register`).
+FEW_SAMPLES = 20_000
+AGREE_PX = 1.0
+#: ``auto``'s homography is judged on tiles block-matched this far (estimation-level
+#: pixels) around where the similarity puts them.
+HELD_OUT_RADIUS = 8
+#: ... and wins only when it brings them this much closer (full-size pixels, median):
+#: real tripod film frames differ by up to a pixel in ways a homography fits better over
+#: the textured part (0.15 against 0.49 px, Memorial 0067 -> 0068) while bending the
+#: untextured corners by 6 px; a merge is not helped by either.
+HOMOGRAPHY_GAIN_PX = 0.5
 #: Interpolation of the warp: 4 (Keys' cubic, 4 x 4 taps) or 2 (bilinear).
 WARP_TAPS = 4
 #: Device warps run on a worker thread while the host estimates the next frames
 #: (24 MP x 7, 2 cores: alignment 5.5 s against 6.4 s one after the other, medians of 3;
 #: peak memory about 150 MB higher: the estimation's pyramids and the first warp at once).
 OVERLAP_WARPS = True
-#: ``auto``: a bracket whose every frame moved less than this (pixels, at every corner)
-#: is static (a tripod): no frame is resampled. Registration between frames several
-#: stops apart is biased by up to about half a pixel on real tripod JPEGs (window_e995:
-#: 0.46-0.55 px across its 12 frames, along the 4:2:2 chroma's subsampled axis), and a
-#: resampling blurs more than a sub-pixel misregistration costs the fusion.
-STATIC_PX = 0.75
+#: ``auto``: a bracket whose every frame moved less than this (pixels, median over the
+#: frame: :func:`motion_px`) is static (a tripod): no frame is resampled. Registration
+#: between frames several stops apart is biased by up to about half a pixel on real
+#: tripod JPEGs (window_e995: 0.46-0.55 px across its 12 frames, along the 4:2:2
+#: chroma's subsampled axis), the Memorial film frames differ by up to 0.77 px (0067 ->
+#: 0068, a fit to non-rigid scan differences), and a resampling blurs more than a
+#: sub-pixel misregistration costs the fusion.
+STATIC_PX = 1.0
 #: Refusal: residual misalignment above this (full-size pixels) ...
 MAX_RESIDUAL_PX = 2.0
 #: ... rank images correlating less than this ...
@@ -141,7 +156,7 @@ class _Registrar:
     def __init__(self, pyramids, valid, est: int, start: int, lo: int, hi: int, tol: int, shape):
         self.pyr, self.est, self.start, self.tol = pyramids, est, start, tol
         self.shape = shape
-        self.valid = [None if v is None else R.valid_pyramid(v, len(p) + est)[est:] for v, p in zip(valid, pyramids)]
+        self.valid = [_usable_pyramid(v, p, est) for v, p in zip(valid, pyramids)]
         self.range = [R.usable_range(p[0], lo, hi, None if v is None else v[0], margin=lo)
                       for p, v in zip(pyramids, self.valid)]
         self._levels: Dict[int, list] = {}
@@ -169,6 +184,16 @@ class _Registrar:
         return W.translation(dy * (1 << self.est), dx * (1 << self.est))
 
 
+def _usable_pyramid(valid, pyr, est: int):
+    """Per kept level: valid (the frame's mask brought to the level) and not fill
+    (:func:`hdrcl.core.register.fill_mask` of the estimation level); None when all is."""
+    v = None if valid is None else R.valid_pyramid(valid, len(pyr) + est)[est]
+    fill = R.fill_mask(pyr[0])
+    if fill.any():
+        v = ~fill if v is None else v & ~fill
+    return None if v is None else R.valid_pyramid(v, len(pyr))
+
+
 def _richer(r_old: float, r_new: float) -> bool:
     """True when ``r_new`` is clearly lower than ``r_old`` (NaN never is)."""
     if not np.isfinite(r_new):
@@ -178,12 +203,14 @@ def _richer(r_old: float, r_new: float) -> bool:
     return r_old - r_new > max(CLEAR_GAIN_PX, CLEAR_GAIN_FRAC * r_old)
 
 
-def _fit_models(reg: _Registrar, anchor: int, j: int, m0: np.ndarray, model: str):
+def _fit_models(reg: _Registrar, anchor: int, j: int, m0: np.ndarray, model: str, richest: str = "homography"):
     """``(model, fit, residual)`` for frame ``j`` against ``anchor`` under ``model``.
 
     ``auto``: the translation; the similarity when it lowers the translation's residual
     clearly (:func:`_richer`) and moves some corner more than :data:`SNAP_PX` away from
-    a translation; the homography when it lowers the similarity's residual clearly.
+    a translation; the homography (unless ``richest`` is ``similarity``) when it lowers
+    the similarity's residual clearly on tiles the fits did not use
+    (:func:`_held_out_wins`).
     """
     img = reg.levels(j)
     tpl = [R.Template(lt, R.joint_ok(li, m0, lt.scale)) for lt, li in zip(reg.levels(anchor), img)]
@@ -207,11 +234,28 @@ def _fit_models(reg: _Registrar, anchor: int, j: int, m0: np.ndarray, model: str
     bent = W.corner_distance(fs.matrix, _centre_shift(fs.matrix, h, w), h, w) > SNAP_PX
     if fs.converged and (not ft.converged or (bent and _richer(rt, rs))):
         best = ("similarity", fs, rs)
-        if rs > CLEAR_GAIN_PX:
+        if rs > CLEAR_GAIN_PX and richest == "homography":
             fh, rh = run("homography", fs.matrix)
-            if fh.converged and _richer(rs, rh):
+            if fh.converged and _richer(rs, rh) and _held_out_wins(reg, anchor, j, fs, fh):
                 best = ("homography", fh, rh)
     return best
+
+
+def _held_out_wins(reg: _Registrar, anchor: int, j: int, fs, fh) -> bool:
+    """True when the homography ``fh`` lands the frame's tiles clearly closer than the
+    similarity ``fs`` (:func:`_richer`, and by :data:`HOMOGRAPHY_GAIN_PX` at least) to
+    where block matching finds them
+    (:func:`hdrcl.core.register_check.tile_matches`: tiles and a criterion the fits did
+    not use). A homography fitted to the rank images' samples can bend the corners by
+    pixels for a residual a tenth of a pixel lower (film grain, blooming that grows with
+    the exposure): its own residual, even on held-out samples, cannot tell."""
+    from hdrcl.core import register_check as RC
+
+    va, vb = (reg.valid[k][0] if reg.valid[k] is not None else None for k in (anchor, j))
+    p, q = RC.tile_matches(reg.levels(anchor)[0], va, reg.levels(j)[0], vb, fs.matrix, radius=HELD_OUT_RADIUS)
+    es, eh = RC.model_errors([fs.matrix, fh.matrix], p, q)
+    logger.debug("align: held-out tiles: similarity %.3f px, homography %.3f px", es, eh)
+    return bool(np.isfinite(es) and _richer(es, eh) and es - eh >= HOMOGRAPHY_GAIN_PX)
 
 
 def _centre_shift(m: np.ndarray, h: int, w: int) -> np.ndarray:
@@ -266,7 +310,8 @@ def estimate(frames: Sequence[np.ndarray], ref: int, model: str, device=None, na
     pyr = []
     for f in frames:  # grey pyramids on the device; the levels used are kept on the host
         pyr.append(list(aligner.grey_pyramid(f, levels, slot="frame", host_from=est).host[est:]))
-    reg = _Registrar(pyr, valid or [None] * n, est, start, lo, hi, tol, (h, w))
+    vmask = valid or [None] * n
+    reg = _Registrar(pyr, vmask, est, start, lo, hi, tol, (h, w))
     mats: List[np.ndarray] = [np.eye(3)] * n
     out = [("reference", np.eye(3), 0.0, ref)] * n
     pending: List[int] = []
@@ -276,7 +321,7 @@ def estimate(frames: Sequence[np.ndarray], ref: int, model: str, device=None, na
         if on_final is None:
             return
         pending.append(j)
-        if not moving[0] and W.corner_distance(out[j][1], np.eye(3), h, w) > STATIC_PX:
+        if not moving[0] and motion_px(out[j][1], h, w, vmask[j]) > STATIC_PX:
             moving[0] = True
         while moving[0] and pending:
             k = pending.pop(0)
@@ -285,20 +330,17 @@ def estimate(frames: Sequence[np.ndarray], ref: int, model: str, device=None, na
     for j in sorted(range(n), key=lambda k: (abs(k - ref), k)):
         if j == ref:
             continue
-        anchor = j + (1 if j < ref else -1)  # the neighbour in exposure: most pixels shared
-        m0 = reg.shift(anchor, j)
-        kind, f, r = _fit_models(reg, anchor, j, m0, model)
-        if f.samples < MIN_MEASURABLE:  # next to nothing usable in both: nothing to measure
-            logger.warning("%s: too few well-exposed pixels shared with %s (%d) to align it; it takes the "
-                           "motion of %s", names[j], names[anchor], f.samples, names[anchor])
+        anchor = j + (1 if j < ref else -1)  # the neighbour in exposure: most pixels shared ...
+        while out[anchor][0] == "inherited":  # ... that was measured
+            anchor += 1 if j < ref else -1
+        kind, f, r, why = _register(reg, anchor, j, model, names)
+        if why is not None:
+            logger.warning("%s: %s; it takes the motion of %s", names[j], why, names[anchor])
             mats[j] = mats[anchor]
             out[j] = ("inherited", mats[anchor], float("nan"), anchor)
             final(j)
             continue
         m = f.matrix @ mats[anchor]
-        why = _refusal(f, r, f.matrix, h, w)
-        if why:
-            raise InputError(f"{names[j]}: cannot be aligned to {names[anchor]}: {why}")
         if model in ("auto", "shift"):
             snapped = _snap(m, h, w)
             if snapped is not None:
@@ -307,14 +349,72 @@ def estimate(frames: Sequence[np.ndarray], ref: int, model: str, device=None, na
         out[j] = (kind, m, r, anchor)
         logger.info("align: %s: %s against %s, residual %.3f px", names[j], kind, names[anchor], r)
         final(j)
-    return _static(out, h, w) if model == "auto" else out, aligner
+    return _static(out, h, w, vmask) if model == "auto" else out, aligner
 
 
-def _static(fits, h: int, w: int):
-    """``fits`` as they are, or, when no frame moved more than :data:`STATIC_PX` at any
-    corner (a tripod), every frame left as it is: model ``none``, identity, and as
-    residual the motion measured and not undone."""
-    motion = [W.corner_distance(m, np.eye(3), h, w) for _, m, _, _ in fits]
+def _register(reg: _Registrar, anchor: int, j: int, model: str, names):
+    """``(model, fit, residual, why)`` of frame ``j`` against ``anchor``. ``why`` (not
+    None) says why a frame with few usable pixels cannot be measured (it then takes the
+    anchor's motion); a frame that has plenty and still cannot be aligned is refused
+    (InputError naming it).
+
+    A fit over few samples (under :data:`FEW_SAMPLES`), or one whose residual cannot be
+    measured (no textured tile: NaN), is accepted only when the block-matching estimate
+    of :mod:`hdrcl.core.register_check` agrees with it within :data:`AGREE_PX` where the
+    frame has content; the fit is retried from that estimate once. Its residual is then
+    the larger of the tiles' and the two estimates' distance: never NaN."""
+    from hdrcl.core import register_check as RC
+
+    h, w = reg.shape
+    m0 = reg.shift(anchor, j)
+    kind, f, r = _fit_models(reg, anchor, j, m0, model)
+    if f.samples >= FEW_SAMPLES and np.isfinite(r):
+        why = _refusal(f, r, f.matrix, h, w)
+        if why:
+            raise InputError(f"{names[j]}: cannot be aligned to {names[anchor]}: {why}")
+        return kind, f, r, None
+    va, vb = (reg.valid[k][0] if reg.valid[k] is not None else None for k in (anchor, j))
+    est = RC.tile_estimate(reg.levels(anchor)[0], va, reg.levels(j)[0], vb, m0)
+    tried = []
+    for start in ([] if est is None else [None, est.full()[0]]):
+        if start is not None:
+            kind, f, r = _fit_models(reg, anchor, j, start, model, richest="similarity")
+        d = RC.disagreement(f.matrix, est)
+        tried.append(d)
+        if f.converged and d <= AGREE_PX and _refusal(f, 0.0, f.matrix, h, w) is None:
+            return kind, f, max(d, r) if np.isfinite(r) else d, None
+    if f.samples >= FEW_SAMPLES:  # plenty to go on, and yet no estimate to confirm it
+        why = _refusal(f, r, f.matrix, h, w) or (
+            "its residual cannot be measured (no textured tile) and no second estimate confirms the fit"
+            if est is None else f"a second estimate (block matching) puts it {min(tried):.1f} px away")
+        raise InputError(f"{names[j]}: cannot be aligned to {names[anchor]}: {why}")
+    if est is None:
+        return kind, f, r, (f"too few well-exposed pixels shared with {names[anchor]} ({f.samples} samples) "
+                            "to align it, and no second estimate to confirm a fit")
+    return kind, f, r, (f"too few well-exposed pixels shared with {names[anchor]} ({f.samples} samples) to "
+                        f"trust a fit: a second estimate (block matching) puts it {min(tried):.1f} px away")
+
+
+def motion_px(m: np.ndarray, h: int, w: int, valid: Optional[np.ndarray] = None) -> float:
+    """How far ``m`` moves the frame: the median distance over a 17 x 17 grid of its
+    pixels (those valid in ``valid``, when given and any are), full-size pixels. Not
+    the corners: a fit extrapolates there, and a rotation of a tenth of a degree that
+    moves the picture half a pixel moves an empty corner of a 24 MP frame by five."""
+    ys, xs = np.meshgrid(np.linspace(0, h - 1, 17), np.linspace(0, w - 1, 17), indexing="ij")
+    if valid is not None:
+        keep = np.asarray(valid)[np.round(ys).astype(int), np.round(xs).astype(int)]
+        if keep.any():
+            ys, xs = ys[keep], xs[keep]
+    p = np.c_[xs.ravel(), ys.ravel()]
+    return float(np.median(np.hypot(*(W.apply(m, p) - p).T)))
+
+
+def _static(fits, h: int, w: int, valid=None):
+    """``fits`` as they are, or, when no frame moved more than :data:`STATIC_PX`
+    (:func:`motion_px`: a tripod), every frame left as it is: model ``none``, identity,
+    and as residual the motion measured and not undone."""
+    valid = valid or [None] * len(fits)
+    motion = [motion_px(m, h, w, v) for (_, m, _, _), v in zip(fits, valid)]
     if max(motion) > STATIC_PX:
         return fits
     logger.info("align: no frame moved more than %.2f px: the frames are merged as they are", STATIC_PX)

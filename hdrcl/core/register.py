@@ -56,6 +56,12 @@ MIN_LEVEL_SAMPLES = 15
 NPARAM = {"shift": 2, "similarity": 4, "homography": 8}
 #: Quantiles taken as a frame's noise floor and saturation level.
 FLOOR_Q, CEIL_Q = 0.005, 0.999
+#: The top codes are a saturation only where at least this fraction of the pixels piles
+#: up within half the margin of the brightest code (a dark frame's few highlights thin
+#: out instead: they are the frame's best texture, not a clip).
+PILE_FRAC = 0.0005
+#: Pixels around fill (code 0) left out too (:func:`fill_mask`).
+FILL_GROW = 2
 #: Tiles per side for the residual; a tile counts with this many samples, and a
 #: smallest eigenvalue of its gradients' normal matrix of at least this per sample
 #: (rank units per pixel, squared): texture in two directions.
@@ -83,15 +89,38 @@ class Level:
 
 def usable_range(grey: np.ndarray, lo: int, hi: int, valid: Optional[np.ndarray] = None,
                  margin: int = 8) -> Tuple[int, int]:
-    """``(lo, hi)`` narrowed to the frame: ``margin`` codes above its own noise floor (its
-    :data:`FLOOR_Q` quantile: a film base or black level) and half of that below its
-    :data:`CEIL_Q` quantile (where a scan or a camera saturates below full scale)."""
-    g = grey if valid is None else grey[valid]
+    """``(lo, hi)`` narrowed to the frame: ``margin`` codes above its pedestal (the
+    :data:`FLOOR_Q` quantile of its codes, fill and masked pixels left out: a film base,
+    a sensor's black level) and half of that below its :data:`CEIL_Q` quantile (where a
+    scan or a camera saturates below full scale).
+
+    Fill (:func:`fill_mask`: black corners a rotation uncovered) is left out of the
+    pedestal: counted, 2-5 % of zeros drive the quantile to 0, and on a dark frame whose
+    codes sit on a pedestal of 15 the sensor's noise then passes for texture."""
+    keep = ~fill_mask(grey)
+    if valid is not None:
+        keep &= valid
+    g = grey[keep]
     if g.size == 0:
         return lo, hi
     sub = g.ravel()[:: max(1, g.size // 262144)]
     floor, ceil = np.quantile(sub, [FLOOR_Q, CEIL_Q], method="lower")
+    top = int(sub.max())
+    if np.count_nonzero(sub >= top - margin // 2) < PILE_FRAC * sub.size:
+        ceil = hi + margin // 2  # the brightest codes thin out: a dark frame's highlights, not a saturation
     return max(lo, int(floor) + margin), min(hi, int(ceil) - margin // 2)
+
+
+def fill_mask(grey: np.ndarray, grow: int = FILL_GROW) -> np.ndarray:
+    """Fill: pixels at code 0 in every channel (grey 0: the black a converter or a
+    camera paints where a rotation uncovered the frame) and ``grow`` pixels around
+    them (an interpolated edge of the fill). Scene pixels at 0 are clipped anyway."""
+    fill = np.asarray(grey) == 0
+    if not fill.any():
+        return fill
+    from scipy import ndimage
+
+    return ndimage.binary_dilation(fill, np.ones((2 * grow + 1, 2 * grow + 1), bool))
 
 
 def rank_image(grey: np.ndarray, lo: int, hi: int, valid: Optional[np.ndarray] = None) -> Tuple[np.ndarray, np.ndarray]:
@@ -225,6 +254,25 @@ class Template:
         self.L = max(h, w) / 2.0
         self.pts = np.c_[self.x, self.y].astype(np.float64)
         self.px, self.py = self.pts[:, 0].copy(), self.pts[:, 1].copy()
+
+    def tiles(self) -> np.ndarray:
+        """Each sample's residual tile (:data:`TILES` x :data:`TILES` over the level)."""
+        return (np.minimum(self.y * TILES // self.h, TILES - 1) * TILES
+                + np.minimum(self.x * TILES // self.w, TILES - 1))
+
+    def half(self, fold: int, keep: bool = True) -> "Template":
+        """The samples of half of the frame (``fold`` 0: the top half of the tiles, 1:
+        the left half, 2: a checkerboard of them), or, with ``keep`` False, of the other
+        half: a fit on one half is judged on the other, which it did not use."""
+        t = self.tiles()
+        ty, tx = t // TILES, t % TILES
+        inside = (ty < TILES // 2, tx < TILES // 2, (ty + tx) % 2 == 0)[fold]
+        sel = inside if keep else ~inside
+        out = object.__new__(Template)
+        out.__dict__.update(self.__dict__)
+        for k in ("y", "x", "t", "gx", "gy", "pts", "px", "py"):
+            setattr(out, k, getattr(self, k)[sel])
+        return out
 
     def steepest(self, model: str) -> np.ndarray:
         """``(N, P)``: template gradient times the warp's Jacobian (pixel units)."""
@@ -362,8 +410,7 @@ def tile_residual(tpl: Template, img: Level, m_full: np.ndarray, iters: int = 5)
     pixels (NaN when no tile has enough texture). Each tile's translation is a
     Gauss-Newton fit of its own, with Huber weights."""
     m = to_level(m_full, tpl.scale)
-    tile = (np.minimum(tpl.y * TILES // tpl.h, TILES - 1) * TILES
-            + np.minimum(tpl.x * TILES // tpl.w, TILES - 1))
+    tile = tpl.tiles()
     n = TILES * TILES
     gx, gy = tpl.gx, tpl.gy
     shifts = np.zeros((n, 2))
