@@ -358,14 +358,20 @@ def test_lost_response_of_a_one_set_camera_is_solved_again(tmp_path, cl_device):
 
 
 def test_warm_up_opens_the_device_while_the_frames_decode(monkeypatch):
-    """The warm-up thread hands the job's size to get_processor (it used to hand itself)."""
+    """The warm-up thread opens the device the job will use, decided by the job's size
+    alone (hdrcl.core.engine.fusion_processor): a large job opens it, a small one not."""
     import hdrcl.cl.backend as backend
-    from hdrcl.core.merge import _warm_up
+    from hdrcl.core.engine import _warm_up
 
     seen = []
-    monkeypatch.setattr(backend, "get_processor", lambda kind, device=None, work=None: seen.append(work))
+    monkeypatch.setattr(backend, "get_processor", lambda kind, device=None, work=None: seen.append(kind))
+    monkeypatch.delenv("HDRCL_REQUIRE_OPENCL", raising=False)
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+    monkeypatch.delenv("HDRCL_OPENCL", raising=False)
+    _warm_up(None, False, work=backend.small_work() + 1).join()
+    assert seen == ["fusion"]
     _warm_up(None, False, work=12345).join()
-    assert seen == [12345]
+    assert seen == ["fusion"]
 
 
 def test_range_meter_never_lets_nan_or_inf_through_to_half():

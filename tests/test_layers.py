@@ -142,4 +142,90 @@ def test_package_docstrings():
     for pkg in ("cli", "shoot", "report", "core", "cl", "io"):
         doc = ast.get_docstring(ast.parse((ROOT / pkg / "__init__.py").read_text()))
         assert doc and "TODO" not in doc, pkg
-    assert os.path.isfile(ROOT / "api.py")
+    assert os.path.isfile(ROOT / "api" / "__init__.py")
+
+
+def _package(mod: str) -> str:
+    """``core`` for ``hdrcl.core.merge``; ``.`` for the root modules."""
+    parts = mod.split(".")
+    return parts[1] if len(parts) > 2 or (len(parts) == 2 and (ROOT / parts[1]).is_dir()) else "."
+
+
+def _from_imports(path: Path, mod: str):
+    """``(line, module imported from, names)`` of every ``from ... import`` in ``path``."""
+    tree = ast.parse(path.read_text())
+    pkg = mod if path.name == "__init__.py" else mod.rsplit(".", 1)[0]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg.split(".")
+                base = base[: len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if target.startswith("hdrcl"):
+                yield node.lineno, target, [a.name for a in node.names]
+
+
+def private_imports(mods) -> list:
+    """``_name`` taken by one package of hdrcl from another."""
+    bad = []
+    for mod, path in mods.items():
+        for line, target, names in _from_imports(path, mod):
+            for n in names:
+                if n.startswith("_") and not n.startswith("__") and _package(target) != _package(mod):
+                    bad.append(f"{mod}:{line} imports {n} from {target}")
+    return bad
+
+
+#: All the command line may import of hdrcl besides itself.
+CLI_MAY_IMPORT = ("hdrcl.api", "hdrcl.core.params", "hdrcl.errors", "hdrcl.version", "hdrcl.cli")
+
+
+def cli_imports(mods) -> list:
+    """Imports of the command line below the public API (other than the option table)."""
+    bad = []
+    for mod, path in mods.items():
+        if not mod.startswith("hdrcl.cli"):
+            continue
+        for line, target, _names in _from_imports(path, mod):
+            if target != "hdrcl" and not any(target == p or target.startswith(p + ".") for p in CLI_MAY_IMPORT):
+                bad.append(f"{mod}:{line} imports {target}")
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                for a in node.names:
+                    if a.name.startswith("hdrcl.") and not any(
+                            a.name == p or a.name.startswith(p + ".") for p in CLI_MAY_IMPORT):
+                        bad.append(f"{mod}:{node.lineno} imports {a.name}")
+    return bad
+
+
+#: Waiting on their owners (notes/requests.md: public names in io.frames and io.radiance).
+KNOWN_PRIVATE = {"hdrcl.core.params:_open_input", "hdrcl.core.params:_pick_channels"}
+
+
+def test_no_private_name_crosses_packages():
+    bad = [b for b in private_imports(_modules())
+           if f"{b.split(':')[0]}:{b.split(' imports ')[1].split()[0]}" not in KNOWN_PRIVATE]
+    assert not bad, "private names imported from another package:\n" + "\n".join(bad)
+
+
+#: Waiting on their owners (notes/requests.md): removed from here when fixed.
+KNOWN_CLI = {"hdrcl.cli.falsecolor"}
+
+
+def test_the_cli_imports_only_the_api_the_option_table_and_errors():
+    bad = [b for b in cli_imports(_modules()) if b.split(":")[0] not in KNOWN_CLI]
+    assert not bad, "the command line imports below the API:\n" + "\n".join(bad)
+
+
+def test_the_import_checks_catch_what_they_should(tmp_path):
+    """The checkers themselves: a private name across packages and a CLI import of core."""
+    (tmp_path / "a.py").write_text("from hdrcl.core.bracket import _with_ignore\nfrom hdrcl.core import _x\n")
+    (tmp_path / "b.py").write_text("from hdrcl.core.merge import merge_files\nfrom hdrcl.api import merge\n"
+                                   "from hdrcl.core.params import check\nimport hdrcl.io.frames\n")
+    (tmp_path / "c.py").write_text("from hdrcl.core.bracket import _with_ignore\n")
+    mods = {"hdrcl.shoot.a": tmp_path / "a.py", "hdrcl.cli.b": tmp_path / "b.py", "hdrcl.core.c": tmp_path / "c.py"}
+    assert len(private_imports(mods)) == 2  # shoot -> core twice; core -> core is fine
+    bad = cli_imports(mods)
+    assert len(bad) == 2 and "hdrcl.core.merge" in bad[0] and "hdrcl.io.frames" in bad[1]

@@ -39,31 +39,15 @@ def devices(as_json):
 
     Exits non-zero when no device can be used.
     """
-    from hdrcl.cl.backend import opencl_enabled
+    from hdrcl.api.devices import device_report, opencl_enabled
 
     if not opencl_enabled():
         msg = "OpenCL disabled (HDRCL_OPENCL=0): the NumPy reference path is used."
         click.echo(json.dumps({"devices": [], "selected": None, "selected_id": None, "problem": None,
                                "disabled": msg}, indent=1) if as_json else msg)
         return
-    from hdrcl.cl.context import get_context, list_devices, selection_report
-    from hdrcl.cl.drivers import prepare_icd_environment
-
-    problem = None
-    chosen = None
-    try:
-        chosen = get_context(None).name
-    except Exception as exc:  # reported, not fatal: listing is the point
-        problem = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-    try:
-        rows = list_devices()
-    except Exception as exc:
-        rows, problem = [], problem or f"listing OpenCL devices failed: {exc}"
-    report = selection_report()
-    for r in rows:
-        r["status"], r["reason"] = report.get(r["id"], ("not tried", ""))
-    selected_id = next((r["id"] for r in rows if r["status"] == "selected"), None)
-    icd = prepare_icd_environment()
+    d = device_report()
+    rows, chosen, selected_id, problem, icd = d["devices"], d["selected"], d["selected_id"], d["problem"], d["icd"]
     if as_json:
         click.echo(json.dumps({"devices": rows, "selected": chosen, "selected_id": selected_id,
                                "problem": problem, "icd": icd}, indent=1))
@@ -115,7 +99,7 @@ def _alignment_line(a: dict) -> str:
 def calibrate(images, output, times, times_file, ignore_color, samples, smoothness, seed, weight, fit_exposures,
               exposure_tolerance):
     """Recover the camera response curve from one bracket set."""
-    from hdrcl.core.calibrate import calibrate as _calibrate
+    from hdrcl.api.support import calibrate as _calibrate
 
     check_inputs_not_outputs(list(images) + [times_file], output)
     if times is None and times_file is None:
@@ -186,15 +170,19 @@ def merge(images, output, response, save_response, response_cache, times, times_
           reference_exposure, colorspace, owner, lens_circle, resize, fisheye_projection, vignetting, nd_filter, calibration_factor,
           view, device):
     """Merge one bracket set into a radiance map."""
-    from hdrcl.core.fisheye import chain_or_none
-    from hdrcl.core.merge import merge_files
+    from hdrcl.api.support import MergeOptions, chain_or_none, format_time, merge_files
     from hdrcl.core.params import check_options
-    from hdrcl.io.metadata import format_time
 
-    # Everything the option types could not see alone (a frame number against the images
-    # given, options that need each other), before any warning or decoding.
-    check_options(frames=len(images), ghost_reference=ghost_reference, ghost_threshold=ghost_threshold,
-                  deghost=deghost, align=align, crop=crop, absolute=absolute, reference_patch=reference_patch)
+    # Every option once, in the options object (hdrcl.core.options: the rules that tie
+    # options together too), and a frame number against the images given, before any
+    # warning or decoding.
+    opts = MergeOptions(weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness, seed=seed,
+                        fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance, deghost=deghost,
+                        ghost_threshold=ghost_threshold, ghost_reference=ghost_reference, neutral=neutral,
+                        reference_patch=reference_patch, absolute=absolute, align=align, align_model=align_model,
+                        crop=crop, dtype=dtype, compression=compression, colorspace=colorspace.lower(),
+                        reference_exposure=reference_exposure, device=device)
+    check_options(frames=len(images), ghost_reference=ghost_reference)
     check_inputs_not_outputs(list(images) + [response, times_file], output, save_response, ghost_mask, clip_mask,
                              response_cache)
     warn_inapplicable(output, dtype=dtype, compression=compression)
@@ -204,17 +192,9 @@ def merge(images, output, response, save_response, response_cache, times, times_
         _say_exposure_lists(images)
     if response_cache is not None:
         response, save_response = _from_cache(response_cache, images, response, save_response)
-    res = merge_files(list(images), output, times=times, times_file=times_file, response=response,
-                      weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness, seed=seed,
-                      dtype=dtype, compression=compression, device=device, fit_exposures=fit_exposures,
-                      exposure_tolerance=exposure_tolerance, deghost=deghost, ghost_mask=ghost_mask,
-                      clip_mask=clip_mask,
-                      ghost_threshold=ghost_threshold, ghost_reference=ghost_reference,
-                      neutral=neutral, reference_patch=reference_patch, absolute=absolute,
-                      thumbnail=512 if report else 0, keep_frames=bool(report), align=align,
-                      align_model=align_model, crop=crop,
-                      colorspace=colorspace.lower(),
-                      owner=owner, save_response=save_response, reference_exposure=reference_exposure, chain=chain)
+    res = merge_files(list(images), output, opts, times=times, times_file=times_file, response=response,
+                      ghost_mask=ghost_mask, clip_mask=clip_mask, thumbnail=512 if report else 0,
+                      keep_frames=bool(report), owner=owner, save_response=save_response, chain=chain)
     h, w_, c = res.shape
     if chain is not None:  # the file holds the calibrated N x N map
         h = w_ = chain.size
@@ -247,8 +227,7 @@ def merge(images, output, response, save_response, response_cache, times, times_
     if cnt.get("clipped_high") or cnt.get("clipped_low"):
         say(f"  clipped in every frame: {cnt['clipped_high']} high, {cnt['clipped_low']} low (pixel-channels)")
     if report:
-        from hdrcl.report.merge_report import write_quality_report
-        from hdrcl.report.pages import format_figures
+        from hdrcl.api.support import format_figures, write_quality_report
 
         fig, _entry = write_quality_report(res, report, ignore_color=ignore_color, weight=weight, device=device)
         say(f"quality report: {os.path.join(report, 'index.html')}")
@@ -260,8 +239,7 @@ def _say_exposure_lists(images) -> None:
     """One line on stderr per exposure list beside the frames that merge will use (for
     frames without EXIF exposure time; :func:`hdrcl.io.metadata.header_exposures`)."""
     from hdrcl.cli.group import quiet
-    from hdrcl.core.bracket import read_infos
-    from hdrcl.io.metadata import header_exposures
+    from hdrcl.api.support import header_exposures, read_infos
 
     if quiet() or len(images) < 2:
         return
@@ -279,9 +257,8 @@ def _from_cache(path, images, response, save_response):
     import logging
 
     from hdrcl.core.params import check_response_fits
-    from hdrcl.core.response import Response
+    from hdrcl.api.support import Response, read_info
     from hdrcl.errors import HdrclError, UsageError
-    from hdrcl.io.frames import read_info
 
     if response is not None or save_response is not None:
         raise UsageError("--response-cache stands for --response and --save-response: give it alone")
@@ -317,9 +294,8 @@ def _from_cache(path, images, response, save_response):
 @device_option
 def expose(radiance, output, response, time_, bits, motion_blur, device):
     """Render a virtual photograph from a radiance map."""
-    from hdrcl.core.exposure import expose_file
+    from hdrcl.api.support import Response, expose_file
     from hdrcl.core.params import check_expose
-    from hdrcl.core.response import Response
 
     check_inputs_not_outputs([radiance, response], output)
     resp = Response.load(response)
@@ -345,7 +321,7 @@ def demo(folder, size, frames, seed, no_shoot, device):
     to the truth. Then writes a small shoot of JPEGs with EXIF to FOLDER/shoot, runs
     the batch into FOLDER/batch and writes its quality report (FOLDER/batch/report).
     """
-    from hdrcl.shoot.demo import run_demo
+    from hdrcl.api.batch import run_demo
 
     w, h = (int(v) for v in size.lower().split("x"))  # checked by the option's type
     rep = run_demo(folder, width=w, height=h, frames=frames, seed=seed, device=device, shoot=not no_shoot,

@@ -9,8 +9,7 @@ import os
 
 import click
 
-from hdrcl.core.response import DEFAULT_SMOOTHNESS
-from hdrcl.core.weights import DEFAULT_WEIGHT, WEIGHTS
+from hdrcl.api.support import DEFAULT_SMOOTHNESS, DEFAULT_WEIGHT, WEIGHTS
 
 
 class Checked(click.ParamType):
@@ -79,7 +78,7 @@ def sets_callback(ctx, param, value):
     if value is None:
         return None
     from hdrcl.errors import UsageError
-    from hdrcl.shoot.plan import parse_sets
+    from hdrcl.api.batch import parse_sets
 
     for item in str(value).split(","):
         if item.strip().startswith("-"):
@@ -100,7 +99,7 @@ class OutputFile(click.ParamType):
 
     def convert(self, value, param, ctx):
         from hdrcl.errors import UsageError
-        from hdrcl.io.atomic import check_output
+        from hdrcl.api.support import check_output
 
         path = os.fspath(value)
         ext = os.path.splitext(path)[1].lower()
@@ -123,7 +122,7 @@ class OutputFolder(click.ParamType):
         self.what = what
 
     def convert(self, value, param, ctx):
-        from hdrcl.io.atomic import check_output_folder
+        from hdrcl.api.support import check_output_folder
 
         return check_output_folder(os.fspath(value), what=self.what)
 
@@ -131,7 +130,7 @@ class OutputFolder(click.ParamType):
 def _times(ctx, param, value):
     if value is None:
         return None
-    from hdrcl.io.metadata import parse_times
+    from hdrcl.api.support import parse_times
 
     return parse_times(value, "--times")  # UsageError: one line, exit 2
 
@@ -146,7 +145,7 @@ def _seconds(ctx, param, value):
 
 def check_inputs_not_outputs(inputs, *outputs) -> None:
     """Refuse (usage error) an output that is one of the inputs: it would be destroyed."""
-    from hdrcl.io.atomic import check_output
+    from hdrcl.api.support import check_output
 
     for out in outputs:
         if out is not None:
@@ -239,6 +238,9 @@ def batch_merge_options(f):
                      help="Measure each frame's exposure from the pixels through the set's (pooled or given) "
                           "response: auto uses the measured value only where the metadata is clearly wrong "
                           "(and says so per frame), on always, off never (as merge).")(f)
+    f = click.option("--exposure-tolerance", type=Checked("exposure_tolerance"), default=None, metavar="STOPS",
+                     help="Report frames whose metadata the pixels contradict by more than this [default: 0.5], "
+                          "as merge.")(f)
     f = click.option("--neutral", type=Checked("neutral"), metavar="X,Y,W,H",
                      help="White balance every set: make this patch (pixels) neutral grey.")(f)
     f = click.option("--crop", is_flag=True, help="With --align: crop to the area every frame covers.")(f)
@@ -293,7 +295,7 @@ def deghost_option(f):
 
 def ghost_options(f):
     """``--ghost-threshold`` and ``--ghost-reference`` (with ``--deghost``)."""
-    from hdrcl.core.deghost import THRESHOLD
+    from hdrcl.api.support import THRESHOLD
 
     f = click.option("--ghost-threshold", type=Checked("ghost_threshold"), default=None,
                      help="With --deghost: departure, in robust spreads of the set's own frame-to-frame "
@@ -327,7 +329,7 @@ def warn_inapplicable(output: str, **options) -> None:
     """Warn (once each) about explicitly given options the output type ignores."""
     import logging
 
-    from hdrcl.io.outmeta import inapplicable_options
+    from hdrcl.api.support import inapplicable_options
 
     for msg in inapplicable_options(output, **{k: given(k) for k in options}):
         logging.getLogger("hdrcl.cli").warning("%s", msg)

@@ -29,7 +29,7 @@ def tonemap(radiance, output, operator, exposure, bits, device):
     """
     import time
 
-    from hdrcl.report.tonemap import tonemap_file
+    from hdrcl.api.support import tonemap_file
 
     check_inputs_not_outputs([radiance], output)
     t0 = time.perf_counter()

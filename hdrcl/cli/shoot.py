@@ -64,9 +64,7 @@ def scan(ctx, source, recursive, frames_per_set, gap, output, as_json, explain, 
     hdrcl scan shoot/ -o shoot/manifest.json
     hdrcl scan shoot/manifest.json          # after editing it
     """
-    from hdrcl.shoot.manifest import save_manifest
-    from hdrcl.shoot.plan import check_manifest, load_source
-    from hdrcl.shoot.scan import format_explain, format_table
+    from hdrcl.api.batch import check_manifest, format_explain, format_table, load_source, save_manifest
 
     recursive = _descend(source, recursive)
     manifest = load_source(source, recursive=recursive, frames_per_set=frames_per_set, gap=gap,
@@ -97,7 +95,7 @@ def _descend(source, recursive: bool, exclude=()) -> bool:
     """``recursive`` for scanning ``source``: True also when the folder holds no photographs
     but its subfolders do; one line on stderr says so, or says to add -r when
     photographs in subfolders (other than the ``exclude`` folders) are left out."""
-    from hdrcl.shoot.scan import descends, left_below
+    from hdrcl.api.batch import descends, left_below
 
     if not os.path.isdir(source):
         return recursive
@@ -233,7 +231,8 @@ class _Progress:
 def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force, name, dry_run, response_cache,
           calibrate_only, report_dir,
           report_json, as_json, preview, preview_size, tonemap, recursive, frames_per_set, gap, samples, smoothness,
-          seed, weight, ignore_color, deghost, align, align_model, crop, neutral, fit_exposures, times_file, dtype,
+          seed, weight, ignore_color, deghost, align, align_model, crop, neutral, exposure_tolerance, fit_exposures,
+          times_file, dtype,
           compression, reference_exposure, colorspace, output_format, lens_circle, resize, fisheye_projection,
           vignetting, nd_filter, calibration_factor, view, device):
     """Merge every bracket set of a folder or manifest into OUT_DIR.
@@ -251,18 +250,8 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
     SIGTERM / Ctrl-C (report.json holds the sets that finished; run again to
     finish the rest).
     """
-    from hdrcl.shoot.jobs import BatchOptions
-    from hdrcl.errors import UsageError
-    from hdrcl.shoot.claims import Cancelled
-    from hdrcl.shoot.run import run_batch
-
-    if crop and not align:
-        raise UsageError("--crop needs --align")
-    if neutral is not None:
-        from hdrcl.core.radiometry import parse_patch
-
-        parse_patch(neutral, "--neutral")
-    from hdrcl.core.fisheye import chain_or_none
+    from hdrcl.api.batch import BatchOptions, Cancelled, run_batch
+    from hdrcl.api.support import chain_or_none
 
     def _cal(value):  # a .cal file by its absolute path: workers may run elsewhere
         return os.path.abspath(value) if isinstance(value, str) and value.lower().endswith(".cal") else value
@@ -275,7 +264,7 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
     quiet = is_quiet()
     recursive = _descend(source, recursive, exclude=(out_dir, report_dir))
     if report_json and os.path.dirname(os.path.abspath(report_json)) != os.path.abspath(out_dir):
-        from hdrcl.io.atomic import check_output
+        from hdrcl.api.support import check_output
 
         check_output(report_json, what="JSON report")  # before any set is merged
     opts = BatchOptions(weight=weight, samples=samples, smoothness=smoothness, seed=seed,
@@ -283,9 +272,9 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
                         preview=preview, preview_size=preview_size, tonemap=tonemap, colorspace=colorspace.lower(),
                         device=device, report_dir=report_dir, align=align, crop=crop, neutral=neutral,
                         fit_exposures=fit_exposures, reference_exposure=reference_exposure, align_model=align_model,
-                        output_format=output_format, luminance=luminance)
+                        output_format=output_format, luminance=luminance, exposure_tolerance=exposure_tolerance)
     if dry_run:
-        from hdrcl.shoot.run import describe_batch
+        from hdrcl.api.batch import describe_batch
 
         plan = describe_batch(source, out_dir, options=opts, sets=sets, response=response,
                               response_cache=response_cache, name=name, recursive=recursive,
@@ -323,7 +312,7 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
 
 def _format_plan(plan: dict, out_dir: str) -> str:
     """``batch --dry-run``: two lines per set, then what is left out."""
-    from hdrcl.io.metadata import format_time
+    from hdrcl.api.support import format_time
 
     lines = []
     for r in plan["sets"]:
@@ -395,7 +384,7 @@ def sample_shoot(folder, size, seed):
     \b
     hdrcl sample-shoot shoot/ && hdrcl batch shoot/ -o out/
     """
-    from hdrcl.shoot.sample import write_sample_shoot
+    from hdrcl.api.batch import write_sample_shoot
 
     w, h = (int(v) for v in size.lower().split("x"))  # checked by the option's type
     paths = write_sample_shoot(folder, width=w, height=h, seed=seed)

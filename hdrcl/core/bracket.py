@@ -216,3 +216,9 @@ def _grid_bracket(paths, infos, rel, rgb, reader=None, keep: bool = False) -> Br
     frames, valid = reader.read_grid(grid_stride(reader.height, reader.width), keep=keep)
     return Bracket(frames=frames, times=rel, valid=_with_ignore(frames, valid, rgb), paths=paths, infos=infos,
                    grid=True)
+
+
+# Public names for the layers above (shoot, report): the same functions.
+parse_ignore_color = _parse_ignore_color
+with_ignore = _with_ignore
+grid_bracket = _grid_bracket

@@ -101,6 +101,7 @@ TABLE: Dict[str, Option] = {o.name: o for o in (
     _O("fit_exposures", "choice", choices=("auto", "on", "off")),
     _O("dtype", "choice", choices=("auto", "half", "float")),
     _O("colorspace", "choice", choices=("rec709", "acescg")),
+    _O("align_model", "choice", choices=("auto", "shift", "similarity", "homography")),
     _O("operator", "choice", choices=OPERATORS),
     _O("channel_order", "choice", choices=("rgb", "bgr")),
     _O("bits", "int", 8, 16, what="8 or 16"),
@@ -234,7 +235,7 @@ def check(name: str, value: Any, *, frames: Optional[int] = None):
         choices = opt.choices or _choices(name)
         if not isinstance(value, str):
             raise ParameterTypeError(f"{opt.flag}: expected one of {', '.join(choices)}, not {type(value).__name__}")
-        v = value.lower() if name in ("colorspace", "channel_order") else value
+        v = value.strip().lower() if name in ("colorspace", "channel_order", "align_model") else value
         if v not in choices:
             raise UsageError(f"{opt.flag}: '{_show(value)}' is not one of {', '.join(choices)}")
         return v
@@ -253,11 +254,15 @@ def _seconds(opt: Option, value, frames):
     if isinstance(value, bool) or not isinstance(value, (str, int, float)) and type(value).__module__ != "numpy":
         raise ParameterTypeError(f"{opt.flag}: expected a time in seconds (a number or '1/30'), "
                                  f"not {type(value).__name__}")
-    from hdrcl.io.metadata import _parse_seconds
+    from hdrcl.io.metadata import parse_times
 
     try:
-        t = _parse_seconds(value) if isinstance(value, str) else float(value)
-    except (TypeError, ValueError, OverflowError):
+        if isinstance(value, str):
+            ts = parse_times(value, opt.flag)
+            t = ts[0] if len(ts) == 1 else None
+        else:
+            t = float(value)
+    except (TypeError, ValueError, OverflowError, UsageError):
         t = None
     if t is None or not math.isfinite(t) or t <= 0:
         raise UsageError(f"{opt.flag}: '{_show(value)}' is not a positive exposure time")

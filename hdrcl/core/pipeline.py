@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import concurrent.futures
 import logging
+import os
 import time
 from collections import deque
-from typing import Optional, Sequence
+from dataclasses import dataclass
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from hdrcl.cl.backend import get_processor
 from hdrcl.core import reference
 from hdrcl.core.fusion import fusion_tables
 from hdrcl.core.response import Response
@@ -24,6 +25,23 @@ logger = logging.getLogger(__name__)
 
 #: Rows per strip on the NumPy path (the OpenCL path takes its processor's strip size).
 NUMPY_STRIP_PIXELS = 1 << 18
+
+
+def fusion_processor(device: Optional[str] = None, work: Optional[int] = None):
+    """The fusion backend of a job of ``work`` pixel-samples (pixels x frames): the OpenCL
+    processor, or None for the NumPy twin.
+
+    A job under :func:`hdrcl.cl.backend.small_work` takes the NumPy path unless a device
+    was named (``device`` or ``PYOPENCL_CTX``) or ``HDRCL_REQUIRE_OPENCL`` is set; every
+    other job takes OpenCL when a device can be opened. Whether OpenCL is already open in
+    this process does not count: the answer depends on the job alone.
+    """
+    from hdrcl.cl.backend import get_processor, opencl_enabled, opencl_required, small_work
+
+    if (work is not None and opencl_enabled() and device is None and not os.environ.get("PYOPENCL_CTX")
+            and not opencl_required() and int(work) < small_work()):
+        return None
+    return get_processor("fusion", device)
 
 
 class ArraySource:
@@ -69,8 +87,8 @@ class Thumbnail:
 
 def strip_rows(width: int, device: Optional[str] = None, work: Optional[int] = None) -> int:
     """Rows per strip :func:`stream_merge` uses for frames ``width`` pixels wide (``work``:
-    the job's pixel-samples, see :func:`hdrcl.cl.backend.get_processor`)."""
-    proc = get_processor("fusion", device, work=work)
+    the job's pixel-samples, see :func:`fusion_processor`)."""
+    proc = fusion_processor(device, work)
     if proc is not None:
         return proc.strip_rows(width)
     return max(1, NUMPY_STRIP_PIXELS // max(width, 1))
@@ -97,28 +115,39 @@ def _learn_ghosts(source, order, log_t, tables, wts, ignore_color, threshold):
                     vs if any(v is not None for v in vs) else None, threshold)
 
 
-def stream_merge(
-    source,
-    times: Sequence[float],
-    response: Response,
-    sink,
-    *,
-    weight: str = "hat",
-    ignore_color=None,
-    has_valid: Optional[bool] = None,
-    device: Optional[str] = None,
-    thumbnail: Optional[Thumbnail] = None,
-    deghost: bool = False,
-    ghost_mask: Optional[np.ndarray] = None,
-    ghost_model=None,
-    ghost_reference=None,
-    ghost_threshold: Optional[float] = None,
-    exposure_check=None,
-    seconds: Optional[dict] = None,
-    work: Optional[int] = None,
-    clip_mask: Optional[np.ndarray] = None,
-):
+@dataclass
+class FusionSpec:
+    """How :func:`stream_merge` fuses: everything but the source, the exposures, the response
+    and the sink (see :func:`stream_merge` for each field).
+
+    ``processor`` is the job's backend, decided once by its caller
+    (:func:`fusion_processor`): an OpenCL fusion processor, or None for
+    the NumPy twin. Left unset (the default ``...``), it is decided here from ``device``
+    and ``work`` by the same rule.
+    """
+
+    weight: str = "hat"
+    ignore_color: Any = None
+    has_valid: Optional[bool] = None
+    device: Optional[str] = None
+    thumbnail: Optional[Thumbnail] = None
+    deghost: bool = False
+    ghost_mask: Optional[np.ndarray] = None
+    ghost_model: Any = None
+    ghost_reference: Any = None
+    ghost_threshold: Optional[float] = None
+    exposure_check: Any = None
+    seconds: Optional[dict] = None
+    work: Optional[int] = None
+    clip_mask: Optional[np.ndarray] = None
+    processor: Any = ...
+
+
+def stream_merge(source, times: Sequence[float], response: Response, sink, spec: Optional[FusionSpec] = None,
+                 **options):
     """Fuse every strip of ``source`` and hand it to ``sink.write_rows``.
+
+    ``options`` are :class:`FusionSpec`'s fields (or give ``spec``):
 
     Parameters
     ----------
@@ -152,8 +181,8 @@ def stream_merge(
         ``(H, W)`` uint8, C-contiguous: receives each pixel's clip flags (1: a channel
         clipped high in every frame, 2: clipped low; :func:`hdrcl.core.reference.fuse`).
     work : int, optional
-        The job's pixel-samples (pixels x frames): a small job takes the NumPy path
-        rather than paying for OpenCL's start-up (:func:`hdrcl.cl.backend.get_processor`).
+        The job's pixel-samples (pixels x frames): with ``processor`` unset, a small job
+        takes the NumPy path (:func:`fusion_processor`).
     seconds : dict, optional
         Receives the time spent (added to what it holds): ``fuse`` (the kernel or its
         twin), ``encode`` (the sink, on the writer thread) and, for a decoding source,
@@ -166,109 +195,141 @@ def stream_merge(
     backend : str
         ``"opencl"`` or ``"numpy"``.
     """
-    from hdrcl.io.reader import ignore_color_mask
+    spec = spec if spec is not None else FusionSpec(**options)
+    return _StripFusion(source, times, response, sink, spec).run()
 
-    order = np.argsort(np.asarray(times, np.float64), kind="stable")
-    log_t = np.log(np.asarray(times, np.float64)[order])
-    nch = source.nch
-    tables, wts = fusion_tables(response, source.dtype, nch, weight)
-    proc = get_processor("fusion", device, work=work)
-    if has_valid is None:
-        has_valid = ignore_color is not None or any(
-            v is not None for v in getattr(source, "valid", [None]))
-    plan = None
-    if proc is not None:
-        plan = proc.plan(len(order), source.width, nch, source.dtype, log_t, tables, wts, has_valid)
-        rows = plan.rows
-    else:
-        rows = strip_rows(source.width, device, work=work)
-    counts = {"clipped_high": 0, "clipped_low": 0, "no_data": 0}
-    ghosts = {"ghost": 0, "ghost_unresolved": 0}
-    if deghost:
-        from hdrcl.core import deghost as dg
 
-        ref = dg.reference_index(times, ghost_reference)
-        if ghost_model is None:
-            ghost_model = _learn_ghosts(source, order, log_t, tables, wts, ignore_color, ghost_threshold)
-    # Output strips: one being fused, one held back (deghost: its mask's growth into the
-    # next strip is not known yet), two being written or queued.
-    buffers = deque(np.empty((rows, source.width, nch), np.float32) for _ in range(4))
-    pending: deque = deque()
-    held = None  # deghost: (y0, y1, frames, valid, out) awaiting the next strip's rows
-    tail = None  # deghost: last CONTEXT rows (frames, valid, unreplaced fused) of the strip before ``held``
+class _StripFusion:
+    """One :func:`stream_merge`: the strips fused in exposure order, written by one
+    writer thread (bounded buffers), deghosted with one strip of look-ahead."""
 
-    timing = {"fuse": 0.0, "encode": 0.0}
-    decoded0 = getattr(source, "decode_seconds", 0.0)
+    def __init__(self, source, times, response, sink, spec: FusionSpec):
+        self.source, self.sink, self.spec = source, sink, spec
+        self.times = times
+        self.order = np.argsort(np.asarray(times, np.float64), kind="stable")
+        self.log_t = np.log(np.asarray(times, np.float64)[self.order])
+        self.tables, self.wts = fusion_tables(response, source.dtype, source.nch, spec.weight)
+        if spec.processor is ...:
+            self.proc = fusion_processor(spec.device, spec.work)
+        else:
+            self.proc = spec.processor
+        self.has_valid = spec.has_valid
+        if self.has_valid is None:
+            self.has_valid = spec.ignore_color is not None or any(
+                v is not None for v in getattr(source, "valid", [None]))
+        self.plan = None
+        if self.proc is not None:
+            self.plan = self.proc.plan(len(self.order), source.width, source.nch, source.dtype, self.log_t,
+                                       self.tables, self.wts, self.has_valid)
+            self.rows = self.plan.rows
+        else:
+            self.rows = max(1, NUMPY_STRIP_PIXELS // max(source.width, 1))
+        self.counts = {"clipped_high": 0, "clipped_low": 0, "no_data": 0}
+        self.ghosts = {"ghost": 0, "ghost_unresolved": 0}
+        self.timing = {"fuse": 0.0, "encode": 0.0}
+        self.pending: deque = deque()
+        self.tail = None  # deghost: last CONTEXT rows (frames, valid, unreplaced fused) of the strip before ``held``
+        if spec.deghost:
+            from hdrcl.core import deghost as dg
 
-    def write(y0, y1, out):
+            self.ref = dg.reference_index(times, spec.ghost_reference)
+            self.ghost_model = spec.ghost_model
+            if self.ghost_model is None:
+                self.ghost_model = _learn_ghosts(source, self.order, self.log_t, self.tables, self.wts,
+                                                 spec.ignore_color, spec.ghost_threshold)
+
+    def _write(self, y0, y1, out):
         t = time.perf_counter()
-        sink.write_rows(y0, y1, out)
-        timing["encode"] += time.perf_counter() - t
+        self.sink.write_rows(y0, y1, out)
+        self.timing["encode"] += time.perf_counter() - t
 
-    def emit(y0, y1, out):
-        if thumbnail is not None:
-            thumbnail.add(y0, y1, out)
-        pending.append(writer.submit(write, y0, y1, out))
+    def _emit(self, y0, y1, out):
+        if self.spec.thumbnail is not None:
+            self.spec.thumbnail.add(y0, y1, out)
+        self.pending.append(self.writer.submit(self._write, y0, y1, out))
 
-    def rows_of(frames, vv, out, sl):
+    @staticmethod
+    def _rows_of(frames, vv, out, sl):
         return ([f[sl].copy() for f in frames],
                 None if vv is None else [None if v is None else v[sl].copy() for v in vv],
                 out[sl].copy())
 
-    def finish_ghosts(item, below):
+    def _finish_ghosts(self, item, below):
+        from hdrcl.core import deghost as dg
+
         y0, y1, frames, vv, out = item
-        mask = dg.find(frames, log_t, tables, vv, out, ghost_model, above=tail, below=below)
-        new_tail = rows_of(frames, vv, out, slice(-dg.CONTEXT, None))
-        ghosts["ghost_unresolved"] += dg.replace(out, frames, log_t, tables, mask, vv, ref)
-        ghosts["ghost"] += int(np.count_nonzero(mask))
-        if ghost_mask is not None:
-            ghost_mask[y0:y1] = mask
-        emit(y0, y1, out)
+        mask = dg.find(frames, self.log_t, self.tables, vv, out, self.ghost_model, above=self.tail, below=below)
+        new_tail = self._rows_of(frames, vv, out, slice(-dg.CONTEXT, None))
+        self.ghosts["ghost_unresolved"] += dg.replace(out, frames, self.log_t, self.tables, mask, vv, self.ref)
+        self.ghosts["ghost"] += int(np.count_nonzero(mask))
+        if self.spec.ghost_mask is not None:
+            self.spec.ghost_mask[y0:y1] = mask
+        self._emit(y0, y1, out)
         return new_tail
 
-    with concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="hdrcl-write") as writer:
-        for y0, y1, frames, valid in source.strips(rows):
-            frames = [frames[i] for i in order]
-            valid = [valid[i] for i in order]
-            if ignore_color is not None:
-                valid = [(~ignore_color_mask(f, ignore_color)) if v is None else (v & ~ignore_color_mask(f, ignore_color))
+    def _fuse(self, y0, y1, frames, valid, out):
+        tf = time.perf_counter()
+        cm = None if self.spec.clip_mask is None else self.spec.clip_mask[y0:y1]
+        if self.plan is not None:
+            self.plan.fuse_strip(frames, valid if self.has_valid else None, out, clip_mask=cm)
+        else:
+            rad, c = reference.fuse(frames, self.log_t, self.tables, self.wts, valid, clip_mask=cm)
+            out[...] = rad
+            for k in self.counts:
+                self.counts[k] += c[k]
+        self.timing["fuse"] += time.perf_counter() - tf
+
+    def _strips(self):
+        """The source's strips, frames in exposure order, the ignore colour masked."""
+        from hdrcl.io.reader import ignore_color_mask
+
+        rgb = self.spec.ignore_color
+        for y0, y1, frames, valid in self.source.strips(self.rows):
+            frames = [frames[i] for i in self.order]
+            valid = [valid[i] for i in self.order]
+            if rgb is not None:
+                valid = [(~ignore_color_mask(f, rgb)) if v is None else (v & ~ignore_color_mask(f, rgb))
                          for f, v in zip(frames, valid)]
-            if exposure_check is not None:
-                exposure_check.add(frames, valid if has_valid else None)
-            while len(pending) >= len(buffers) - 2:
-                pending.popleft().result()  # bounded memory; also re-raises write errors
-            buf = buffers[0]
-            buffers.rotate(-1)
-            out = buf[: y1 - y0]
-            tf = time.perf_counter()
-            cm = None if clip_mask is None else clip_mask[y0:y1]
-            if plan is not None:
-                plan.fuse_strip(frames, valid if has_valid else None, out, clip_mask=cm)
-            else:
-                rad, c = reference.fuse(frames, log_t, tables, wts, valid, clip_mask=cm)
-                out[...] = rad
-                for k in counts:
-                    counts[k] += c[k]
-            timing["fuse"] += time.perf_counter() - tf
-            if deghost:
-                vv = valid if has_valid else None
-                if held is not None:
-                    tail = finish_ghosts(held, rows_of(frames, vv, out, slice(0, dg.CONTEXT)))
-                held = (y0, y1, frames, vv, out)
-            else:
-                emit(y0, y1, out)
-        if held is not None:
-            finish_ghosts(held, None)
-        for fut in pending:
-            fut.result()
-    if plan is not None:
-        counts = plan.result_counts()
-    if seconds is not None:
-        for k, v in timing.items():
-            seconds[k] = seconds.get(k, 0.0) + v
-        decoded = getattr(source, "decode_seconds", 0.0) - decoded0
-        if decoded:
-            seconds["decode"] = seconds.get("decode", 0.0) + decoded
-    if deghost:
-        counts.update(ghosts)
-    return counts, ("opencl" if plan is not None else "numpy")
+            if self.spec.exposure_check is not None:
+                self.spec.exposure_check.add(frames, valid if self.has_valid else None)
+            yield y0, y1, frames, valid
+
+    def run(self):
+        from hdrcl.core import deghost as dg
+
+        source, spec = self.source, self.spec
+        # Output strips: one being fused, one held back (deghost: its mask's growth into the
+        # next strip is not known yet), two being written or queued.
+        buffers = deque(np.empty((self.rows, source.width, source.nch), np.float32) for _ in range(4))
+        held = None  # deghost: (y0, y1, frames, valid, out) awaiting the next strip's rows
+        decoded0 = getattr(source, "decode_seconds", 0.0)
+        with concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="hdrcl-write") as writer:
+            self.writer = writer
+            for y0, y1, frames, valid in self._strips():
+                while len(self.pending) >= len(buffers) - 2:
+                    self.pending.popleft().result()  # bounded memory; also re-raises write errors
+                buf = buffers[0]
+                buffers.rotate(-1)
+                out = buf[: y1 - y0]
+                self._fuse(y0, y1, frames, valid, out)
+                if spec.deghost:
+                    vv = valid if self.has_valid else None
+                    if held is not None:
+                        self.tail = self._finish_ghosts(held, self._rows_of(frames, vv, out, slice(0, dg.CONTEXT)))
+                    held = (y0, y1, frames, vv, out)
+                else:
+                    self._emit(y0, y1, out)
+            if held is not None:
+                self._finish_ghosts(held, None)
+            for fut in self.pending:
+                fut.result()
+        counts = self.plan.result_counts() if self.plan is not None else self.counts
+        if spec.seconds is not None:
+            for k, v in self.timing.items():
+                spec.seconds[k] = spec.seconds.get(k, 0.0) + v
+            decoded = getattr(source, "decode_seconds", 0.0) - decoded0
+            if decoded:
+                spec.seconds["decode"] = spec.seconds.get("decode", 0.0) + decoded
+        if spec.deghost:
+            counts.update(self.ghosts)
+        return counts, ("opencl" if self.plan is not None else "numpy")

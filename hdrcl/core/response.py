@@ -340,7 +340,7 @@ class Response:
         return cls.from_dict(read_json(path, "response file"), source=path)
 
 
-def _as_response(response) -> Optional[Response]:
+def as_response(response) -> Optional[Response]:
     if response is None or isinstance(response, Response):
         return response
     return Response.load(response)
@@ -365,3 +365,6 @@ def linear_response(nchannels: int = 3):
     return Response(bits=16, g=np.repeat(g[None, :], nchannels, axis=0), knots=knots,
                     channels=("R", "G", "B") if nchannels == 3 else ("Y",), smoothness=0.0,
                     weight="hat", samples=0, seed=0, camera={}, exposures=[], warnings=[])
+
+
+_as_response = as_response  # the earlier private name (core modules still use it)

@@ -9,13 +9,17 @@ from hdrcl.core.bracket import _with_ignore
 from hdrcl.errors import UsageError
 
 
-def _radiometric_factors(paths, infos, source, rel, resp, weight, rgb, device, nch, neutral, reference_patch,
-                         absolute, h, w, exposure_reference=None):
+def radiometric_factors(paths, infos, source, rel, resp, options, nch, h, w, exposure_reference=None):
     """Per-channel factors (or None) and metadata for white balance and absolute scale.
 
+    ``options`` is a :class:`hdrcl.core.options.MergeOptions` (``neutral``,
+    ``reference_patch``, ``absolute``, ``weight``, ``ignore_color``, ``device``);
     ``exposure_reference`` is the ``(f-number, ISO)`` that the exposures ``rel`` are
     relative to when that is not the first frame's (a batch: the shoot's reference);
     the absolute scale must use the same."""
+    o = options
+    weight, rgb, device = o.weight, o.ignore_color, o.device
+    neutral, reference_patch, absolute = o.neutral, o.reference_patch, o.absolute
     from hdrcl.core import radiometry as rm
 
     if reference_patch is not None and absolute:

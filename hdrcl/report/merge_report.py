@@ -11,10 +11,10 @@ import numpy as np
 
 from hdrcl.core.bracket import (
     Bracket,
-    _parse_ignore_color,
-    _with_ignore,
     memory_budget,
+    parse_ignore_color,
     read_infos,
+    with_ignore,
 )
 from hdrcl.core.merge import MergeResult
 from hdrcl.core.weights import DEFAULT_WEIGHT
@@ -46,7 +46,7 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
     os.makedirs(folder, exist_ok=True)
     paths = result.paths
     infos = read_infos(paths)
-    rgb = _parse_ignore_color(ignore_color)
+    rgb = parse_ignore_color(ignore_color)
     h, w, c = result.shape
     kept = getattr(result, "kept", None)
     if kept is not None:  # the merge's own decode (merge_files(keep_frames=True)): none again
@@ -58,7 +58,7 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
                 frames, valid = reader.read_all()
             else:
                 frames, valid = reader.read_grid(grid_stride(h, w))
-    valid = _with_ignore(frames, valid, rgb)
+    valid = with_ignore(frames, valid, rgb)
     if getattr(result, "alignment", None) and kept is None:  # what was merged: the warped (and cropped) frames
         from hdrcl.core.handheld import apply_alignment
 

@@ -113,6 +113,24 @@ class BatchOptions:
     align_model: str = "auto"
     output_format: str = "exr"
     luminance: Optional[dict] = None
+    exposure_tolerance: Optional[float] = None
+
+    def __post_init__(self):
+        self.merge  # noqa: B018 -- every merge option checked once, here (hdrcl.core.options)
+
+    @functools.cached_property
+    def merge(self):
+        """The :class:`hdrcl.core.options.MergeOptions` every set is merged with (the
+        batch-only fields, preview, report, format, luminance, stay here)."""
+        from hdrcl.core.options import MergeOptions
+
+        return MergeOptions(weight=self.weight, ignore_color=self.ignore_color, samples=self.samples,
+                            smoothness=self.smoothness, seed=self.seed, fit_exposures=self.fit_exposures,
+                            exposure_tolerance=self.exposure_tolerance, deghost=self.deghost,
+                            neutral=self.neutral, align=self.align, align_model=self.align_model or "auto",
+                            crop=bool(self.crop), dtype=self.dtype, compression=self.compression,
+                            colorspace=self.colorspace, reference_exposure=self.reference_exposure,
+                            device=self.device)
 
     def luminance_chain(self):
         """A fresh :class:`hdrcl.core.fisheye.LuminanceChain` for one set (it holds that
@@ -134,7 +152,8 @@ class BatchOptions:
         for key, value, default in (("align", self.align, False), ("crop", self.crop, False),
                                     ("neutral", self.neutral, None), ("fit_exposures", self.fit_exposures, "auto"),
                                     ("reference_exposure", self.reference_exposure, None),
-                                    ("align_model", self.align_model if self.align else "auto", "auto")):
+                                    ("align_model", self.align_model if self.align else "auto", "auto"),
+                                    ("exposure_tolerance", self.exposure_tolerance, None)):
             if value != default:
                 out[key] = value
         if self.luminance:  # the calibration files' numbers, not their names

@@ -84,9 +84,9 @@ def _open_set(job: SetJob) -> _Opened:
 
 def _calibration_grid(job: SetJob, opened: _Opened, ignore_color):
     """The decimated grid of a set that sample selection works on (one streaming read)."""
-    from hdrcl.core.bracket import _grid_bracket
+    from hdrcl.core.bracket import grid_bracket
 
-    return _grid_bracket(list(job.files), opened.infos, opened.times, ignore_color)
+    return grid_bracket(list(job.files), opened.infos, opened.times, ignore_color)
 
 
 # -------------------------------------------------------------------- responses

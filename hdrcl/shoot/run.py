@@ -245,9 +245,8 @@ def run_batch(
         raise UsageError(f"--dtype: '{options.dtype}' is not one of auto, half, float")
     if options.preview_size < 16:
         raise UsageError("--preview-size must be at least 16 pixels")
-    from hdrcl.io.writers import _exr_compression  # validates the name before any work
-
-    _exr_compression(options.compression)
+    for line in options.merge.ignored():
+        logger.warning("%s", line)
     # With handle_signals, SIGTERM / Ctrl-C raise Cancelled in the main thread from here on.
     with cancel_signals(install=handle_signals):
         ranges = parse_sets(sets) if isinstance(sets, str) else (list(sets) if sets is not None else None)

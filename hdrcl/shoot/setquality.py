@@ -17,10 +17,8 @@ from hdrcl.shoot.jobs import (
     BatchOptions,
     SetJob,
     SetResult,
-    _Context,
 )
 from hdrcl.shoot.plan import _Plan
-from hdrcl.shoot.pooling import _open_set, _response_of
 from hdrcl.shoot.state import DIGEST_KEY, _atomic_json
 
 logger = logging.getLogger(__name__)
@@ -72,10 +70,10 @@ class _KeptFrames:
             yield y0, y1, frames, valid
 
     def bracket(self, files, infos, times, ignore_color):
-        from hdrcl.core.bracket import Bracket, _with_ignore
+        from hdrcl.core.bracket import Bracket, with_ignore
 
         return Bracket(frames=self.kept, times=np.asarray(times, np.float64),
-                       valid=_with_ignore(self.kept, self.kept_valid, ignore_color), paths=list(files),
+                       valid=with_ignore(self.kept, self.kept_valid, ignore_color), paths=list(files),
                        infos=list(infos), grid=self.stride > 1)
 
 
@@ -126,46 +124,6 @@ def _current_quality(folder: str, job: SetJob, digest: Optional[str]) -> Optiona
             isinstance(f, str) and os.path.isfile(os.path.join(folder, f)) for f in files.values()):
         return None
     return d["figures"]
-
-
-def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context, radiance=None) -> None:
-    """The report of a skipped set that has none (or a stale one): the frames are read
-    again (whole or the sampling grid) and the radiance from its EXR (``radiance``, when
-    the caller read it already)."""
-    from hdrcl.core.bracket import Bracket, _with_ignore
-    from hdrcl.io.radiance import read_radiance
-    from hdrcl.io.reader import BracketReader
-    from hdrcl.report.preview import downscale
-
-    from hdrcl.shoot.setopts import fitted_times
-
-    opts = ctx.options
-    try:
-        opened = _open_set(job)
-        entry = ctx.responses[job.group]
-        first = opened.infos[0]
-        h, w = first.height, first.width
-        with BracketReader(job.files, opened.infos) as reader:
-            stride = _quality_stride(len(job.files), h, w, reader.nch, reader.dtype)
-            frames, valid = reader.read_all() if stride == 1 else reader.read_grid(stride)
-        bracket = Bracket(frames=frames, times=opened.times, valid=_with_ignore(frames, valid, opts.ignore_color),
-                          paths=list(job.files), infos=opened.infos, grid=stride > 1)
-        if entry.deferred:  # its camera's only set, skipped: its response file was lost
-            from hdrcl.shoot.pooling import solve_deferred
-
-            resp = solve_deferred(entry, job, opened.infos, (bracket.frames, bracket.times, bracket.valid_all), opts)
-        else:
-            resp = _response_of(entry)
-        # the exposures the merge used (measured through the curve where the labels are wrong)
-        times, _notes = fitted_times(job, opened, opts, grid=bracket, resp=resp)
-        rad = radiance if radiance is not None else read_radiance(job.output)[0]
-        small = downscale(rad, opts.preview_size if job.preview is not None else REPORT_IMAGE_SIZE)
-        del rad
-    except Exception as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        res.warnings.append(f"quality report not written: {first}")
-        return
-    _quality_for(res, job, bracket, resp, times, small, opts)
 
 
 def _contact_sheet(plan: "_Plan", entries: List[dict], folder: str, unmerged: Optional[List[dict]] = None) -> str:

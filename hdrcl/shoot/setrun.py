@@ -10,6 +10,9 @@ import time as _time
 from dataclasses import dataclass, field
 from typing import Dict, Iterator, List, Optional
 
+import numpy as np
+
+from hdrcl.core.engine import Extras, GivenResponse, Inputs, MergeJob, ResponseSource
 from hdrcl.errors import HdrclError
 from hdrcl.shoot.jobs import (
     _FUSE_LOCK,
@@ -29,7 +32,6 @@ from hdrcl.shoot.setquality import (
     _KeptFrames,
     _quality_for,
     _quality_stride,
-    _rebuild_quality,
 )
 from hdrcl.shoot.state import (
     DIGEST_KEY,
@@ -170,17 +172,6 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
         return _failed(job, exc, seconds, digest)
 
 
-class _Tee:
-    """Hands every strip to several sinks (the EXR writer, the preview)."""
-
-    def __init__(self, *sinks):
-        self.sinks = [s for s in sinks if s is not None]
-
-    def write_rows(self, y0, y1, data):
-        for s in self.sinks:
-            s.write_rows(y0, y1, data)
-
-
 def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResult:
     """Claim the set, then merge it unless another process just did.
 
@@ -213,147 +204,186 @@ def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResu
 def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetResult:
     """Decode, fuse and write the set strip by strip; preview; commit the EXR.
 
-    Memory stays bounded by the strip height whatever the image size: decoding the
-    next strip, fusing the current one on the device and encoding the previous one
-    overlap (:func:`hdrcl.core.pipeline.stream_merge`). With ``--align`` the frames are
-    held in memory; ``--fit-exposures`` and ``--neutral`` are applied as ``merge`` does
-    (:mod:`hdrcl.shoot.setopts`).
+    The merge engine (:class:`hdrcl.core.engine.MergeJob`) does it, as for ``hdrcl merge``:
+    :class:`SetMerge` only adds the batch's response source (pooled, cached, given or
+    solved by this set alone), its digest and exposure reference in the metadata, the
+    preview and the frames kept for the quality report.
     """
-    from hdrcl.cl.backend import get_processor
-    from hdrcl.core.encode import fuse_to_file, radiance_opener, reference_for
-    from hdrcl.core.merge import MergeResult, _provenance
-    from hdrcl.core.pipeline import stream_merge
-    from hdrcl.io.reader import BracketReader
-    from hdrcl.io.outmeta import camera_from_infos
-    from hdrcl.io.writers import write_ldr
-    from hdrcl.core.radiometry import ScaledSink
-    from hdrcl.report.preview import AreaAverage, encode
-    from hdrcl.shoot.setopts import aligned_grid, aligned_source, fitted_times, white_balance
-
-    job, opened, opts = step.job, step.opened, ctx.options
+    job, opts = step.job, ctx.options
     seconds = step.seconds
     try:
-        entry = ctx.responses[job.group]
-        first = opened.infos[0]
-        h, w = first.height, first.width
+        merge = SetMerge(step, ctx)
         t0 = _time.perf_counter()
-        with _FUSE_LOCK, BracketReader(job.files, opened.infos) as reader:
-            nch = reader.nch
-            grid = None
-            source, shifts, alignment = reader, None, None
-            if opts.align:  # warped first: the solve and the exposure fit read the aligned frames
-                source, shifts, _box, alignment = aligned_source(job, opened, opts, opened.times)
-                h, w = source.height, source.width
-                if entry.deferred or opts.fit_exposures != "off":
-                    grid = aligned_grid(job, opened, source)
-            elif entry.deferred or opts.fit_exposures != "off":
-                # One streaming pass decodes every frame once: its sampling grid serves the
-                # response solve and the exposure fit, its decoded codes the fusion.
-                from hdrcl.core.bracket import _grid_bracket
-
-                grid = _grid_bracket(list(job.files), opened.infos, opened.times, opts.ignore_color,
-                                     reader=reader, keep=True)
-                seconds["decode"] = reader.decode_seconds
-            if entry.deferred:
-                from hdrcl.shoot.pooling import solve_deferred
-
-                ts = _time.perf_counter()
-                resp = solve_deferred(entry, job, opened.infos, (grid.frames, grid.times, grid.valid_all), opts)
-                seconds["solve"] = _time.perf_counter() - ts
-            else:
-                resp = _response_of(entry)
-            times, fit_notes = fitted_times(job, opened, opts, grid=grid, resp=resp)
-            chain = opts.luminance_chain()  # a fisheye luminance map: this set's own accumulator
-            if chain is not None:
-                chain.bind(h, w, nch)  # the lens circle inside the (aligned, cropped) image
-            factors, units = white_balance(job, opened, source, times, resp, opts, nch, h, w)
-            work = h * w * len(job.files)  # a small set skips OpenCL's start-up
-            backend = "numpy" if get_processor("fusion", opts.device, work=work) is None else "opencl"
-            about = MergeResult(radiance=None, response=resp, counts={}, times=times, paths=list(job.files),
-                                backend=backend, shape=(h, w, nch))
-            meta = _provenance(about, os.path.basename(entry.file) if entry.file else entry.group)
-            meta.update(units)
-            meta.update({DIGEST_KEY: step.digest, "evOffset": round(opened.ev_offset, 6),
-                         "exposureRef": _reference_text(job.reference)})
-            if shifts is not None:
-                from hdrcl.core.handheld import alignment_meta
-
-                meta.update(alignment_meta(shifts, alignment))
-            small = AreaAverage(h, w, nch, opts.preview_size) if job.preview is not None else None
-            # The quality report keeps the frames (or their sampling grid) as they stream
-            # past, and a reduced radiance map: the preview's, or its own without one.
-            kept = _KeptFrames(reader, _quality_stride(len(job.files), h, w, nch, reader.dtype)) \
-                if opts.report_dir and source is reader else None
-            thumb = small if small is not None or not opts.report_dir else AreaAverage(h, w, nch, REPORT_IMAGE_SIZE)
-            t_ref = reference_for(job.output, times, job.exposure_ref, units.get("units", "relative"))
-            if units.get("units", "relative") == "relative":
-                meta["referenceExposure"] = t_ref
-            camera = camera_from_infos(opened.infos, reference=job.reference, units=units.get("units", "relative"),
-                                       exposure_time=t_ref)
-            has_valid = (opts.ignore_color is not None or any(i.nchannels in (2, 4) for i in opened.infos)
-                         or source is not reader)
-
-            open_writer = radiance_opener(job.output, w, h, nch, meta, camera, compression=opts.compression,
-                                          timestamp=opened.stamp, colorspace=opts.colorspace)
-
-            def run(file_sink, first_pass):
-                sink = _Tee(file_sink, thumb) if first_pass else file_sink
-                if factors is not None:
-                    sink = ScaledSink(sink, factors)
-                src = source if kept is None or not first_pass else kept
-                if not first_pass and hasattr(src, "rewind"):
-                    src.rewind()
-                counts, _ = stream_merge(src, times, resp, sink, weight=opts.weight, ignore_color=opts.ignore_color,
-                                         has_valid=has_valid, device=opts.device, deghost=opts.deghost,
-                                         seconds=seconds, work=work)
-                return counts
-
-            # Half floats whenever the merged values fit (measured as they stream), else
-            # fused again into float or rescaled half (hdrcl.core.encode).
-            writer, counts, stored = fuse_to_file(open_writer, run, output=job.output, dtype=opts.dtype,
-                                                  reference=t_ref, keep_units=units.get("units", "relative") != "relative",
-                                                  chain=chain)
-            try:
-                t1 = _time.perf_counter()
-                # Preview first: the EXR, moved into place last, marks the set complete.
-                if small is not None:
-                    write_ldr(job.preview, encode(small.result(), opts.tonemap),
-                              metadata=_preview_metadata(step.digest, opts, counts))
-                t2 = _time.perf_counter()
-                warnings = writer.close()
-            except BaseException:
-                writer.abort()
-                raise
-            if stored.note:
-                about.storage_note = stored.note
-        seconds.update({"merge": t1 - t0, "preview": t2 - t1, "write": _time.perf_counter() - t2})
-        notes = list(step.notes) + list(opened.notes) + fit_notes + list(resp.warnings) + list(warnings)
-        if opts.report_dir and kept is None:
-            notes.append("quality report not measured: aligned sets are not measured in a batch")
-        if counts.get("no_data"):
-            notes.append(f"{counts['no_data']} pixel-channels are invalid in every frame and were set to 0")
-        keys = ("clipped_high", "clipped_low", "no_data") + (("ghost", "ghost_unresolved") if opts.deghost else ())
-        res = SetResult(index=job.index, files=list(job.files), status=STATUS_DONE, output=job.output,
-                        preview=job.preview, warnings=notes, seconds=seconds,
-                        counts={k: int(counts.get(k, 0)) for k in keys},
-                        ev_offset=round(opened.ev_offset, 6), digest=step.digest, response=job.group,
-                        storage=about.storage_note)
-        if alignment is not None:
-            res.alignment = alignment  # per frame: hdrcl.core.handheld.describe
-        if chain is not None and chain.vertical_illuminance is not None:
-            res.vertical_illuminance = chain.vertical_illuminance
-        if kept is not None:
+        with _FUSE_LOCK:
+            res = merge.run()
+        seconds["merge"] = _time.perf_counter() - t0 - merge.seconds.get("preview", 0.0) \
+            - merge.seconds.get("write", 0.0)
+        for k, v in merge.seconds.items():
+            if k not in ("open", "calibrate"):
+                seconds[k] = seconds.get(k, 0.0) + v
+        out = merge.set_result(res)
+        if opts.report_dir:
             # After the EXR is committed: the report never holds back or spoils an output.
             t3 = _time.perf_counter()
-            bracket = kept.bracket(job.files, opened.infos, opened.times, opts.ignore_color)
-            del kept
-            _quality_for(res, job, bracket, resp, times, thumb.result(), opts)
+            _quality_for(out, job, merge.quality_bracket(), res.response, res.times, merge.reduced.result(), opts)
             seconds["quality"] = _time.perf_counter() - t3
-        return res
+        return out
     except Exception as exc:
         if strict and not isinstance(exc, HdrclError):
             raise
         return _failed(job, exc, seconds, step.digest)
+
+
+class DeferredResponse(ResponseSource):
+    """The response of a camera with one set in the manifest: solved by that set's merge
+    from the sampling grid of the decode that feeds its fusion, and saved
+    (:func:`hdrcl.shoot.pooling.solve_deferred`); the exposures are then measured through it."""
+
+    own = False
+    raw_linear = False
+
+    def __init__(self, entry, job: SetJob, infos, options):
+        self.entry, self.job, self.infos, self.opts = entry, job, infos, options
+        self.name = os.path.basename(entry.file) if entry.file else entry.group
+
+    def solve(self, merge, grid):
+        from hdrcl.shoot.pooling import solve_deferred
+
+        return solve_deferred(self.entry, self.job, self.infos, (grid.frames, grid.times, grid.valid_all), self.opts)
+
+
+def response_source_of(entry, job: SetJob, infos, options) -> ResponseSource:
+    """The set's response source: deferred (its camera's only set), else the group's curve."""
+    if entry.deferred:
+        return DeferredResponse(entry, job, infos, options)
+    return GivenResponse(_response_of(entry), os.path.basename(entry.file) if entry.file else entry.group)
+
+
+class SetMerge(MergeJob):
+    """One set of a batch on the merge engine: the shoot's exposure reference, the set's
+    digest in the metadata, the preview written before the EXR commits it, and the frames
+    the quality report reads (kept as they stream past, or the aligned frames)."""
+
+    def __init__(self, step: _Opening, ctx: _Context):
+        job, opened, opts = step.job, step.opened, ctx.options
+        self.step, self.opts = step, opts
+        entry = ctx.responses[job.group]
+        inputs = Inputs(list(job.files), opened.infos, np.asarray(opened.times, np.float64), reference=job.reference,
+                        reference_exposure=job.exposure_ref, timestamp=opened.stamp)
+        super().__init__(inputs, opts.merge, response_source_of(entry, job, opened.infos, opts), job.output,
+                         Extras(chain=opts.luminance_chain()))
+        self.kept = None
+
+    def fuse(self) -> None:
+        from hdrcl.report.preview import AreaAverage
+
+        h, w, nch = self.h, self.w, self.nch
+        # The preview's reduced map; the quality report's own without a preview.
+        self.small = AreaAverage(h, w, nch, self.opts.preview_size) if self.step.job.preview is not None else None
+        self.reduced = self.small if self.small is not None or not self.opts.report_dir else \
+            AreaAverage(h, w, nch, REPORT_IMAGE_SIZE)
+        self.extras.sinks = [self.reduced]
+        super().fuse()
+
+    def metadata(self) -> dict:
+        from hdrcl.core.merge import provenance
+
+        step = self.step
+        meta = provenance(self.result, self.source_name)
+        if self.factors is not None:
+            meta.update(self.units)
+        meta.update({DIGEST_KEY: step.digest, "evOffset": round(step.opened.ev_offset, 6),
+                     "exposureRef": _reference_text(step.job.reference)})
+        meta.update(self.alignment_meta())
+        if self.unit == "relative":
+            meta["referenceExposure"] = self.t_ref
+        return meta
+
+    def tap(self, source):
+        if self.opts.report_dir and not hasattr(source, "frames"):
+            # The quality report keeps the frames (or their sampling grid) as they stream past.
+            self.kept = _KeptFrames(source, _quality_stride(len(self.inputs.paths), self.h, self.w, self.nch,
+                                                            source.dtype))
+            return self.kept
+        return source
+
+    def before_commit(self, counts: dict) -> None:
+        # Preview first: the EXR, moved into place last, marks the set complete.
+        if self.small is not None:
+            from hdrcl.io.writers import write_ldr
+            from hdrcl.report.preview import encode
+
+            with self.timed("preview"):
+                write_ldr(self.step.job.preview, encode(self.small.result(), self.opts.tonemap),
+                          metadata=_preview_metadata(self.step.digest, self.opts, counts))
+
+    def quality_bracket(self):
+        """The frames the fusion saw, for the quality report: kept as they streamed, or
+        the aligned (and cropped) frames themselves."""
+        from hdrcl.core.bracket import Bracket
+
+        job, opened = self.step.job, self.step.opened
+        if self.kept is not None:
+            return self.kept.bracket(job.files, opened.infos, opened.times, self.opts.ignore_color)
+        return Bracket(frames=list(self.source.frames), times=np.asarray(opened.times, np.float64),
+                       valid=list(self.source.valid), paths=list(job.files), infos=list(opened.infos))
+
+    def set_result(self, res) -> SetResult:
+        """The batch's record of the merged set."""
+        step, opts = self.step, self.opts
+        job, counts = step.job, res.counts
+        notes = (list(step.notes) + list(step.opened.notes) + self.notes + list(res.response.warnings)
+                 + self.check_notes + self.write_warnings)
+        if counts.get("no_data"):
+            notes.append(f"{counts['no_data']} pixel-channels are invalid in every frame and were set to 0")
+        keys = ("clipped_high", "clipped_low", "no_data") + (("ghost", "ghost_unresolved") if opts.deghost else ())
+        out = SetResult(index=job.index, files=list(job.files), status=STATUS_DONE, output=job.output,
+                        preview=job.preview, warnings=notes, seconds=step.seconds,
+                        counts={k: int(counts.get(k, 0)) for k in keys},
+                        ev_offset=round(step.opened.ev_offset, 6), digest=step.digest, response=job.group,
+                        storage=res.storage_note)
+        if res.alignment is not None:
+            out.alignment = res.alignment  # per frame: hdrcl.core.handheld.describe
+        if res.vertical_illuminance is not None:
+            out.vertical_illuminance = res.vertical_illuminance
+        return out
+
+
+def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context, radiance=None) -> None:
+    """The report of a skipped set that has none (or a stale one): the set is prepared by
+    the merge engine as its merge was (aligned frames, the exposures it measured), the
+    frames read (whole or the sampling grid) and the radiance from its EXR
+    (``radiance``, when the caller read it already)."""
+    from hdrcl.core.bracket import Bracket, with_ignore
+    from hdrcl.io.radiance import read_radiance
+    from hdrcl.report.preview import downscale
+
+    opts = ctx.options
+    try:
+        merge = SetMerge(_Opening(job, res.digest, _open_set(job), {}), ctx)
+        try:
+            merge.prepare()
+            src = merge.source
+            if hasattr(src, "frames"):  # aligned: the frames as merged
+                frames, valid, stride = list(src.frames), list(src.valid), 1
+            else:
+                stride = _quality_stride(len(job.files), merge.h, merge.w, src.nch, src.dtype)
+                if stride > 1:
+                    src.rewind()
+                frames, valid = src.read_all() if stride == 1 else src.read_grid(stride)
+                valid = with_ignore(frames, valid, opts.ignore_color)
+        finally:
+            merge.close()
+        bracket = Bracket(frames=frames, times=merge.inputs.times, valid=valid, paths=list(job.files),
+                          infos=merge.inputs.infos, grid=stride > 1)
+        rad = radiance if radiance is not None else read_radiance(job.output)[0]
+        small = downscale(rad, opts.preview_size if job.preview is not None else REPORT_IMAGE_SIZE)
+        del rad
+    except Exception as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        res.warnings.append(f"quality report not written: {first}")
+        return
+    _quality_for(res, job, bracket, merge.response, merge.times, small, opts)
 
 
 def _float_or_none(v) -> Optional[float]:

@@ -1,4 +1,4 @@
-"""The operations of hdrcl for scripts and pipelines, on arrays and on files.
+"""The operations of hdrcl on one bracket, on arrays and on files (:mod:`hdrcl.api`).
 
 This is the public facade: it re-exports the library's entry points from the layers
 below (:mod:`hdrcl.core`, :mod:`hdrcl.report`) and holds no engine of its own. The
@@ -33,14 +33,14 @@ from hdrcl.core import merge as _merge
 from hdrcl.core.bracket import Bracket, PathOrArray, memory_budget, read_infos
 from hdrcl.core.calibrate import exposures_used
 from hdrcl.core.merge import MergeResult
-from hdrcl.core.response import Response, _as_response
+from hdrcl.core.options import MergeOptions
+from hdrcl.core.response import Response, as_response
 from hdrcl.errors import HdrclError, UsageError, auto_install_warnings_bridge
-from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.report.merge_report import write_quality_report
 from hdrcl.report.tonemap import tonemap, tonemap_file
 
 __all__ = [
-    "Bracket", "MergeResult", "Response", "calibrate", "expose", "expose_file", "exposures_used",
+    "Bracket", "MergeOptions", "MergeResult", "Response", "calibrate", "expose", "expose_file", "exposures_used",
     "load_bracket", "memory_budget", "merge", "merge_bracket", "merge_files", "read_infos",
     "tonemap", "tonemap_file", "write_quality_report",
 ]
@@ -96,7 +96,7 @@ def expose(radiance: np.ndarray, response: Union[Response, str, os.PathLike], ti
         from hdrcl.errors import ParameterTypeError
 
         raise ParameterTypeError(f"radiance: expected a NumPy array, not {type(radiance).__name__}")
-    resp = _as_response(response)
+    resp = as_response(response)
     if radiance.ndim == 3:
         name = os.fspath(response) if isinstance(response, (str, os.PathLike)) else "response"
         if resp.nchannels not in (1, radiance.shape[2]):
@@ -117,7 +117,7 @@ def expose_file(radiance_path, output, response, time, *, bits: Optional[int] = 
 
     o = check_options(time=time, bits=bits, motion_blur=motion_blur, device=device)
     radiance_path, output = (os.fsdecode(os.fspath(p)) for p in (radiance_path, output))
-    resp = _as_response(response)
+    resp = as_response(response)
     source = os.fspath(response) if isinstance(response, (str, os.PathLike)) else "response"
     check_expose(radiance_path, resp, motion_blur=o["motion_blur"], source=source)
     return _exposure.expose_file(radiance_path, output, resp, o["time"], bits=bits, device=device,
@@ -125,35 +125,19 @@ def expose_file(radiance_path, output, response, time, *, bits: Optional[int] = 
 
 
 @_public
-def merge(
-    images: Sequence[PathOrArray],
-    times: Optional[Sequence[float]] = None,
-    response: Union[Response, str, os.PathLike, None] = None,
-    *,
-    times_file=None,
-    weight: str = DEFAULT_WEIGHT,
-    ignore_color=None,
-    samples: Optional[int] = None,
-    smoothness: Optional[float] = None,
-    seed: int = 0,
-    device: Optional[str] = None,
-    fit_exposures: str = "auto",
-    exposure_tolerance: Optional[float] = None,
-    deghost: bool = False,
-    align: bool = False,
-    crop: bool = False,
-    neutral=None,
-    reference_patch=None,
-    absolute: bool = False,
-    channel_order: str = "rgb",
-    align_model: str = "auto",
-) -> np.ndarray:
+def merge(images: Sequence[PathOrArray], times: Optional[Sequence[float]] = None,
+          response: Union[Response, str, os.PathLike, None] = None, *, times_file=None, channel_order: str = "rgb",
+          options: Optional[MergeOptions] = None, **kwargs) -> np.ndarray:
     """Merge a bracket into a float32 radiance map ``(H, W, C)``.
 
     ``response`` may be a :class:`Response`, a path to a response JSON file, or None to
     calibrate from the set itself. Radiance is relative: a pixel that reads ``Zmid``
     in a 1 s exposure (at the first frame's aperture and ISO) has radiance about 1.
-    The options are those of :func:`merge_files` (and ``hdrcl merge``):
+    The options are those of :func:`merge_files` (and ``hdrcl merge``): a
+    :class:`MergeOptions` or its fields as keywords (``weight``, ``ignore_color``,
+    ``samples``, ``smoothness``, ``seed``, ``device``, ``fit_exposures``,
+    ``exposure_tolerance``, ``deghost``, ``align``, ``align_model``, ``crop``, ``neutral``,
+    ``reference_patch``, ``absolute``):
 
     Parameters
     ----------
@@ -180,49 +164,40 @@ def merge(
     from types import SimpleNamespace
 
     from hdrcl.core.params import check_image_size, check_images, check_options, to_rgb
-    from hdrcl.core.scale import _radiometric_factors
+    from hdrcl.core.scale import radiometric_factors
 
     images = check_images(images)
-    o = check_options(frames=len(images), weight=weight, ignore_color=ignore_color, samples=samples,
-                      smoothness=smoothness, seed=seed, fit_exposures=fit_exposures,
-                      exposure_tolerance=exposure_tolerance, deghost=deghost, align=align, crop=crop,
-                      neutral=neutral, reference_patch=reference_patch, absolute=absolute,
-                      channel_order=channel_order, device=device)
-    if align:
-        from hdrcl.core.handheld import check_model
-
-        align_model = check_model(align_model)
+    o = options.replace(**kwargs) if options is not None else MergeOptions(**kwargs)
+    check_options(frames=len(images), ghost_reference=o.ghost_reference, channel_order=channel_order)
     arrays = bool(images) and all(isinstance(im, np.ndarray) for im in images)
-    if absolute and arrays:
+    if o.absolute and arrays:
         raise UsageError("absolute needs the frames' f-number and ISO: give image files, not arrays")
-    if neutral is not None or reference_patch is not None:
+    if o.neutral is not None or o.reference_patch is not None:
         if arrays:
             size = images[0].shape[1], images[0].shape[0]
         else:
             first = read_infos(images[:2])[0]
             size = first.width, first.height
-        check_image_size(*size, neutral=neutral, reference_patch=reference_patch)
-    if isinstance(neutral, (tuple, list)):
-        neutral = ",".join(str(int(v)) for v in o["neutral"])
-    br = _bracket.load_bracket(images, times, times_file=times_file, ignore_color=ignore_color,
+        check_image_size(*size, neutral=o.neutral, reference_patch=o.reference_patch)
+    br = _bracket.load_bracket(images, times, times_file=times_file, ignore_color=o.ignore_color,
                                channel_order=channel_order)
-    resp = _as_response(response)
+    resp = as_response(response)
     if resp is not None and br.frames and resp.bits != 8 * br.frames[0].dtype.itemsize:
         name = os.fspath(response) if isinstance(response, (str, os.PathLike)) else "response"
         raise UsageError(f"{name}: a response for {resp.bits}-bit frames, but the frames are "
                          f"{8 * br.frames[0].dtype.itemsize}-bit")
-    if align:
-        frames, valid, _shifts, _box = _merge._align(br.frames, br.valid, br.times, device, crop, align_model,
-                                                     br.paths)
-        br = Bracket(frames=frames, times=br.times, valid=valid, paths=br.paths, infos=br.infos)
-    res = _merge.merge_bracket(br, resp, weight=weight, samples=samples, smoothness=smoothness, seed=seed,
-                               device=device, fit_exposures=fit_exposures,
-                               exposure_tolerance=exposure_tolerance, deghost=deghost)
+    if o.align:
+        from hdrcl.core.handheld import align_bracket
+
+        al = align_bracket(br.frames, br.valid, br.times, o.device, o.crop, o.align_model, br.paths)
+        br = Bracket(frames=al.frames, times=br.times, valid=al.valid, paths=br.paths, infos=br.infos)
+    res = _merge.merge_bracket(br, resp, weight=o.weight, samples=o.samples, smoothness=o.smoothness, seed=o.seed,
+                               device=o.device, fit_exposures=o.fit_exposures,
+                               exposure_tolerance=o.exposure_tolerance, deghost=o.deghost)
     radiance = res.radiance
     h, w, nch = radiance.shape
-    factors, _units = _radiometric_factors(br.paths, br.infos, SimpleNamespace(frames=br.frames, valid=br.valid),
-                                           res.times, res.response, weight, None, device, nch, neutral,
-                                           reference_patch, absolute, h, w)
+    factors, _units = radiometric_factors(br.paths, br.infos, SimpleNamespace(frames=br.frames, valid=br.valid),
+                                          res.times, res.response, o.replace(ignore_color=None), nch, h, w)
     if factors is not None:
         radiance = (radiance * np.asarray(factors, np.float32)).astype(np.float32)
     return to_rgb([radiance], channel_order)[0]

@@ -1,0 +1,89 @@
+"""One options object for a merge: every option of ``hdrcl merge`` / :func:`hdrcl.merge_files`
+that shapes the radiance, checked once, when the object is made, by the option table
+(:mod:`hdrcl.core.params`).
+
+``merge`` (CLI), ``batch`` (``BatchOptions`` wraps one), :func:`hdrcl.merge` and
+:func:`hdrcl.merge_files` all build a :class:`MergeOptions` and hand it to the merge engine
+(:mod:`hdrcl.core.engine`). The rules that tie options together live here and nowhere
+else: ``crop`` needs ``align`` (refused), ``ghost_threshold``/``ghost_reference`` need
+``deghost`` (refused), ``absolute`` and ``reference_patch`` exclude each other
+(refused); an option that is ignored (``align_model`` without ``align``) is named in
+:meth:`MergeOptions.ignored`, which the callers log once as a warning.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, fields
+from typing import Any, List, Optional, Tuple
+
+from hdrcl.core.weights import DEFAULT_WEIGHT
+
+
+@dataclass(frozen=True)
+class MergeOptions:
+    """How a bracket is merged and written (the option table's names and defaults).
+
+    Every field is checked and normalised by :func:`hdrcl.core.params.check_options` when
+    the object is made (``UsageError`` naming the option); ``ignore_color`` becomes an
+    ``(R, G, B)`` tuple, ``colorspace`` and ``align_model`` lower case, a
+    ``reference_exposure`` given as ``"1/125"`` seconds.
+    """
+
+    weight: str = DEFAULT_WEIGHT
+    ignore_color: Optional[Tuple[int, int, int]] = None
+    samples: Optional[int] = None
+    smoothness: Optional[float] = None
+    seed: int = 0
+    fit_exposures: str = "auto"
+    exposure_tolerance: Optional[float] = None
+    deghost: bool = False
+    ghost_threshold: Optional[float] = None
+    ghost_reference: Any = None
+    neutral: Any = None
+    reference_patch: Any = None
+    absolute: bool = False
+    align: bool = False
+    align_model: str = "auto"
+    crop: bool = False
+    dtype: str = "auto"
+    compression: str = "piz"
+    colorspace: str = "rec709"
+    reference_exposure: Optional[float] = None
+    device: Optional[str] = None
+
+    def __post_init__(self):
+        from hdrcl.core.params import check_options
+
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        o = check_options(**{k: v for k, v in values.items() if k != "device" or v is not None})
+        for key in ("samples", "smoothness", "seed", "exposure_tolerance", "ghost_threshold", "ghost_reference",
+                    "reference_exposure", "colorspace", "align_model", "ignore_color", "absolute", "align", "crop",
+                    "deghost"):
+            if key in o:
+                object.__setattr__(self, key, o[key])
+        if isinstance(self.neutral, (tuple, list)):
+            object.__setattr__(self, "neutral", ",".join(str(int(v)) for v in self.neutral))
+        if self.seed is None:
+            object.__setattr__(self, "seed", 0)
+
+    @classmethod
+    def split(cls, values: dict) -> Tuple["MergeOptions", dict]:
+        """``(MergeOptions, rest)`` from keyword arguments: the option fields taken (and
+        checked), the other keywords returned as they are."""
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in values.items() if k in names}), {k: v for k, v in values.items()
+                                                                          if k not in names}
+
+    def replace(self, **changes) -> "MergeOptions":
+        """A copy with ``changes`` (checked again)."""
+        return dataclasses.replace(self, **changes)
+
+    def ignored(self) -> List[str]:
+        """One line per option given that this merge ignores (logged once, as a warning)."""
+        out = []
+        if not self.align and self.align_model != "auto":
+            out.append(f"--align-model {self.align_model} is ignored without --align")
+        return out
+
+    def asdict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}

@@ -1,0 +1,129 @@
+"""The merge engine (hdrcl.core.engine): one backend decision per job, the batch's set
+measured and checked as merge does it, the options object's rules."""
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+
+def _bracket(folder, name, h, w, seed=0):
+    """PNG frames of one smooth scene at 1/4, 1 and 4 s, with their times list."""
+    from hdrcl.io.writers import write_ldr
+
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w]
+    scene = np.exp(3.0 * (xx / w) + 1.0 * (yy / h))[..., None] * np.array([1.0, 0.8, 0.6]) * 0.02
+    scene *= np.exp(rng.normal(0, 0.05, scene.shape))
+    paths, times = [], [0.25, 1.0, 4.0]
+    os.makedirs(folder, exist_ok=True)
+    for k, t in enumerate(times):
+        z = np.clip(255 * (scene * t) ** (1 / 2.2), 0, 255).round().astype(np.uint8)
+        p = os.path.join(folder, f"{name}{k}.png")
+        write_ldr(p, z)
+        paths.append(p)
+    return paths, times
+
+
+ORDER = """
+import json, sys, hashlib
+import hdrcl
+from hdrcl.io.radiance import read_metadata
+small, small_t, big, big_t, out = json.loads(sys.argv[1])
+digests = []
+for k, (paths, times) in enumerate([(small, small_t), (big, big_t), (small, small_t)]):
+    target = f"{out}/m{k}.hdr"  # RGBE: byte for byte (EXR chunks may be written in any order)
+    hdrcl.merge_files(paths, target, times=times)
+    digests.append([hashlib.sha256(open(target, "rb").read()).hexdigest(), read_metadata(target).get("backend")])
+print(json.dumps(digests))
+"""
+
+
+def test_the_same_set_gives_the_same_bytes_first_or_after_a_large_set(tmp_path, cl_device):
+    """Issue 25 item 3: a small set merged first (NumPy: OpenCL not open yet) and again after
+    a large set opened OpenCL in the same process gives the same file, same backend."""
+    small = _bracket(str(tmp_path / "s"), "s", 48, 64)
+    big = _bracket(str(tmp_path / "b"), "b", 480, 640, seed=1)  # 0.9 M pixel-samples: OpenCL
+    env = {k: v for k, v in os.environ.items() if k not in ("HDRCL_REQUIRE_OPENCL", "PYOPENCL_CTX",
+                                                             "HDRCL_SMALL_WORK", "HDRCL_OPENCL")}
+    arg = json.dumps([small[0], small[1], big[0], big[1], str(tmp_path)])
+    r = subprocess.run([sys.executable, "-c", ORDER, arg], capture_output=True, text=True, env=env, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    (first, big_one, again) = json.loads(r.stdout.strip().splitlines()[-1])
+    assert big_one[1] == "opencl"
+    assert first == again, (first, again)
+    assert first[1] == "numpy"
+
+
+def test_merge_options_are_checked_once_and_say_what_they_ignore():
+    from hdrcl.core.options import MergeOptions
+    from hdrcl.errors import UsageError
+
+    with pytest.raises(UsageError, match="--crop needs --align"):
+        MergeOptions(crop=True)
+    with pytest.raises(UsageError, match="--align-model"):
+        MergeOptions(align=True, align_model="affine")
+    o = MergeOptions(align_model="Similarity", ignore_color="0,0,255", reference_exposure="1/125")
+    assert o.align_model == "similarity" and o.ignore_color == (0, 0, 255) and o.reference_exposure == 0.008
+    assert o.ignored() == ["--align-model similarity is ignored without --align"]
+    assert MergeOptions(align=True, align_model="shift").ignored() == []
+
+
+def test_batch_options_wrap_merge_options():
+    from hdrcl.errors import UsageError
+    from hdrcl.shoot.jobs import BatchOptions
+
+    assert BatchOptions(exposure_tolerance=2.0).merge.exposure_tolerance == 2.0
+    with pytest.raises(UsageError, match="--crop needs --align"):
+        BatchOptions(crop=True)
+    with pytest.raises(UsageError, match="--exposure-tolerance"):
+        BatchOptions(exposure_tolerance=-1)
+
+
+def _cli(*args):
+    from click.testing import CliRunner
+
+    from hdrcl.cli import main
+
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def test_batch_checks_exposures_with_a_given_response_as_merge_does(tmp_path, cl_device):
+    """A frame labelled 1 s that was taken at 2 s: with a given response and
+    --fit-exposures off, merge and batch say the same thing about it, and both take
+    --exposure-tolerance (issue 25)."""
+    from hdrcl.io.writers import write_ldr
+
+    shoot = tmp_path / "shoot"
+    paths, times = _bracket(str(shoot), "f", 120, 160)
+    resp = tmp_path / "r.json"
+    assert _cli("calibrate", *paths, "--times", ",".join(map(str, times)), "-o", resp).exit_code == 0
+    # The middle frame re-made at twice its labelled exposure.
+    from hdrcl.io.frames import read_image
+
+    hot = paths[1]
+    img = read_image(hot).pixels.astype(np.float64) / 255
+    write_ldr(hot, np.clip(255 * np.clip(img, 0, 1) * 2 ** (1 / 2.2), 0, 255).round().astype(np.uint8))
+    (shoot / "times.txt").write_text("".join(f"{os.path.basename(p)} {t}\n" for p, t in zip(paths, times)))
+
+    def merge_warnings(*extra):
+        r = _cli("merge", *paths, "--response", resp, "--fit-exposures", "off", "-o", tmp_path / "m.exr", *extra)
+        assert r.exit_code == 0, r.output
+        return [ln for ln in r.output.splitlines() if os.path.basename(hot) in ln and "pixels say" in ln]
+
+    def batch_warnings(*extra):
+        out = tmp_path / ("o" + "".join(extra).replace("-", "").replace(".", ""))
+        r = _cli("batch", shoot, "--response", resp, "--fit-exposures", "off", "-o", out, "--no-preview",
+                 "--frames-per-set", 3, *extra)
+        assert r.exit_code == 0, r.output
+        rep = json.loads((out / "report.json").read_text())
+        (entry,) = rep["sets"]
+        return [w for w in entry["warnings"] if os.path.basename(hot) in w and "pixels say" in w]
+
+    m, b = merge_warnings(), batch_warnings()
+    assert m and b, (m, b)
+    assert any(w in " ".join(m) for w in b), (m, b)
+    assert merge_warnings("--exposure-tolerance", "3") == []
+    assert batch_warnings("--exposure-tolerance", "3") == []
