@@ -1,0 +1,133 @@
+"""Glare metrics (hdrcl/core/glare.py, hdrcl glare) against Radiance's evalglare on the
+same files: within 0.005 DGP and 0.5 UGR (the issue's bar; measured: equal to evalglare's
+printed digits on these scenes)."""
+import json
+import math
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hdrcl.core import glare as g
+from hdrcl.errors import UsageError
+
+
+def _scene(n, seed, *, sun=3e6, windows=((60, 45, 70, 65, 2500.0),), patch=15000.0, floor=40.0, texture=0.3):
+    """An equidistant (-vta 180) picture in cd/m^2: a floor, windows (x, y, half width,
+    half height, luminance), a bright patch and a sun, with a random texture."""
+    rng = np.random.default_rng(seed)
+    k = np.arange(n) + 0.5 - n / 2
+    xx, yy = np.meshgrid(k, -k)
+    s = n / 400.0
+    lum = floor * (1 + texture * rng.random((n, n)))
+    for x, y, hw, hh, value in windows:
+        win = (np.abs(xx - x * s) < hw * s) & (np.abs(yy - y * s) < hh * s)
+        lum[win] = value * (1 + texture * rng.random(int(win.sum())))
+    if patch:
+        lum[np.hypot(xx - 90 * s, yy - 70 * s) < 25 * s] = patch
+    if sun:
+        lum[np.hypot(xx - 100 * s, yy - 80 * s) < 3 * s] = sun
+    lum[np.hypot(xx, yy) > n / 2] = 0
+    return lum
+
+
+def _write(radiance_bin, path, lum, view="-vta -vh 180 -vv 180"):
+    n = lum.shape[0]
+    rgb = np.repeat((lum / 179.0)[..., None], 3, axis=2).astype(np.float32)
+    data = subprocess.run([str(radiance_bin / "pvalue"), "-r", "-h", "-df", "-y", str(n), "+x", str(n)],
+                          input=rgb.tobytes(), capture_output=True, check=True, timeout=60).stdout
+    data = subprocess.run([str(radiance_bin / "getinfo"), "-a", f"VIEW= {view}"], input=data, capture_output=True,
+                          check=True, timeout=60).stdout
+    Path(path).write_bytes(data)
+
+
+def _evalglare(radiance_bin, path, *args):
+    out = subprocess.run([str(radiance_bin / "evalglare"), "-d", *args, str(path)], capture_output=True, text=True,
+                         timeout=300).stdout
+    line = next(x for x in out.splitlines() if x.startswith("dgp,av_lum,E_v"))
+    names, values = line.split(": ")
+    return dict(zip(names.split(","), (float(v) for v in values.split())))
+
+
+SCENES = {
+    "window, patch and sun": dict(),
+    "two windows apart, no sun": dict(sun=0, windows=((60, 45, 70, 65, 2500.0), (-120, 30, 25, 40, 6000.0))),
+    "windows 0.1 rad apart merge": dict(windows=((40, 40, 30, 40, 3000.0), (82, 40, 10, 40, 3000.0))),
+    "dim room (no low-light correction)": dict(sun=0, patch=2600.0, floor=2.0, windows=((60, 45, 20, 20, 2100.0),)),
+    "no glare source": dict(sun=0, patch=0, windows=((60, 45, 70, 65, 900.0),)),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SCENES))
+def test_glare_metrics_equal_evalglare(tmp_path, radiance_bin, name):
+    path = tmp_path / "scene.hdr"
+    _write(radiance_bin, path, _scene(300, seed=len(name), **SCENES[name]))
+    want = _evalglare(radiance_bin, path)
+    got = g.glare_of_file(path)
+    assert got.vertical_illuminance == pytest.approx(want["E_v"], rel=1e-4)
+    assert abs(got.dgp - want["dgp"]) <= 0.005, (got.dgp, want["dgp"])
+    assert abs(got.ugr - want["ugr"]) <= 0.5, (got.ugr, want["ugr"])
+    assert abs(got.dgi - want["dgi"]) <= 0.5, (got.dgi, want["dgi"])
+    assert got.background_luminance == pytest.approx(want["lum_backg"], rel=1e-3, abs=1e-3)
+    omega = sum(s.solid_angle for s in got.sources)
+    assert omega == pytest.approx(want["omega_sources"], rel=1e-3, abs=1e-6)
+
+
+def test_threshold_factor_as_evalglare_b(tmp_path, radiance_bin):
+    path = tmp_path / "scene.hdr"
+    _write(radiance_bin, path, _scene(240, seed=9))
+    want = _evalglare(radiance_bin, path, "-b", "5")
+    got = g.glare_of_file(path, threshold=5)
+    assert got.threshold == pytest.approx(5 * want["av_lum"], rel=1e-4)
+    assert abs(got.dgp - want["dgp"]) <= 0.005 and abs(got.ugr - want["ugr"]) <= 0.5
+
+
+def test_glare_on_hdrcl_chain_output_equals_evalglare(tmp_path, radiance_bin):
+    """hdrcl's own luminance chain map (merge --absolute with the chain), evalglare on it."""
+    from click.testing import CliRunner
+
+    import hdrcl.cli.glare  # noqa: F401  (registers the command until cli/group.py lists it)
+    from hdrcl.cli import main
+
+    data = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "frobisher_001"
+    frames = sorted(str(p) for p in data.glob("*.jpg"))
+    if not frames:
+        pytest.skip(f"the sample data {data} is not here")
+    out = tmp_path / "fish.hdr"
+    res = CliRunner().invoke(main, ["merge", *frames, "--absolute", "-o", str(out), "--lens-circle", "320,213,400",
+                                    "--resize", "200", "--view", "-vta -vh 180 -vv 180"])
+    assert res.exit_code == 0, res.output
+    want = _evalglare(radiance_bin, out)
+    res = CliRunner().invoke(main, ["glare", str(out), "--json"])
+    assert res.exit_code == 0, res.output
+    got = json.loads(res.stdout)
+    assert got["vertical_illuminance"] == pytest.approx(want["E_v"], rel=1e-3)
+    assert abs(got["dgp"] - want["dgp"]) <= 0.005 and abs(got["ugr"] - want["ugr"]) <= 0.5
+    text = CliRunner().invoke(main, ["glare", str(out)])
+    assert text.exit_code == 0 and "DGP" in text.stdout and "UGR" in text.stdout
+
+
+def test_uniform_sky_gives_pi_l_and_no_source():
+    """A uniform 1000 cd/m^2 hemisphere: Ev = PI L (the solid angles are exact), no source."""
+    n = 200
+    lum = np.full((n, n), 1000.0)
+    got = g.glare_metrics(lum, g.parse_glare_view("-vta -vh 180 -vv 180"))
+    assert got.vertical_illuminance == pytest.approx(math.pi * 1000.0, rel=2e-3)
+    assert got.sources == [] and got.ugr == 0.0 and got.dgi == 0.0
+    assert got.dgp == pytest.approx(5.87e-5 * got.vertical_illuminance + 0.159, rel=1e-9)
+
+
+@pytest.mark.parametrize("view", ["-vtv -vh 60 -vv 60", "-vta -vh 180 -vv 180 -vd 0 0 0"])
+def test_views_without_glare_metrics_are_refused(view):
+    with pytest.raises(UsageError):
+        g.parse_glare_view(view)
+
+
+def test_a_map_without_view_names_the_option(tmp_path):
+    from hdrcl.io.writers import write_radiance
+
+    path = tmp_path / "noview.hdr"
+    write_radiance(path, np.ones((8, 8, 3), np.float32))
+    with pytest.raises(UsageError, match="--view"):
+        g.glare_of_file(path)
