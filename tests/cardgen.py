@@ -392,11 +392,12 @@ def _mixed(rng, names=SCENARIOS) -> List[Shot]:
     return shots
 
 
-def _scene(rng, contrast: float = 1.0, brightness: float = 1.0) -> np.ndarray:
+def _scene(rng, contrast: float = 1.0, brightness: float = 1.0, width: int = WIDTH) -> np.ndarray:
     """A radiance field of its own: ramp in a random direction, blobs, texture.
 
     ``contrast`` scales its range in stops (about 12 by default) around the middle,
-    ``brightness`` its radiance."""
+    ``brightness`` its radiance; ``width`` in pixels (wider: room for several views)."""
+    WIDTH = width  # noqa: N806 (the field's own width)
     y, x = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float64)
     ang = rng.uniform(0, 2 * np.pi)
     u = (np.cos(ang) * (x - WIDTH / 2) + np.sin(ang) * (y - HEIGHT / 2)) / (WIDTH / 2)
@@ -479,6 +480,59 @@ def _write(path, radiance, fr: Frame, when: _dt.datetime, camera: dict, rng, sub
             raise RuntimeError(f"cannot write {path}: {out.geterror()}")
     finally:
         out.close()
+
+
+def write_folder_views(root, seed: int = 0, times=None, fmt: str = "png", shift: int = WIDTH // 2) -> Dict:
+    """Two overlapping views of one scene, one folder per set, as converted frames.
+
+    Each folder (``set1``, ``set2`` under ``root``) holds the frames of one view as
+    ``fmt`` files (``png`` or ``tif``) that name no camera and carry no exposure, every
+    frame's ``DateTime`` the same conversion stamp, and an ``image_list.txt`` (HDRShop
+    columns) with the exposures: ``times`` for both views (default 1/250 .. 1/4 s, one
+    stop apart), or one list per view (the second view's ladder may go on where the
+    first one's ends). The second view is the first moved right by ``shift`` pixels
+    (half the frame's width by default; a few pixels: views a scene test calls one).
+
+    Returns
+    -------
+    dict
+        ``"sets"``: per folder, the file paths relative to ``root`` in list order;
+        ``"folders"``; ``"shift"``: the columns by which view 2 is moved (the overlap is
+        the right part of view 1 and the left part of view 2); ``"times"``.
+    """
+    import OpenImageIO as oiio
+
+    root = os.fspath(root)
+    times = list(times) if times is not None else [1 / 250 * 2 ** k for k in range(7)]
+    per_view = [list(t) for t in times] if isinstance(times[0], (list, tuple)) else [times, times]
+    rng = np.random.default_rng([seed, 27])
+    field = _scene(np.random.default_rng([seed, 27, 1]), width=WIDTH + shift)
+    stamp = "2025:06:01 18:30:00"  # the conversion, the same for every frame
+    sets, n = [], 0
+    for k, folder in enumerate(("set1", "set2")):
+        os.makedirs(os.path.join(root, folder), exist_ok=True)
+        view = field[:, k * shift:k * shift + WIDTH]
+        lines, files = ["# Filename  exposure  1/shutter_speed  f/stop  gain(db)  ND_filters"], []
+        for t in per_view[k]:
+            n += 1
+            name = f"IMG_{n:04d}.{fmt}"
+            lin = np.clip(view * t * 4.0 * 8.0, 0.0, 1.0)
+            data = np.clip(np.round(255.0 * _tone(lin, 0.0) + rng.normal(0.0, 1.0, view.shape)), 0, 255)
+            spec = oiio.ImageSpec(WIDTH, HEIGHT, 3, oiio.UINT8)
+            spec.attribute("DateTime", stamp)
+            path = os.path.join(root, folder, name)
+            out = oiio.ImageOutput.create(path)
+            try:
+                if not out.open(path, spec) or not out.write_image(data.astype(np.uint8)):
+                    raise RuntimeError(f"cannot write {path}: {out.geterror()}")
+            finally:
+                out.close()
+            lines.append(f"{name} {t:.9g} {1 / t:.9g} 8 0 0")
+            files.append(os.path.join(folder, name))
+        with open(os.path.join(root, folder, "image_list.txt"), "w") as fh:
+            fh.write("\n".join(lines) + "\n")
+        sets.append(files)
+    return {"sets": sets, "folders": ["set1", "set2"], "shift": shift, "times": per_view}
 
 
 def write_card(folder, name: str, seed: int = 0) -> Dict:

@@ -251,7 +251,8 @@ def read_times_file(path) -> dict:
     Raises
     ------
     InputError
-        The file cannot be read, a line is malformed, or a file is listed twice.
+        The file cannot be read, a line is malformed (a time that is not positive: the
+        message names the line and the value), or a file is listed twice.
     """
     name = os.fspath(path)
     check_regular(name, "times file")  # a FIFO or a device would block or never end
@@ -274,6 +275,10 @@ def read_times_file(path) -> dict:
             raise bad
         seconds = _parse_seconds(fields[1])
         if seconds is None:
+            value = _float_field(fields[1]) if "/" not in fields[1] else None
+            if value is not None:  # a number, but no exposure: -2, 0
+                raise InputError(f"{name} line {lineno}: {_clip(fields[0])}: exposure time {_clip(fields[1])} s "
+                                 "is not a positive time")
             raise bad
         exposure = Exposure(time=seconds)
         if len(fields) >= 3:

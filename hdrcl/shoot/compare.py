@@ -98,11 +98,12 @@ def _sort_key(f: FrameInfo):
 
 
 def _gap(prev: FrameInfo, f: FrameInfo) -> Optional[float]:
-    """Seconds from the end of ``prev``'s exposure to the start of ``f``'s."""
+    """Seconds from the end of ``prev``'s exposure to the start of ``f``'s, at least 0
+    (capture times in whole seconds put the next start inside a long exposure)."""
     a, b = _time(prev), _time(f)
     if a is None or b is None:
         return None
-    return (b - a).total_seconds() - (prev.exposure_time or 0.0)
+    return max(0.0, (b - a).total_seconds() - (prev.exposure_time or 0.0))
 
 
 def format_exposure(t: Optional[float]) -> str:

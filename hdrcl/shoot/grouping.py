@@ -3,9 +3,16 @@
 A folder of bracketed shots is a sequence of frames; this module decides where one
 bracket set ends and the next begins, using several signals together:
 
+* **Exposure lists**: the frames an ``image_list.txt`` or ``times.txt`` beside them
+  names (their exposures come from it) are exactly one set, in the list's order: one
+  folder per set (``listed`` of :func:`group_frames`).
 * **Camera**: frames are first split into one stream per camera body (Make, Model,
   serial), so two photographers shooting side by side do not break each other's sets;
   camera RAW files and the JPEGs shot with them (RAW+JPEG) are separate streams too.
+  Frames of different folders share a stream only when they come from one camera
+  with capture times: frames that name no camera, or carry no capture time, are a
+  stream per folder (folders only name outputs, but nothing else says such frames
+  belong together).
 * **Lens, focal length, image size**: each lens is a stream of its own too, so a phone
   that flips between its lenses inside one sequence gives one set per lens (not single
   frames); a set that ends where the camera moved to another lens says so.
@@ -66,7 +73,7 @@ from typing import Iterable, List, Optional, Sequence
 from hdrcl.errors import UsageError
 from hdrcl.io.metadata import FrameInfo
 from hdrcl.shoot.compare import (DEFAULT_GAP, LONG_EXPOSURE, _camera_desc, _camera_key, _camera_label,  # noqa: F401
-                                 _exposure_range, _fmt_bias, _fmt_f, _norm, _same_stops, _sort_key, _time,
+                                 _exposure_range, _fmt_bias, _fmt_f, _gap, _norm, _same_stops, _sort_key, _time,
                                  _varies, format_exposure)
 from hdrcl.shoot.manifest import BracketSet, Manifest, Unmerged, _is_number
 from hdrcl.shoot.splitting import _camera_reason, _Group, chunk, split_stream
@@ -161,6 +168,33 @@ def _make_set(grp: _Group) -> BracketSet:
     )
 
 
+def _stream_key(f: FrameInfo) -> tuple:
+    """One stream per camera body, per kind of file (RAW+JPEG cards hold two files per
+    capture), with and without capture times; frames that name no camera or carry no
+    capture time, per folder too."""
+    raw = os.path.splitext(os.fspath(f.path))[1].lower() in _RAW_EXTENSIONS
+    cam = _camera_key(f)
+    timeless = _time(f) is None
+    folder = os.path.dirname(os.path.abspath(os.fspath(f.path))) if timeless or not any(cam) else None
+    return (cam, timeless, raw, folder)
+
+
+def _listed_groups(frames: List[FrameInfo], listed) -> tuple:
+    """The groups the exposure lists make (one per list, its frames in its order) and
+    the frames left to group."""
+    groups, taken = [], set()
+    for lst, named in (listed or {}).items():
+        named = [f for f in named if id(f) not in taken]
+        if not named:
+            continue
+        taken.update(id(f) for f in named)
+        base = os.path.basename(os.fspath(lst))
+        groups.append(_Group(list(named), f"end of the frames {base} lists",
+                             [_gap(a, b) for a, b in zip(named, named[1:])],
+                             [f"listed in {base}" for _ in named[1:]]))
+    return groups, [f for f in frames if id(f) not in taken]
+
+
 def _split_by_lens(stream: List[FrameInfo], gap, compare) -> List[_Group]:
     """Group one camera's frames, each lens (lens, focal length, image size) apart.
 
@@ -195,7 +229,7 @@ def _split_by_lens(stream: List[FrameInfo], gap, compare) -> List[_Group]:
 
 # --------------------------------------------------------------------------- entry
 def group_frames(infos: Sequence[FrameInfo], *, frames_per_set: Optional[int] = None,
-                 gap: Optional[float] = None, compare=None) -> Manifest:
+                 gap: Optional[float] = None, compare=None, listed=None) -> Manifest:
     """Group frames into bracket sets.
 
     Frames are sorted by capture time, then path. Frames without a capture time come
@@ -218,6 +252,10 @@ def group_frames(infos: Sequence[FrameInfo], *, frames_per_set: Optional[int] = 
         ``compare(a, b)`` -> :class:`hdrcl.shoot.scene.Verdict` for two frames: the
         content signal (:class:`hdrcl.shoot.scene.SceneCache.compare`). Without it the
         grouping uses the headers alone.
+    listed : dict, optional
+        Exposure list (path) -> the frames of ``infos`` it names, in its order: each
+        is one set (a folder per set), whatever the rest says; the other frames are
+        grouped as usual. Not used with ``frames_per_set``.
 
     Returns
     -------
@@ -244,11 +282,10 @@ def group_frames(infos: Sequence[FrameInfo], *, frames_per_set: Optional[int] = 
     if frames_per_set is not None:
         groups = chunk(frames, frames_per_set, gap)
     else:
+        groups, rest = _listed_groups(frames, listed)
         streams: dict = {}
-        for f in frames:
-            # RAW+JPEG cards hold two files per capture: each kind is its own stream.
-            raw = os.path.splitext(os.fspath(f.path))[1].lower() in _RAW_EXTENSIONS
-            streams.setdefault((_camera_key(f), _time(f) is None, raw), []).append(f)
+        for f in rest:
+            streams.setdefault(_stream_key(f), []).append(f)
         for stream in streams.values():
             groups.extend(_split_by_lens(stream, gap, compare))
         groups.sort(key=lambda g: _sort_key(g.frames[0]))

@@ -50,7 +50,17 @@ def _regular(p: str) -> bool:
 def _with_exposure_lists(infos, times_file):
     """Frames named in ``times_file`` take their exposure from it (it wins over EXIF);
     frames without EXIF exposure time take theirs from a list beside them
-    (:func:`hdrcl.io.metadata.header_exposures`), their f-number too."""
+    (:func:`hdrcl.io.metadata.header_exposures`), their f-number too.
+
+    Returns the frames and, by list file, the frames each list beside them named (in
+    the list's order): a folder whose list names its frames is one set.
+
+    Raises
+    ------
+    InputError
+        A list beside the frames cannot be read or has a bad line (the message names
+        the list and the line).
+    """
     from dataclasses import replace
 
     from hdrcl.io.metadata import header_exposures, read_times_file
@@ -60,23 +70,31 @@ def _with_exposure_lists(infos, times_file):
     for info in infos:
         if os.path.basename(info.path) not in given and info.exposure_time is None:
             listed.setdefault(os.path.dirname(os.path.abspath(info.path)), []).append(info)
-    from_lists = {}
+    from_lists, source = {}, {}
     for folder, group in listed.items():
-        try:
-            exposures, used = header_exposures([i.path for i in group], group)
-        except InputError as exc:
-            logger.warning("exposure list not used: %s", exc)
-            continue
+        exposures, used = header_exposures([i.path for i in group], group)
         for u in used:
             logger.info("%s: exposures of the frames it lists", u)
-        from_lists.update((i.path, e) for i, e in zip(group, exposures) if e is not None)
-    out = []
+        for i, e in zip(group, exposures):
+            if e is not None:
+                from_lists[i.path] = e
+                source[i.path] = used[0]
+    out, named = [], {}
     for info in infos:
         e = given.get(os.path.basename(info.path)) or from_lists.get(info.path)
         if e is not None:
             info = replace(info, exposure_time=float(e.factor), fnumber=info.fnumber or e.fnumber)
+        if info.path in source and os.path.basename(info.path) not in given:
+            named.setdefault(source[info.path], []).append(info)
         out.append(info)
-    return out
+    return out, {lst: _in_list_order(lst, frames) for lst, frames in named.items()}
+
+
+def _in_list_order(lst: str, frames):
+    from hdrcl.io.metadata import read_times_file
+
+    order = {name: k for k, name in enumerate(read_times_file(lst))}
+    return sorted(frames, key=lambda f: order.get(os.path.basename(f.path), len(order)))
 
 
 def photos_below(root: str, extensions: Sequence[str] = DEFAULT_EXTENSIONS,
@@ -85,8 +103,9 @@ def photos_below(root: str, extensions: Sequence[str] = DEFAULT_EXTENSIONS,
     folders: a batch's output inside the shoot), and those subfolders (relative to
     ``root``) that hold some: what a scan without ``recursive`` leaves out."""
     skip = tuple(os.path.abspath(e) + os.sep for e in exclude if e)
+    top = os.path.abspath(root)  # "shoot/" and "shoot" alike
     below = [p for p in _list_files(root, True, extensions)
-             if os.path.dirname(p) != root and not os.path.abspath(p).startswith(skip)]
+             if os.path.dirname(os.path.abspath(p)) != top and not os.path.abspath(p).startswith(skip)]
     folders = sorted({os.path.relpath(os.path.dirname(p), root) for p in below})
     return len(below), folders
 
@@ -152,7 +171,12 @@ def scan_directory(path, *, recursive: bool = False, frames_per_set: Optional[in
     Exposure lists: a frame named in ``times_file``, or one without EXIF exposure time
     named in an ``image_list.txt`` (HDRShop columns) or ``times.txt`` (``file seconds``)
     in its own folder, takes its exposure (time, with gain and ND folded in) from the
-    list; its f-number too when its header has none.
+    list; its f-number too when its header has none. The frames such a list beside them
+    names are exactly one set, in the list's order (a folder per set).
+
+    Frames from different folders join one set only in one camera's stream (make,
+    model, serial and capture times; a converted PNG's or TIFF's ``DateTime`` is no
+    capture time: :func:`hdrcl.io.exif.capture_time`).
 
     Returns
     -------
@@ -163,7 +187,9 @@ def scan_directory(path, *, recursive: bool = False, frames_per_set: Optional[in
     Raises
     ------
     InputError
-        ``path`` is not a folder.
+        ``path`` is not a folder; an exposure list beside the frames cannot be read or
+        has a bad line (a negative time: the message names the list, the line and the
+        value).
     UsageError
         Invalid overrides.
     """
@@ -188,13 +214,13 @@ def scan_directory(path, *, recursive: bool = False, frames_per_set: Optional[in
                 msg = msg[len(p) + 2:]
             logger.info("not grouped: %s: %s", p, msg)
             bad.append(Unmerged(files=[p], reason=f"corrupt: {msg}"))
-    infos = _with_exposure_lists(infos, times_file)
+    infos, named = _with_exposure_lists(infos, times_file)
     compare = None
     if content and frames_per_set is None:
         from hdrcl.shoot.scene import SceneCache
 
         compare = SceneCache().compare
-    manifest = group_frames(infos, frames_per_set=frames_per_set, gap=gap, compare=compare)
+    manifest = group_frames(infos, frames_per_set=frames_per_set, gap=gap, compare=compare, listed=named)
     manifest.unmerged.extend(bad)
     manifest.root = root
     return manifest

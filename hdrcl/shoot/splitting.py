@@ -347,7 +347,8 @@ def _bridge(groups: List[_Group], compare: Compare) -> List[_Group]:
 
     Runs linked by long gaps form a chain; of the ways to cut a chain into ladders the
     one with the largest sum of squared set sizes wins, so a stray frame before a hand
-    ladder stays alone instead of taking the ladder's first frame with it.
+    ladder stays alone instead of taking the ladder's first frame with it; of two cuts as
+    good, the later (a ladder, then some of it shot again: the first set keeps its frames).
     """
     out: List[_Group] = []
     i = 0
@@ -384,7 +385,8 @@ def _bridge_chain(runs: List[_Group], compare: Compare) -> List[_Group]:
         best[j] = -1
         for i in range(j):
             g = valid.get((i, j - 1))
-            if g is not None and best[i] + len(g.frames) ** 2 > best[j]:
+            # ">=": of two cuts as good, the later one (the set shot first keeps the frame)
+            if g is not None and best[i] + len(g.frames) ** 2 >= best[j]:
                 best[j], choice[j] = best[i] + len(g.frames) ** 2, i
     parts, j = [], m
     while j > 0:
@@ -450,6 +452,9 @@ def _bridge_reason(p: _Group, grp: _Group, compare: Compare) -> Optional[str]:
         return None
     scene = verdict.describe() if seen else "scene not compared"
     what = f"gap {g:.1f} s" if g <= PAUSE else f"pause of {g / 60:.1f} min ({g:.1f} s)"
+    if p.reason == "exposure ladder restarts":
+        what = (f"ladder turns back ({format_exposure(p.frames[-1].exposure_time)} -> "
+                f"{format_exposure(f.exposure_time)} s), {what}")
     mode = _mode_change(p.frames[-1], f)
     if mode:
         what += f", {mode}"
