@@ -127,3 +127,31 @@ def test_batch_checks_exposures_with_a_given_response_as_merge_does(tmp_path, cl
     assert any(w in " ".join(m) for w in b), (m, b)
     assert merge_warnings("--exposure-tolerance", "3") == []
     assert batch_warnings("--exposure-tolerance", "3") == []
+
+
+from test_align_merge import memorial_handheld_files  # noqa: E402,F401 (fixture)
+
+
+def test_batch_align_report_measures_the_aligned_set_as_merge_does(memorial_handheld_files, tmp_path, cl_device):
+    """``batch --align --report`` measures the frames it fused (warped), not the raw ones:
+    its leave-one-out equals ``merge --align --report``'s within 0.5 level (issue 25)."""
+    import shutil
+
+    files, times, _mats, _d = memorial_handheld_files
+    shoot = tmp_path / "shoot"
+    shoot.mkdir()
+    for p in files["moved"]:
+        shutil.copy(p, shoot)
+    (shoot / "times.txt").write_text("".join(f"{os.path.basename(p)} {t}\n" for p, t in zip(files["moved"], times)))
+    frames = sorted(str(p) for p in shoot.glob("*.png"))
+    r = _cli("merge", *frames, "--align", "-o", tmp_path / "m.exr", "--report", tmp_path / "qm")
+    assert r.exit_code == 0, r.output
+    merged = json.loads((tmp_path / "qm" / "m.json").read_text())["figures"]["looRmse"]
+    r = _cli("batch", shoot, "--align", "-o", tmp_path / "out", "--frames-per-set", len(frames),
+             "--report", tmp_path / "qb")
+    assert r.exit_code == 0, r.output
+    (entry,) = json.loads((tmp_path / "out" / "report.json").read_text())["sets"]
+    assert not any("not measured" in w for w in entry["warnings"]), entry["warnings"]
+    batched = entry["quality"]["looRmse"]
+    assert merged is not None and batched is not None
+    assert abs(merged - batched) < 0.5, (merged, batched)

@@ -348,6 +348,36 @@ def measure(
     if int(np.iinfo(frames[0].dtype).max) + 1 != levels:
         raise UsageError(f"the response describes {response.bits}-bit images but the frames are "
                          f"{8 * frames[0].dtype.itemsize}-bit")
+    h, w, c = frames[0].shape
+    coverage, hist, n_high, n_low, n_valid, extra_high, extra_low = _clipping(bracket, used, response, weight)
+
+    dr = dynamic_range_stops(radiance) if radiance is not None else None
+    tail = (100.0 - DR_PERCENTILES[1]) / 100.0
+    frac_high = n_high / n_valid if n_valid else 0.0
+    frac_low = n_low / n_valid if n_valid else 0.0
+
+    loo_rows, stride, loo_rmse = _loo(bracket, used, response, weight, device, loo_max_pixels) if loo \
+        else ([], 1, None)
+
+    fitted = _fitted_for(response, nominal)
+    exposures = [{"nominal": float(n), "used": float(u), "fitted": None if fitted is None else float(f)}
+                 for n, u, f in zip(nominal, used, fitted if fitted is not None else nominal)]
+    for e, p in zip(exposures, bracket.paths or []):
+        e["file"] = os.path.basename(p)
+    return QualityFigures(
+        shape=(h, w, c), frames=len(frames), bits=response.bits, weight=weight, exposures=exposures,
+        loo_rmse=loo_rmse, loo=loo_rows, loo_stride=stride, dynamic_range_stops=dr,
+        dynamic_range_is_lower_bound=bool(frac_high > tail or frac_low > tail),
+        clipped_high_fraction=float(frac_high), clipped_low_fraction=float(frac_low),
+        clipped_high_pixels=n_high, clipped_low_pixels=n_low, valid_pixels=n_valid,
+        extra_ev_high=min(extra_high, 0.0), extra_ev_low=max(extra_low, 0.0),
+        coverage_histogram=[int(v) for v in hist], coverage=coverage)
+
+
+def _clipping(bracket: Bracket, used, response: Response, weight: str):
+    """``(coverage, histogram, clipped high pixels, clipped low pixels, valid pixels,
+    extra_ev_high, extra_ev_low)`` of :func:`measure` (see its Notes)."""
+    frames, levels = bracket.frames, response.levels
     from hdrcl.core.reference import monotone_tables
     from hdrcl.core.weights import clip_levels
 
@@ -393,34 +423,23 @@ def measure(
         coverage[~valid_px] = NO_DATA
     hist = np.bincount(coverage.ravel(), minlength=256)[: len(frames) + 1]
 
-    dr = dynamic_range_stops(radiance) if radiance is not None else None
-    tail = (100.0 - DR_PERCENTILES[1]) / 100.0
-    frac_high = n_high / n_valid if n_valid else 0.0
-    frac_low = n_low / n_valid if n_valid else 0.0
+    return coverage, hist, n_high, n_low, n_valid, extra_high, extra_low
 
+
+def _loo(bracket: Bracket, used, response: Response, weight: str, device, loo_max_pixels: int):
+    """``(rows, stride, median rmse)``: :func:`measure`'s leave-one-out figure."""
+    frames = bracket.frames
     loo_rows: List[LeaveOneOut] = []
     stride = 1
     loo_rmse = None
-    if loo and len(frames) >= 3:
+    if len(frames) >= 3:
         sub, stride = decimate(Bracket(frames=list(frames), times=used, valid=list(bracket.valid)), loo_max_pixels)
         loo_rows = leave_one_out_all(sub, weight=weight, smoothness=response.smoothness, device=device,
                                      fit_exposures="off")
         finite = [r.rmse for r in loo_rows if np.isfinite(r.rmse)]
         loo_rmse = float(np.median(finite)) if finite else None
 
-    fitted = _fitted_for(response, nominal)
-    exposures = [{"nominal": float(n), "used": float(u), "fitted": None if fitted is None else float(f)}
-                 for n, u, f in zip(nominal, used, fitted if fitted is not None else nominal)]
-    for e, p in zip(exposures, bracket.paths or []):
-        e["file"] = os.path.basename(p)
-    return QualityFigures(
-        shape=(h, w, c), frames=len(frames), bits=response.bits, weight=weight, exposures=exposures,
-        loo_rmse=loo_rmse, loo=loo_rows, loo_stride=stride, dynamic_range_stops=dr,
-        dynamic_range_is_lower_bound=bool(frac_high > tail or frac_low > tail),
-        clipped_high_fraction=float(frac_high), clipped_low_fraction=float(frac_low),
-        clipped_high_pixels=n_high, clipped_low_pixels=n_low, valid_pixels=n_valid,
-        extra_ev_high=min(extra_high, 0.0), extra_ev_low=max(extra_low, 0.0),
-        coverage_histogram=[int(v) for v in hist], coverage=coverage)
+    return loo_rows, stride, loo_rmse
 
 
 def _evidence_counts(frames, valid, order, levels: int, weight: str):

@@ -73,7 +73,7 @@ import logging
 import os
 import time as _time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 from hdrcl.errors import ProcessingError, UsageError
@@ -137,44 +137,13 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
 
 
 # --------------------------------------------------------------------------- run
-def run_batch(
-    source,
-    out_dir,
-    *,
-    options: Optional[BatchOptions] = None,
-    sets: Union[str, Sequence[Tuple[int, Optional[int]]], None] = None,
-    response=None,
-    jobs: int = 1,
-    scheduler=None,
-    retries: int = 2,
-    force: bool = False,
-    report: Union[str, os.PathLike, None] = None,
-    calibrate_only: bool = False,
-    recursive: bool = False,
-    frames_per_set: Optional[int] = None,
-    gap: Optional[float] = None,
-    progress: Optional[Callable[[Optional[SetResult], int, int], None]] = None,
-    times_file: Union[str, os.PathLike, None] = None,
-    handle_signals: bool = False,
-    name: Optional[str] = None,
-    response_cache: Union[str, os.PathLike, None] = None,
-) -> BatchReport:
-    """Merge every bracket set of a shoot into ``out_dir``.
+@dataclass
+class RunSettings:
+    """How :func:`run_batch` runs (its keywords besides the source, output, options,
+    selection, response and progress).
 
-    Parameters
+    Attributes
     ----------
-    source : str, os.PathLike or Manifest
-        A folder of photographs (scanned with ``recursive``, ``frames_per_set``,
-        ``gap``), a manifest file from ``hdrcl scan -o``, or a Manifest.
-    out_dir : str or os.PathLike
-        Output folder, created if needed: ``<stem>.exr`` and ``<stem>.jpg`` per set,
-        the pooled responses and ``report.json``.
-    options : BatchOptions, optional
-    sets : str or list of (start, end), optional
-        Manifest indices to run (:func:`parse_sets`); the rest of the manifest still
-        decides the response pool, the exposure reference and the output names.
-    response : Response or path, optional
-        One response for every set instead of the pooled calibration.
     jobs : int
         Worker processes; 1 runs the pipeline in this process. The workers are
         started with ``spawn``, so a script calling this with ``jobs > 1`` needs the
@@ -190,9 +159,6 @@ def run_batch(
         ``--report-json``; the quality report folder is ``options.report_dir``).
     calibrate_only : bool
         Prepare (solve or load) the responses of the selected sets and stop.
-    progress : callable, optional
-        ``progress(result, completed, total)``; called once with ``result=None``
-        before the first set, then after each set.
     times_file : path, optional
         Exposure list (HDRShop ``image_list.txt`` or ``file seconds`` lines) for frames
         without EXIF; lists named ``image_list.txt`` or ``times.txt`` beside the frames
@@ -209,6 +175,50 @@ def run_batch(
         Folder of responses, one per camera group (``<group>.response.json``): one found
         there that fits the frames' bit depth is used as it is; otherwise the group is
         calibrated as usual and its curve written there (instead of into ``out_dir``).
+    """
+
+    jobs: int = 1
+    scheduler: object = None
+    retries: int = 2
+    force: bool = False
+    report: Union[str, os.PathLike, None] = None
+    calibrate_only: bool = False
+    recursive: bool = False
+    frames_per_set: Optional[int] = None
+    gap: Optional[float] = None
+    times_file: Union[str, os.PathLike, None] = None
+    handle_signals: bool = False
+    name: Optional[str] = None
+    response_cache: Union[str, os.PathLike, None] = None
+
+
+def run_batch(source, out_dir, *, options: Optional[BatchOptions] = None,
+              sets: Union[str, Sequence[Tuple[int, Optional[int]]], None] = None, response=None,
+              progress: Optional[Callable[[Optional[SetResult], int, int], None]] = None,
+              **settings) -> BatchReport:
+    """Merge every bracket set of a shoot into ``out_dir``.
+
+    Parameters
+    ----------
+    source : str, os.PathLike or Manifest
+        A folder of photographs (scanned with ``recursive``, ``frames_per_set``,
+        ``gap``), a manifest file from ``hdrcl scan -o``, or a Manifest.
+    out_dir : str or os.PathLike
+        Output folder, created if needed: ``<stem>.exr`` and ``<stem>.jpg`` per set,
+        the pooled responses and ``report.json``.
+    options : BatchOptions, optional
+    sets : str or list of (start, end), optional
+        Manifest indices to run (:func:`parse_sets`); the rest of the manifest still
+        decides the response pool, the exposure reference and the output names.
+    response : Response or path, optional
+        One response for every set instead of the pooled calibration.
+    progress : callable, optional
+        ``progress(result, completed, total)``; called once with ``result=None``
+        before the first set, then after each set.
+    settings
+        :class:`RunSettings`: ``jobs``, ``scheduler``, ``retries``, ``force``, ``report``,
+        ``calibrate_only``, ``recursive``, ``frames_per_set``, ``gap``, ``times_file``,
+        ``handle_signals``, ``name``, ``response_cache``.
 
     With ``handle_signals`` (in the main thread), SIGTERM and SIGINT stop the run
     within a couple of seconds: worker processes are killed, temporary files of
@@ -235,20 +245,10 @@ def run_batch(
     """
     t_start = _time.perf_counter()
     options = options or BatchOptions()
-    if jobs < 1:
-        raise UsageError(f"--jobs must be at least 1, not {jobs}")
-    if response is not None and response_cache is not None:
-        raise UsageError("--response and --response-cache exclude each other: the given curve serves every set")
-    if scheduler is not None and jobs > 1:
-        raise UsageError("--jobs and --scheduler exclude each other: the Dask cluster decides the parallelism")
-    if options.dtype not in ("auto", "half", "float"):
-        raise UsageError(f"--dtype: '{options.dtype}' is not one of auto, half, float")
-    if options.preview_size < 16:
-        raise UsageError("--preview-size must be at least 16 pixels")
-    for line in options.merge.ignored():
-        logger.warning("%s", line)
+    s = RunSettings(**settings)  # TypeError naming an unknown keyword
+    _check_run(options, s, response)
     # With handle_signals, SIGTERM / Ctrl-C raise Cancelled in the main thread from here on.
-    with cancel_signals(install=handle_signals):
+    with cancel_signals(install=s.handle_signals):
         ranges = parse_sets(sets) if isinstance(sets, str) else (list(sets) if sets is not None else None)
         out_dir = os.path.abspath(os.fspath(out_dir))
         if os.path.exists(out_dir) and not os.path.isdir(out_dir):
@@ -259,88 +259,117 @@ def run_batch(
             if os.path.exists(report_dir) and not os.path.isdir(report_dir):
                 raise UsageError(f"{report_dir}: --report is not a folder")
             options = replace(options, report_dir=report_dir)
-        manifest = _manifest(source, recursive, frames_per_set, gap, times_file,
+        manifest = _manifest(source, s.recursive, s.frames_per_set, s.gap, s.times_file,
                              [out_dir] + ([report_dir] if report_dir else []))
-        plan = _plan(manifest, out_dir, options, ranges, name)  # before any folder: a bad --name is exit 2
-        cache = os.path.abspath(os.fspath(response_cache)) if response_cache is not None else None
-        for folder, what in ((out_dir, "output"), (report_dir, "report"), (cache, "response cache")):
-            if folder is None:
-                continue
-            try:
-                os.makedirs(folder, exist_ok=True)
-            except OSError as exc:
-                raise UsageError(f"{folder}: cannot create the {what} folder ({exc.strerror or exc})") from None
-
-        report_path = os.path.abspath(os.fspath(report)) if report is not None else os.path.join(out_dir, REPORT_NAME)
+        plan = _plan(manifest, out_dir, options, ranges, s.name)  # before any folder: a bad --name is exit 2
+        cache = os.path.abspath(os.fspath(s.response_cache)) if s.response_cache is not None else None
+        _make_folders(((out_dir, "output"), (report_dir, "report"), (cache, "response cache")))
+        report_path = os.path.abspath(os.fspath(s.report)) if s.report is not None else \
+            os.path.join(out_dir, REPORT_NAME)
         check_outputs_spare_inputs(manifest, plan, out_dir, report_path=report_path, report_dir=report_dir,
                                    responses=response is None, source=source, response_dir=cache)
         logger.info("%d set(s) in the manifest, %d selected; reference %s", len(plan.jobs), len(plan.selected),
                     _reference_text(plan.reference))
         # A camera with one set in the manifest is calibrated by that set's merge, from the
         # decode that feeds its fusion (each frame decoded once).
-        responses = _prepare_responses(plan, out_dir, options, response, defer=not calibrate_only, cache=cache)
+        responses = _prepare_responses(plan, out_dir, options, response, defer=not s.calibrate_only, cache=cache)
         unreadable = [f for u in manifest.unmerged if u.reason.startswith("corrupt") for f in u.files] \
             if ranges is None else []
         rep = BatchReport(unmerged=[{"files": [os.path.abspath(f) for f in u.files], "reason": u.reason}
                                     for u in manifest.unmerged],
                           responses=[responses[g] for g in sorted(responses)], unreadable=unreadable,
                           reference=plan.reference, sets_in_manifest=len(plan.jobs))
-        if calibrate_only:
+        if s.calibrate_only:
             rep.seconds = _time.perf_counter() - t_start
             return rep
-
         _remove_stale_temps(out_dir, [os.path.splitext(os.path.basename(j.output))[0] for j in plan.selected])
-        ctx = _Context(options=options, responses=responses, force=force)
-        total = len(plan.selected)
-        results: List[SetResult] = []
-
-        def emit(res: SetResult):
-            results.append(res)
-            # A progress callback reports failures itself; without one, the log does.
-            lvl = logging.WARNING if res.status == STATUS_FAILED and progress is None else logging.INFO
-            logger.log(lvl, "set %d: %s%s", res.index, res.status, f": {res.error}" if res.error else "")
-            if progress is not None:
-                progress(res, len(results), total)
-
-        if progress is not None:
-            progress(None, 0, total)
-        stems = [os.path.splitext(os.path.basename(j.output))[0] for j in plan.selected]
-        try:
-            if scheduler is not None:
-                from hdrcl.shoot.executors import run_dask
-
-                run_dask(plan.selected, ctx, scheduler, emit, task=process_set, failed=_failed, retries=retries)
-            elif jobs > 1 and total > 1:
-                from hdrcl.shoot.executors import run_processes
-
-                run_processes(plan.selected, ctx, emit, task=process_set, failed=_failed, jobs=min(jobs, total))
-            else:
-                _run_pipelined(plan.selected, ctx, emit)
-        except Cancelled as exc:
-            rep.cancelled = exc.signum
-            # Said once, by the caller (the CLI's one line; rep.cancelled for the API).
-            logger.info("%s: %d of %d set(s) finished; stopping", exc, len(results), total)
-            # The workers are dead and their claims released: their temporary files go.
-            remove_orphan_temps(out_dir, stems)
-        except BaseException:
-            # KeyboardInterrupt in API mode (or the caller's own signal exception): the
-            # workers are dead; clean up after them and let the caller have it.
-            remove_orphan_temps(out_dir, stems)
-            raise
-
+        ctx = _Context(options=options, responses=responses, force=s.force)
+        results = _run_sets(plan, ctx, s, rep, out_dir, progress)
         rep.results = sorted(results, key=lambda r: r.index)
-        if not os.path.isdir(os.path.dirname(report_path)):
-            raise UsageError(f"{report_path}: report folder does not exist")
-        with _report_lock(os.path.dirname(report_path)):
-            rep.entries = _merge_entries(report_path, rep.results, plan)
-            _atomic_json(report_path, rep.to_dict())
-            if report_dir is not None:
-                # Under the report's lock: of chunks finishing together, the last one to
-                # write the contact sheet sees every other's sets.
-                rep.quality_report = _contact_sheet(plan, rep.entries, report_dir, rep.unmerged)
-        rep.path = report_path
+        _write_report(rep, plan, report_path, report_dir)
         rep.seconds = _time.perf_counter() - t_start
         return rep
+
+
+def _check_run(options: BatchOptions, s: RunSettings, response) -> None:
+    """The run's own options, before anything is read (the merge options were checked
+    when ``options`` was made)."""
+    if s.jobs < 1:
+        raise UsageError(f"--jobs must be at least 1, not {s.jobs}")
+    if response is not None and s.response_cache is not None:
+        raise UsageError("--response and --response-cache exclude each other: the given curve serves every set")
+    if s.scheduler is not None and s.jobs > 1:
+        raise UsageError("--jobs and --scheduler exclude each other: the Dask cluster decides the parallelism")
+    if options.preview_size < 16:
+        raise UsageError("--preview-size must be at least 16 pixels")
+    for line in options.merge.ignored():
+        logger.warning("%s", line)
+
+
+def _make_folders(folders) -> None:
+    for folder, what in folders:
+        if folder is None:
+            continue
+        try:
+            os.makedirs(folder, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"{folder}: cannot create the {what} folder ({exc.strerror or exc})") from None
+
+
+def _run_sets(plan, ctx: _Context, s: RunSettings, rep: BatchReport, out_dir: str, progress) -> List[SetResult]:
+    """Every selected set, in this process, worker processes or on a Dask cluster; a
+    cancel stops the run with the results so far (``rep.cancelled``)."""
+    total = len(plan.selected)
+    results: List[SetResult] = []
+
+    def emit(res: SetResult):
+        results.append(res)
+        # A progress callback reports failures itself; without one, the log does.
+        lvl = logging.WARNING if res.status == STATUS_FAILED and progress is None else logging.INFO
+        logger.log(lvl, "set %d: %s%s", res.index, res.status, f": {res.error}" if res.error else "")
+        if progress is not None:
+            progress(res, len(results), total)
+
+    if progress is not None:
+        progress(None, 0, total)
+    stems = [os.path.splitext(os.path.basename(j.output))[0] for j in plan.selected]
+    try:
+        if s.scheduler is not None:
+            from hdrcl.shoot.executors import run_dask
+
+            run_dask(plan.selected, ctx, s.scheduler, emit, task=process_set, failed=_failed, retries=s.retries)
+        elif s.jobs > 1 and total > 1:
+            from hdrcl.shoot.executors import run_processes
+
+            run_processes(plan.selected, ctx, emit, task=process_set, failed=_failed, jobs=min(s.jobs, total))
+        else:
+            _run_pipelined(plan.selected, ctx, emit)
+    except Cancelled as exc:
+        rep.cancelled = exc.signum
+        # Said once, by the caller (the CLI's one line; rep.cancelled for the API).
+        logger.info("%s: %d of %d set(s) finished; stopping", exc, len(results), total)
+        # The workers are dead and their claims released: their temporary files go.
+        remove_orphan_temps(out_dir, stems)
+    except BaseException:
+        # KeyboardInterrupt in API mode (or the caller's own signal exception): the
+        # workers are dead; clean up after them and let the caller have it.
+        remove_orphan_temps(out_dir, stems)
+        raise
+    return results
+
+
+def _write_report(rep: BatchReport, plan, report_path: str, report_dir) -> None:
+    """report.json (merged with earlier runs' entries) and the contact sheet, under the lock."""
+    if not os.path.isdir(os.path.dirname(report_path)):
+        raise UsageError(f"{report_path}: report folder does not exist")
+    with _report_lock(os.path.dirname(report_path)):
+        rep.entries = _merge_entries(report_path, rep.results, plan)
+        _atomic_json(report_path, rep.to_dict())
+        if report_dir is not None:
+            # Under the report's lock: of chunks finishing together, the last one to
+            # write the contact sheet sees every other's sets.
+            rep.quality_report = _contact_sheet(plan, rep.entries, report_dir, rep.unmerged)
+    rep.path = report_path
 
 
 def describe_batch(source, out_dir, *, options: Optional[BatchOptions] = None, sets=None, response=None,
