@@ -155,3 +155,20 @@ def test_batch_align_report_measures_the_aligned_set_as_merge_does(memorial_hand
     batched = entry["quality"]["looRmse"]
     assert merged is not None and batched is not None
     assert abs(merged - batched) < 0.5, (merged, batched)
+
+
+def test_dry_run_does_not_call_a_damaged_cached_response_cached(tmp_path, cl_device):
+    """The plan says what the run does: a damaged curve in --response-cache is calibrated
+    again, so the dry run says "calibrate", not "cached" (issue 25)."""
+    shoot, cache = tmp_path / "shoot", tmp_path / "cache"
+    assert _cli("sample-shoot", shoot).exit_code == 0
+    assert _cli("batch", shoot, "-o", tmp_path / "out", "--response-cache", cache).exit_code == 0
+    damaged = sorted(cache.glob("*.response.json"))[0]
+    damaged.write_text("garbage{")
+    r = _cli("batch", shoot, "-o", tmp_path / "out2", "--response-cache", cache, "--dry-run", "--json")
+    assert r.exit_code == 0, r.output
+    plan = json.loads(r.output[r.output.index("{"):])
+    rows = [s for s in plan["sets"] if s["response"]["file"] == str(damaged)]
+    assert rows and all(s["response"]["source"] == "calibrate" and s["calibration"]["kind"] != "cached"
+                        for s in rows), rows
+    assert any(s["response"]["source"] == "cached" for s in plan["sets"])

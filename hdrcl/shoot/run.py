@@ -392,7 +392,7 @@ def describe_batch(source, out_dir, *, options: Optional[BatchOptions] = None, s
     ------
     As :func:`run_batch` before it writes anything.
     """
-    from hdrcl.shoot.pooling import _pool_of
+    from hdrcl.shoot.pooling import _cached, _pool_of
     from hdrcl.shoot.plan import response_path
 
     options = options or BatchOptions()
@@ -409,15 +409,19 @@ def describe_batch(source, out_dir, *, options: Optional[BatchOptions] = None, s
                                report_dir=report_dir, responses=response is None, source=source,
                                response_dir=folder)
     rows = []
+    usable: Dict[str, bool] = {}  # per group: a cached curve the run takes as it is (same test as the run)
     for job in plan.selected:
         members = plan.groups[job.group]
-        cached = response_cache is not None and cache_for(plan.firsts.get(members[0]), folder) is not None
+        first = plan.firsts.get(members[0])
+        cached = response_cache is not None and cache_for(first, folder) is not None
+        if cached and job.group not in usable:
+            usable[job.group] = _cached(job.group, folder, first) is not None
         path = response_path(job.group, folder if cached else out_dir)
         if response is not None:
             resp = {"group": job.group, "file": os.fspath(response), "source": "given"}
             calib = {"kind": "given"}
         else:
-            there = os.path.isfile(path)
+            there = os.path.isfile(path) and (not cached or usable[job.group])  # a damaged one is calibrated again
             resp = {"group": job.group, "file": path,
                     "source": ("cached" if cached else "saved") if there else "calibrate"}
             calib = ({"kind": "cached"} if there and cached else
