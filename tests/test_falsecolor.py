@@ -48,32 +48,79 @@ def test_exr_needs_its_units(tmp_path):
 
 
 @pytest.mark.parametrize("scale,lo,hi", [("linear", 0.0, 2e5), ("log", 20.0, 5e4), ("linear", 1e3, 1e4)])
-def test_colour_index_against_its_formula(scale, lo, hi):
+def test_colour_index_is_radiance_v(scale, lo, hi):
+    """Radiance's falsecolor: v = L/max (linear), log10(L/max)/decades + 1 above max/10^decades, else 0;
+    not clipped (the palette clamps)."""
     lum = _luminance_field()
-    t = fc.colour_index(lum, scale, lo, hi)
+    v = fc.colour_index(lum, scale, lo, hi)
     pos = lum > 0
     if scale == "linear":
-        want = (lum - lo) / (hi - lo)
+        want = np.maximum((lum - lo) / (hi - lo), 0)
     else:
-        want = (np.log10(np.where(pos, lum, 1)) - math.log10(lo)) / (math.log10(hi) - math.log10(lo))
-    np.testing.assert_allclose(t[pos], np.clip(want, 0, 1)[pos], rtol=1e-12, atol=1e-15)
-    assert np.all(t[~pos] == 0)
-    rgb = fc.palette(t)
-    assert np.all(np.diff(rgb[60, :, 2][t[60] < 0.2]) >= 0)  # the low end is blue, brightening
-    assert rgb[60, np.argmax(t[60])].tolist() == pytest.approx(fc.palette(np.array([t[60].max()]))[0].tolist())
+        d = math.log10(hi / lo)
+        r = np.where(pos, lum, 1) / hi
+        want = np.where(r > 10 ** -d, np.log10(r) / d + 1, 0)
+    np.testing.assert_allclose(v[pos], want[pos], rtol=1e-12, atol=1e-15)
+    assert np.all(v[~pos] == 0)
 
 
-def test_defaults_and_legend(tmp_path):
+def test_palettes_are_radiance_formulas():
+    k = np.arange(23)
+    np.testing.assert_allclose(fc.palette(k * 0.0454545, "def"), fc.DEF_TABLE, atol=1e-9)
+    mid = fc.palette(np.array([0.5 * 0.0454545]), "def")[0]
+    np.testing.assert_allclose(mid, (fc.DEF_TABLE[0] + fc.DEF_TABLE[1]) / 2, rtol=1e-6)
+    assert fc.palette(np.array([-1.0, 7.0]), "def").tolist() == [fc.DEF_TABLE[0].tolist(), fc.DEF_TABLE[22].tolist()]
+    v = np.linspace(0, 1, 101)
+    spec = fc.palette(v, "spec")
+    np.testing.assert_allclose(spec[:, 0], np.clip(1.6 * v - 0.6, 0, 1))
+    np.testing.assert_allclose(spec[:, 1], np.clip(np.where(v > 0.375, 1.6 - 1.6 * v, 8 / 3 * v), 0, 1))
+    np.testing.assert_allclose(spec[:, 2], np.clip(1 - 8 / 3 * v, 0, 1))
+    np.testing.assert_allclose(fc.palette(v, "hot")[:, 0], np.clip(3 * v, 0, 1) ** 2.2)
+    assert fc.display_codes(np.array([0.0, 1.0, 0.5])).tolist() == [0, 255, int(256 * 0.5 ** (1 / 2.2))]
+
+
+def test_defaults_show_the_map_not_the_sun():
     lum = _luminance_field()
     assert fc.nice_max(1234.0) == 2000.0 and fc.nice_max(5000.0) == 5000.0 and fc.nice_max(0.031) == 0.05
-    picture, (lo, hi) = fc.render(lum, scale="log")
-    assert (lo, hi) == (10.0, 1e5)  # max rounded up, 4 decades below it
-    h, w = lum.shape
-    assert picture.shape[0] == h and picture.shape[1] > w and picture.dtype == np.uint8
-    assert np.all(picture[:10, :10] == 0)  # no luminance: black
-    pane = picture[:, w:]
-    assert pane.max() == 255 and (pane == 255).all(axis=2).sum() > 100  # white legend text and ticks
-    assert fc.text_mask("10e5", 1).shape == (5, 4 * 3 + 3)
+    assert fc.scale_limits(lum, "log", None, None) == (10.0, 1e5)  # power of ten above, down to the 1st percentile
+    sky = np.full((100, 100), 3000.0)
+    sky[50:53, 50:53] = 1e9  # a sun of 9 pixels
+    lo, hi = fc.scale_limits(sky, "linear", None, None)
+    assert (lo, hi) == (0.0, 5000.0)  # the 99th percentile, rounded up: the sky is mid-scale, not dark blue
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (8, 8), (3, 40)])
+def test_tiny_maps_get_a_whole_legend(tmp_path, shape):
+    """Issue 29: a 1x1 map and a --resize 8 map crashed (the legend needs about 14 rows)."""
+    lum = np.full(shape, 150.8)
+    picture, _ = fc.render(lum)
+    assert picture.shape[0] >= fc.legend_height(8, 1) and picture.shape[1] > shape[1]
+    assert np.all(picture[shape[0]:, :shape[1]] == 0)  # padded with black below the map
+    write_radiance(tmp_path / "one.exr", np.full(shape + (3,), 150.8, np.float32), dtype="float",
+                   metadata={"units": "cd/m2"})
+    r = CliRunner().invoke(main, ["falsecolor", str(tmp_path / "one.exr"), "-o", str(tmp_path / "one.png")])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "one.png").exists()
+
+
+def test_contours_extrema_and_multiplier(tmp_path):
+    ramp = np.tile(np.linspace(1.0, 999.0, 200), (60, 1))
+    lines, _ = fc.render(ramp, hi=1000.0, contour="lines")
+    map_part = lines[:, :200]
+    coloured = map_part.any(axis=2).any(axis=0)
+    # a line where floor(8 v + 0.5) changes: at v = 1/16, 3/16, ... (7 lines inside 0..1)
+    assert 7 <= int(np.sum(np.diff(coloured.astype(int)) == 1)) <= 8
+    bands, _ = fc.render(ramp, hi=1000.0, contour="bands")
+    share = bands[:, :200].any(axis=2).mean()
+    assert 0.1 < share < 0.25  # frac(8 v) in 0.4..0.6: a fifth of the ramp, less the ends
+    plain, _ = fc.render(ramp, hi=1000.0)
+    marked, _ = fc.render(ramp, hi=1000.0, show_extrema=True)
+    assert not np.array_equal(plain[:20, :40], marked[:20, :40])  # the minimum's label at its pixel (0, 0)
+    assert (fc.extrema(ramp)[1][1], fc.extrema(ramp)[0][2]) == (199, 1.0)
+    write_radiance(tmp_path / "r.exr", np.repeat(ramp[..., None], 3, 2).astype(np.float32), dtype="float",
+                   metadata={"units": "cd/m2"})
+    limits = fc.falsecolor_file(tmp_path / "r.exr", tmp_path / "r.png", multiplier=3.14159, label="lux")
+    assert limits == (0.0, 5000.0)  # 3.14 x ~990 -> 5000
 
 
 def test_command_writes_png(tmp_path):
@@ -81,15 +128,31 @@ def test_command_writes_png(tmp_path):
     write_radiance(tmp_path / "m.exr", np.repeat(lum[..., None], 3, 2).astype(np.float32), dtype="float",
                    metadata={"units": "cd/m2"})
     r = CliRunner().invoke(main, ["falsecolor", str(tmp_path / "m.exr"), "-o", str(tmp_path / "fc.png"),
-                                  "--scale", "log", "--max", "1e5", "--min", "10"])
+                                  "--scale", "log", "--max", "1e5", "--min", "10", "--palette", "spec"])
     assert r.exit_code == 0, r.output
     assert "log scale 10 .. 100000 cd/m2" in r.output
     px = _read_png(tmp_path / "fc.png")
-    t = fc.colour_index(lum, "log", 10.0, 1e5)
-    want = np.round(fc.palette(t) * 255)
-    want[lum <= 0] = 0
+    want = fc.display_codes(fc.palette(fc.colour_index(lum, "log", 10.0, 1e5), "spec"))
     # the file holds float32 luminance: a code may round the other way
-    np.testing.assert_allclose(px[:, :lum.shape[1]].astype(int), want.astype(int), atol=1, rtol=0)
+    np.testing.assert_allclose(px[:lum.shape[0], :lum.shape[1]].astype(int), want.astype(int), atol=1, rtol=0)
+
+
+def test_display_codes_equal_radiance_ra_ppm(tmp_path, radiance_bin):
+    """A picture of the default palette converted by Radiance (ra_ppm, gamma 2.2) has hdrcl's codes."""
+    import subprocess
+
+    v = np.linspace(0, 1.05, 64)
+    rgb = np.repeat(fc.palette(v, "def")[None], 4, axis=0).astype(np.float32)
+    pic = subprocess.run([str(radiance_bin / "pvalue"), "-r", "-h", "-df", "-y", "4", "+x", "64"],
+                         input=rgb.tobytes(), capture_output=True, check=True).stdout
+    ppm = subprocess.run([str(radiance_bin / "ra_ppm")], input=pic, capture_output=True, check=True).stdout
+    codes = np.frombuffer(ppm, np.uint8)[-4 * 64 * 3:].reshape(4, 64, 3)
+    # the colours as the picture holds them (RGBE: 8 bits of each pixel's largest channel)
+    held = np.frombuffer(subprocess.run([str(radiance_bin / "pvalue"), "-h", "-H", "-df"], input=pic,
+                                        capture_output=True, check=True).stdout, np.float32).reshape(4, 64, 3)
+    diff = np.abs(codes.astype(int) - fc.display_codes(held).astype(int))
+    small = held < 0.02 * held.max(axis=-1, keepdims=True)  # Radiance's gamma table at a mantissa of 0 or 1
+    assert diff[~small].max() <= 1 and diff[small].max() <= 4
 
 
 @pytest.mark.parametrize("args,code,text", [
