@@ -51,11 +51,13 @@ def move(frame, matrix, ignore=IGNORE, fill=None):
     return out
 
 
-def exposures(frame, stops, seed=0, noise=0.002, ignore=IGNORE):
+def exposures(frame, stops, seed=0, noise=0.002, ignore=IGNORE, pedestal=0):
     """Frames of one real frame's scene at ``2**stop`` times its exposure: linearised
     (``(z / zmax) ** 2.2``), scaled, given fresh noise, clipped and re-quantised; masked
     pixels keep the ignore colour. The scene is the same in every frame: any motion
-    given them later is the only misregistration."""
+    given them later is the only misregistration. ``pedestal`` > 0: codes sit on a
+    sensor's black level of that many codes, with noise of a code (a dark frame's
+    median is then the pedestal, as on the Memorial film's short exposures)."""
     rng = np.random.default_rng(seed)
     zmax = float(np.iinfo(frame.dtype).max)
     lin = (frame.astype(np.float64) / zmax) ** 2.2
@@ -63,18 +65,23 @@ def exposures(frame, stops, seed=0, noise=0.002, ignore=IGNORE):
     out = []
     for st in stops:
         e = np.clip(lin * 2.0 ** st + rng.normal(0.0, noise, lin.shape), 0.0, 1.0)
-        f = np.round(e ** (1 / 2.2) * zmax).astype(frame.dtype)
+        if pedestal:
+            z = pedestal + e ** (1 / 2.2) * (zmax - pedestal) + rng.normal(0.0, 1.0, lin.shape)
+            f = np.round(np.clip(z, 0.0, zmax)).astype(frame.dtype)
+        else:
+            f = np.round(e ** (1 / 2.2) * zmax).astype(frame.dtype)
         f[masked] = np.asarray(ignore, frame.dtype)
         out.append(f)
     return out
 
 
-def handheld_set(frame, stops, seed=0, max_rot=2.0, max_shift=40.0, max_scale=0.02):
+def handheld_set(frame, stops, seed=0, max_rot=2.0, max_shift=40.0, max_scale=0.02, fill=None, pedestal=0):
     """``(tripod, moved, matrices)``: :func:`exposures` of ``frame``, the same frames
     moved by random similarities (the middle one, the reference, not moved) and the
     matrices (reference -> frame pixel coordinates). The first and last frames get the
-    largest rotation, shift and scale asked for."""
-    tripod = exposures(frame, stops, seed)
+    largest rotation, shift and scale asked for. ``fill``, ``pedestal``: as
+    :func:`move` and :func:`exposures` take them."""
+    tripod = exposures(frame, stops, seed, pedestal=pedestal)
     h, w = frame.shape[:2]
     rng = np.random.default_rng(seed + 1)
     ref = len(stops) // 2
@@ -91,7 +98,7 @@ def handheld_set(frame, stops, seed=0, max_rot=2.0, max_shift=40.0, max_scale=0.
             m = similarity(rng.uniform(-max_rot, max_rot), 1.0 + rng.uniform(-max_scale, max_scale),
                            rng.uniform(-max_shift, max_shift), rng.uniform(-max_shift, max_shift), h, w)
         mats.append(m)
-        moved.append(move(f, m))
+        moved.append(move(f, m, fill=fill))
     return tripod, moved, mats
 
 

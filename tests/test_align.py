@@ -346,19 +346,27 @@ def test_handheld_numpy_path_matches_opencl(cl_device, memorial_handheld, monkey
         va = np.ones(fa.shape[:2], bool) if va is None else va
         vb = np.ones(fb.shape[:2], bool) if vb is None else vb
         assert np.mean(va != vb) < 1e-3
-        d = np.abs(fa.astype(int) - fb.astype(int))[va & vb]
-        assert d.max() <= 1 and np.mean(d > 0) < 0.01
+        d = np.abs(fa.astype(int) - fb.astype(int))[va & vb].max(axis=1)
+        # float32 coordinates: a source coordinate within a float32 rounding of the snap
+        # distance from an integer snaps in one and not the other, which changes the taps
+        # that contribute (and with them the clip rule and the no-ringing range): a few pixels
+        assert np.mean(d > 1) < 1e-4 and np.mean(d > 0) < 0.01
 
 
 def test_frame_with_nothing_to_measure_takes_its_neighbours_motion(cl_device, memorial_bracket, caplog):
-    """Memorial's 1/1024 s frame records only a little of the windows: too little to
-    register, so it is not refused but takes its neighbour's motion, with a warning."""
+    """A frame that records nothing but its pedestal (Memorial's 1/1024 s frame, its few
+    window pixels replaced by the sensor's noise): nothing to register, so it is not
+    refused but takes its neighbour's motion, with a warning. (The real 1/1024 s frame is
+    measured: its windows, block-matched, confirm the fit.)"""
     from hdrcl.core import handheld as HH
 
     br = memorial_bracket
-    with caplog.at_level(logging.WARNING, logger="hdrcl.core.handheld"):
-        res = HH.align_bracket(br.frames, br.valid, br.times, names=br.paths)
     darkest = int(np.argmin(br.times))
+    frames = list(br.frames)
+    rng = np.random.default_rng(0)
+    frames[darkest] = np.clip(np.round(15 + rng.normal(0, 1, frames[darkest].shape)), 0, 255).astype(np.uint8)
+    with caplog.at_level(logging.WARNING, logger="hdrcl.core.handheld"):
+        res = HH.align_bracket(frames, br.valid, br.times, names=br.paths, model="similarity")
     rec = res.alignment[darkest]
     assert rec["model"] == "inherited" and rec["residual_px"] is None
     neighbour = [a for a in res.alignment if a["file"] == rec["against"]][0]

@@ -82,6 +82,8 @@ OVERLAP_WARPS = True
 #: 0068, a fit to non-rigid scan differences), and a resampling blurs more than a
 #: sub-pixel misregistration costs the fusion.
 STATIC_PX = 1.0
+#: Frames with a side under this many pixels are not aligned (merged as they are).
+MIN_SIDE = 16
 #: Refusal: residual misalignment above this (full-size pixels) ...
 MAX_RESIDUAL_PX = 2.0
 #: ... rank images correlating less than this ...
@@ -531,6 +533,13 @@ def align_bracket(frames, valid, times, device=None, crop: bool = False, model: 
     from hdrcl.core.align import get_aligner
 
     out_f, out_v = (frames, valid) if inplace else (list(frames), list(valid))
+    if min(h, w) < MIN_SIDE:  # nothing to register on: merged as they are, said once
+        logger.warning("%s: frames of %dx%d pixels are too small to align (under %d on a side); they are "
+                       "merged as they are", names[order[0]], w, h, MIN_SIDE)
+        ref_i = order[ref]
+        records = [describe(names[i], "reference" if i == ref_i else "none", np.eye(3), 0.0, h, w, names[ref_i])
+                   for i in range(n)]
+        return Aligned(out_f, out_v, [(0, 0)] * n, (0, h, 0, w) if crop else None, records)
     warps = _Warps(out_f, out_v, order, _warper(get_aligner(device)), inplace)
     try:
         fits, _ = estimate([frames[i] for i in order], ref, model, device, [names[i] for i in order],

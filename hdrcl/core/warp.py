@@ -22,7 +22,11 @@ pixel is *covered* when ``s > 0`` and every contributing tap lies in the frame;
 (conservative: one invalid source pixel invalidates the result). The value is
 ``clamp(floor(sum_j w_j (sum_i w_i z_ij) + 1/2), 0, zmax)`` in the frame's code units
 where covered, 0 where not (separable: each row of taps summed over x, then the rows
-over y; the kernel in float32 in the same order).
+over y; the kernel in float32 in the same order), held between the smallest and the
+largest contributing tap of the channel (no ringing: the cubic's overshoot at a hard
+edge, one channel at a time, made single-pixel colour speckles beside clipped
+highlights and along black fill), and the largest code where a contributing tap is at or
+above the clip level ``clip_hi``.
 """
 from __future__ import annotations
 
@@ -99,6 +103,7 @@ def warp_rows(frame: np.ndarray, matrix: np.ndarray, y0: int, y1: int,
     good = ok.copy()
     acc = np.zeros(ys.shape + (c,), np.float64)
     top = np.zeros(ys.shape + (c,), np.float64)  # the largest contributing tap per channel
+    bot = np.full(ys.shape + (c,), zmax)  # and the smallest
     for j, oy in enumerate(offs):  # separable: each tap row over x, then the rows over y
         py = iy + oy
         cy = np.clip(py, 0, h - 1)
@@ -114,8 +119,9 @@ def warp_rows(frame: np.ndarray, matrix: np.ndarray, y0: int, y1: int,
             z = frame[cy, cx]
             row += wx[i][..., None] * z
             np.maximum(top, np.where(contrib[..., None], z, 0), out=top)
+            np.minimum(bot, np.where(contrib[..., None], z, zmax), out=bot)
         acc += wy[j][..., None] * row
-    codes = np.clip(np.floor(acc + 0.5), 0.0, zmax)
+    codes = np.clip(np.floor(acc + 0.5), bot, top)  # no ringing (module docstring)
     if clip_hi is not None:  # a clipped contributing tap: clipped (the kernel's docstring)
         codes[top >= clip_hi] = zmax
     codes[~covered] = 0
