@@ -172,3 +172,33 @@ def test_dry_run_does_not_call_a_damaged_cached_response_cached(tmp_path, cl_dev
     assert rows and all(s["response"]["source"] == "calibrate" and s["calibration"]["kind"] != "cached"
                         for s in rows), rows
     assert any(s["response"]["source"] == "cached" for s in plan["sets"])
+
+
+def test_scan_and_batch_agree_on_two_frames_of_one_exposure(tmp_path, cl_device):
+    """4 s at ISO 2500 and 2 s at ISO 5000 are one exposure: scan does not list them as a
+    set, and batch says the same (nothing to merge, the reason named), issue 25."""
+    import datetime as dt
+
+    from hdrcl.core import synthetic
+    from hdrcl.io.writers import write_photo
+
+    shoot = tmp_path / "shoot"
+    shoot.mkdir()
+    cam = synthetic.Camera(a=1.1, x0=(1.0, 1.15, 0.85))
+    scene = synthetic.radiance_field(32, 48, decades=2.0, seed=3) * 0.05
+    when = dt.datetime(2024, 6, 1, 21, 0, 0)
+    for k, (t, iso) in enumerate(((4.0, 2500), (2.0, 5000))):
+        (frame,) = synthetic.bracket(scene, [t * iso / 2500], cam, noise=0.5, seed=k)
+        write_photo(str(shoot / f"DSC_{k + 1:04d}.jpg"), frame,
+                    {"ExposureTime": t, "FNumber": 4.0, "Exif:PhotographicSensitivity": iso, "Exif:ExposureMode": 1,
+                     "Make": "NIKON CORPORATION", "Model": "NIKON D750",
+                     "Exif:DateTimeOriginal": (when + dt.timedelta(seconds=6 * k)).strftime("%Y:%m:%d %H:%M:%S")})
+    r = _cli("scan", shoot, "--json")
+    assert r.exit_code == 0, r.output
+    scanned = json.loads(r.output[r.output.index("{"):])
+    assert scanned["sets"] == [], scanned["sets"]
+    assert any("exposure" in u["reason"] for u in scanned["unmerged"]), scanned["unmerged"]
+    r = _cli("batch", shoot, "-o", tmp_path / "out")
+    assert r.exit_code == 1, r.output
+    assert "same exposure" in r.output or "share one exposure" in r.output, r.output
+    assert "all 2 frames have the same exposure" not in r.output

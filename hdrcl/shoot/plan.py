@@ -219,6 +219,7 @@ def load_source(source, *, recursive: bool = False, frames_per_set: Optional[int
     if os.path.isdir(path):
         manifest = scan_directory(path, recursive=recursive, frames_per_set=frames_per_set, gap=gap,
                                   times_file=times_file, content=content)
+        _drop_one_exposure_sets(manifest)
         if exclude:
             folders = [exclude] if isinstance(exclude, (str, os.PathLike)) else exclude
             exs = tuple(os.path.abspath(e) + os.sep for e in folders)
@@ -239,6 +240,34 @@ def load_source(source, *, recursive: bool = False, frames_per_set: Optional[int
             if not s.exposures and all(os.path.basename(f) in table for f in s.files):
                 s.exposures = [float(table[os.path.basename(f)].factor) for f in s.files]
     return manifest
+
+
+def _drop_one_exposure_sets(manifest) -> None:
+    """Sets whose frames all record one exposure (time x ISO: 4 s at ISO 2500 is 2 s at
+    ISO 5000) are no bracket: they go to ``manifest.unmerged`` with that reason, as the
+    merge would refuse them (:func:`hdrcl.io.metadata.relative_exposures`), so that scan
+    and batch agree on the sets. The remaining sets are numbered again from 0."""
+    from hdrcl.io.metadata import SAME_EXPOSURE_RTOL, format_time
+    from hdrcl.shoot.manifest import Unmerged
+
+    kept = []
+    for st in manifest.sets:
+        isos = list(st.iso or [])
+        times = list(st.exposures or [])
+        if len(times) == len(st.files) >= 2 and len(isos) == len(times) and all(
+                t and i for t, i in zip(times, isos)):
+            eff = [float(t) * float(i) for t, i in zip(times, isos)]
+            if max(eff) - min(eff) <= SAME_EXPOSURE_RTOL * max(eff):
+                shown = ", ".join(f"{format_time(t)} at ISO {i:g}" for t, i in zip(times, isos))
+                manifest.unmerged.append(Unmerged(files=list(st.files),
+                                                  reason=f"all frames share one exposure ({shown})",
+                                                  ended=st.reason))
+                continue
+        kept.append(st)
+    if len(kept) != len(manifest.sets):
+        for k, st in enumerate(kept):
+            st.index = k
+        manifest.sets = kept
 
 
 def check_manifest(manifest) -> Dict[int, str]:
