@@ -84,14 +84,14 @@ class Card:
     def __init__(self):
         self.frames, self.clock = [], T0
 
-    def add(self, t, gap=2.0, *, iso=100.0, fnumber=1.8, bias=None, mode=1, scene=0, **cam):
+    def add(self, t, gap=2.0, *, iso=100.0, fnumber=1.8, bias=None, mode=1, scene=0, folder="", **cam):
         if self.frames:
             self.clock += dt.timedelta(seconds=gap)
         fields = dict(PHONE)
         fields.update(cam)
-        f = FrameInfo(path=f"F{len(self.frames):02d}.jpg", width=64, height=48, nchannels=3, exposure_time=t,
-                      fnumber=fnumber, iso=iso, exposure_bias=bias, exposure_mode=mode, capture_time=self.clock,
-                      **fields)
+        f = FrameInfo(path=os.path.join(folder, f"F{len(self.frames):02d}.jpg"), width=64, height=48, nchannels=3,
+                      exposure_time=t, fnumber=fnumber, iso=iso, exposure_bias=bias, exposure_mode=mode,
+                      capture_time=self.clock, **fields)
         f.scene = scene  # what the stand-in scene signal compares
         self.frames.append(f)
         self.clock += dt.timedelta(seconds=t)

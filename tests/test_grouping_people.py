@@ -25,12 +25,14 @@ from hdrcl.shoot import scene as scene_mod
 from hdrcl.shoot.grouping import group_frames
 from hdrcl.shoot.ladder import MAX_STEP
 from hdrcl.shoot.scan import scan_directory
-from hdrcl.shoot.scene import GRID, Thumb, Verdict, compare
+from hdrcl.shoot.scene import GRID, Thumb, compare
 
 try:
     import cardgen
+    from test_grouping_missed import Card, files, scene_signal
 except ImportError:  # tests/ made a package
     from tests import cardgen
+    from tests.test_grouping_missed import Card, files, scene_signal
 
 
 def names(manifest):
@@ -72,38 +74,6 @@ def test_explain_names_the_decisions(tmp_path, name, words):
 # --------------------------------------------------------------- constructed headers
 
 T0 = dt.datetime(2025, 1, 1, 12, 0, 0)
-PHONE = dict(make="Google", model="Pixel 8", focal_length=6.9)
-
-
-class Card:
-    """FrameInfo on a timeline; ``gap`` is end-to-start seconds after the previous frame."""
-
-    def __init__(self):
-        self.frames, self.clock = [], T0
-
-    def add(self, t, gap=2.0, *, iso=100.0, fnumber=1.8, bias=None, mode=1, scene=0, folder="", **cam):
-        if self.frames:
-            self.clock += dt.timedelta(seconds=gap)
-        fields = dict(PHONE)
-        fields.update(cam)
-        f = FrameInfo(path=os.path.join(folder, f"F{len(self.frames):02d}.jpg"), width=64, height=48, nchannels=3,
-                      exposure_time=t, fnumber=fnumber, iso=iso, exposure_bias=bias, exposure_mode=mode,
-                      capture_time=self.clock, **fields)
-        f.scene = scene  # what the stand-in scene signal compares
-        self.frames.append(f)
-        self.clock += dt.timedelta(seconds=t)
-        return f.path
-
-
-def scene_signal(a, b):
-    """Stand-in for the thumbnails: the same ``scene`` tag is the same scene."""
-    if a.scene == b.scene:
-        return Verdict("same", rho=0.95, offset=0.0, pixels=100)
-    return Verdict("changed", rho=0.1, offset=0.0, pixels=100)
-
-
-def files(m):
-    return [s.files for s in m.sets]
 
 
 def test_repeated_setting_with_a_new_monotonic_compensation_is_a_duplicate():

@@ -63,6 +63,15 @@ def test_times_file_malformed_line(tmp_path, line):
         f"{path} line 4: expected 'file seconds' or HDRShop columns")
 
 
+@pytest.mark.parametrize("value", ["-2", "0", "-0.5", "inf", "nan"])
+def test_times_file_time_not_positive_names_line_and_value(tmp_path, value):
+    path = tmp_path / "image_list.txt"
+    path.write_text(f"# header\nb.jpg 1 1 8 0 0\nc.jpg {value} 0.5 8 0 0\n")
+    with pytest.raises(InputError) as err:
+        read_times_file(path)
+    assert str(err.value) == f"{path} line 3: c.jpg: exposure time {value} s is not a positive time"
+
+
 def test_times_file_duplicate_and_missing(tmp_path):
     path = tmp_path / "t.txt"
     path.write_text("a.jpg 1\na.jpg 2\n")

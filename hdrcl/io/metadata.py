@@ -275,8 +275,11 @@ def read_times_file(path) -> dict:
             raise bad
         seconds = _parse_seconds(fields[1])
         if seconds is None:
-            value = _float_field(fields[1]) if "/" not in fields[1] else None
-            if value is not None:  # a number, but no exposure: -2, 0
+            try:
+                value = float(fields[1])
+            except ValueError:
+                value = None
+            if value is not None:  # a number, but no exposure: -2, 0, inf
                 raise InputError(f"{name} line {lineno}: {_clip(fields[0])}: exposure time {_clip(fields[1])} s "
                                  "is not a positive time")
             raise bad

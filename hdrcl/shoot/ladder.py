@@ -98,6 +98,22 @@ def _axis(frames: Sequence[FrameInfo]):
     return "exposure", values
 
 
+def _positions(frames: List[FrameInfo]):
+    """``(axis, values, sorted values, their differences)`` of two or more frames at one
+    aperture; ``(None, None, None, None)`` otherwise."""
+    none = (None, None, None, None)
+    if len(frames) < 2:
+        return none
+    fn = [f.fnumber for f in frames if f.fnumber]
+    if fn and any(abs(2 * math.log2(n / fn[0])) > 0.3 for n in fn):
+        return none
+    axis, values = _axis(frames)
+    if axis is None:
+        return none
+    s = sorted(values)
+    return axis, values, s, [b - a for a, b in zip(s, s[1:])]
+
+
 def _even(sorted_vals: List[float], step: float) -> bool:
     tol = max(_TOL, 0.15 * step)
     return all(abs((b - a) - step) <= tol for a, b in zip(sorted_vals, sorted_vals[1:]))
@@ -115,18 +131,9 @@ def ladder_of(frames: Sequence[FrameInfo], even: bool = True) -> Optional[Ladder
     or ``"descending, uneven"``.
     """
     frames = list(frames)
-    if len(frames) < 2:
-        return None
-    fn = [f.fnumber for f in frames if f.fnumber]
-    if fn and any(abs(2 * math.log2(n / fn[0])) > 0.3 for n in fn):
-        return None
-    axis, values = _axis(frames)
-    if axis is None:
-        return None
-    s = sorted(values)
-    diffs = [b - a for a, b in zip(s, s[1:])]
-    if min(diffs) < _TOL:
-        return None  # a value repeats
+    axis, values, s, diffs = _positions(frames)
+    if axis is None or min(diffs) < _TOL:
+        return None  # no ladder, or a value repeats
     step = sorted(diffs)[len(diffs) // 2]
     if not even and not _even(s, step):
         return _uneven(axis, values)
@@ -163,16 +170,9 @@ def distinct_of(frames: Sequence[FrameInfo]) -> Optional[Ladder]:
     ``"ascending"``, ``"descending"`` or ``"any order"``; ``step`` the median spacing.
     """
     frames = list(frames)
-    if len(frames) < 2:
-        return None
-    fn = [f.fnumber for f in frames if f.fnumber]
-    if fn and any(abs(2 * math.log2(n / fn[0])) > 0.3 for n in fn):
-        return None
-    axis, values = _axis(frames)
+    axis, values, s, diffs = _positions(frames)
     if axis is None:
         return None
-    s = sorted(values)
-    diffs = [b - a for a, b in zip(s, s[1:])]
     least = _BIAS_REPEAT if axis == "bias" else _REPEAT
     if axis == "exposure" and all(f.exposure_mode == 0 for f in frames):
         least = MIN_STEP
