@@ -202,3 +202,44 @@ def test_scan_and_batch_agree_on_two_frames_of_one_exposure(tmp_path, cl_device)
     assert r.exit_code == 1, r.output
     assert "same exposure" in r.output or "share one exposure" in r.output, r.output
     assert "all 2 frames have the same exposure" not in r.output
+
+
+def _shoot_one_set(tmp_path, w=96, h=64):
+    """A folder with one bracket of JPEGs with EXIF (test_shoot_ux.write_set)."""
+    import datetime as dt
+
+    from test_shoot_ux import write_set
+
+    shoot = tmp_path / "shoot"
+    names = write_set(shoot, "IMG", 7, dt.datetime(2024, 6, 1, 9, 0, 0))
+    return shoot, [str(shoot / n) for n in names]
+
+
+def _same_up_to_scale(a, b, tol=1e-3):
+    """Whether ``a`` is ``b`` times one factor (the recorded scale), pixel for pixel."""
+    ok = (a > 1e-6) & (b > 1e-6)
+    r = np.log(a[ok] / b[ok])
+    err = float(np.max(np.abs(r - np.median(r))))
+    same_support = np.mean((a > 1e-6) == (b > 1e-6)) > 0.999  # a luminance map is 0 outside the lens circle
+    return bool(ok.mean() > 0.1 and same_support and err < tol), err
+
+
+@pytest.mark.parametrize("extra", [[], ["--lens-circle", "48,32,60", "--resize", "32"]], ids=["response", "chain"])
+def test_batch_and_merge_give_the_same_pixels_up_to_the_recorded_scale(tmp_path, cl_device, extra):
+    """The same set with a given response (and with a fisheye luminance chain) through merge
+    and through batch: the same pixels up to the scale each file records (issue 25)."""
+    from hdrcl.io.radiance import read_radiance
+
+    shoot, frames = _shoot_one_set(tmp_path)
+    resp = tmp_path / "r.json"
+    assert _cli("calibrate", *frames, "-o", resp).exit_code == 0
+    r = _cli("merge", *frames, "--response", resp, "-o", tmp_path / "m.exr", *extra)
+    assert r.exit_code == 0, r.output
+    r = _cli("batch", shoot, "--response", resp, "-o", tmp_path / "out", "--no-preview", *extra)
+    assert r.exit_code == 0, r.output
+    a, _ = read_radiance(str(tmp_path / "m.exr"))
+    (b_path,) = (tmp_path / "out").glob("*.exr")
+    b, _ = read_radiance(str(b_path))
+    assert a.shape == b.shape
+    same, err = _same_up_to_scale(a.astype(np.float64), b.astype(np.float64), tol=2e-3)
+    assert same, err
