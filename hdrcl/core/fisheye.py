@@ -36,9 +36,9 @@ from typing import Optional, Tuple
 import numpy as np
 
 from hdrcl.core import fisheye_math as fm
-from hdrcl.errors import ProcessingError, UsageError
-from hdrcl.io.radcal import (Vignetting, calibration_factor_option, check_factor_range, nd_filter_option,
-                             vignetting_option)
+from hdrcl.errors import InputError, ProcessingError, UsageError
+from hdrcl.io.radcal import (RadialProjection, Vignetting, calibration_factor_option, check_factor_range,
+                             nd_filter_option, read_projection, vignetting_option)
 
 logger = logging.getLogger(__name__)
 
@@ -148,8 +148,13 @@ class LuminanceChain:
             n = 0
         if isinstance(resize, bool) or not (2 <= n <= MAX_RESIZE) or float(resize) != n:
             raise UsageError(f"--resize: expected a whole number of pixels in 2..{MAX_RESIZE}, not '{resize}'")
-        if projection is not None and projection not in PROJECTIONS:
-            raise UsageError(f"--fisheye-projection: '{projection}' is not one of {', '.join(PROJECTIONS)}")
+        if projection is not None and not isinstance(projection, RadialProjection) and projection not in PROJECTIONS:
+            if not str(projection).lower().endswith(".cal"):
+                raise UsageError(f"--fisheye-projection: '{projection}' is not one of {', '.join(PROJECTIONS)} "
+                                 f"or a .cal file with rad(r) (Radiance's fisheye_corr.cal)")
+            if not os.path.isfile(os.fspath(projection)):
+                raise InputError(f"{projection}: no such file (--fisheye-projection)")
+            projection = read_projection(projection)
         vig = vignetting_option(vignetting) if vignetting is not None else None
         nd = nd_filter_option(nd_filter) if nd_filter is not None else None
         k = calibration_factor_option(calibration_factor) if calibration_factor is not None else 1.0
@@ -273,7 +278,9 @@ class LuminanceChain:
                              f"({self._rows_seen} rows)")
         img = self._acc
         proc = self._processor()
-        if self.projection is not None:
+        if isinstance(self.projection, RadialProjection):
+            img = fm.project_radial(img, self.projection.source_radius)
+        elif self.projection is not None:
             img = proc.project(img) if proc is not None else fm.equisolid_to_equidistant(img)
         if self.vignetting is not None and self.vignetting.program is not None:
             f = self._vignetting_factors()
@@ -326,7 +333,8 @@ class LuminanceChain:
 
     def describe(self) -> dict:
         """The options, for metadata and reports."""
-        d = {"lensCircle": list(self.lens_circle), "resize": self.size, "projection": self.projection,
+        proj = self.projection.describe() if isinstance(self.projection, RadialProjection) else self.projection
+        d = {"lensCircle": list(self.lens_circle), "resize": self.size, "projection": proj,
              "vignetting": None if self.vignetting is None else self._describe_vignetting(),
              "ndFilter": None if self.nd_filter is None else list(self.nd_filter),
              "calibrationFactor": self.calibration_factor}

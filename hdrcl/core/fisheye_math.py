@@ -83,6 +83,25 @@ def equisolid_to_equidistant(img: np.ndarray) -> np.ndarray:
     return out
 
 
+def project_radial(img: np.ndarray, source_radius) -> np.ndarray:
+    """A user projection (``--fisheye-projection FILE.cal``): the output pixel at radius
+    ``rd`` (units of the width, the view's edge at 1/2) takes the input at radius
+    ``source_radius(rd)`` along the same direction, bilinear; 0 outside the view and where
+    the radius is not finite (float64). :func:`equisolid_to_equidistant` with
+    ``source_radius = sin(PI rd / 2) / sqrt(2)``."""
+    n = img.shape[0]
+    u, v = _centres(n)
+    rd = np.hypot(u, v)
+    rs = np.asarray(source_radius(rd), np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(rd > 0, rs / np.where(rd > 0, rd, 1.0), 0.0)
+    good = np.isfinite(scale)
+    scale = np.where(good, scale, 0.0)
+    out = bilinear(img, (0.5 + u * scale) * n - 0.5, (0.5 + v * scale) * n - 0.5)
+    out[~inside_view(n) | ~good] = 0.0
+    return out
+
+
 def vignetting_factors(n: int, coefficients: Sequence[float], xc: float, yc: float, radius: float) -> np.ndarray:
     """``(N, N)`` multipliers ``1 / (a0 + a1 r + ... + a8 r^8)`` (float64)."""
     x = np.arange(n, dtype=np.float64)[None, :]

@@ -21,7 +21,8 @@ the token; :class:`~hdrcl.errors.InputError`, exit code 3):
 * constants ``PI`` and ``WE`` (179, Radiance's white efficacy), pcomb's variables ``x``,
   ``y`` (pixel column and row, integers, ``y = 0`` the BOTTOM row), ``xres``, ``yres``
   and inputs ``ri(1) gi(1) bi(1) li(1)`` (``li`` = ``0.265 ri + 0.670 gi + 0.065 bi``,
-  Radiance's luminance; only input 1: one picture); outputs ``ro go bo`` (or ``lo`` for
+  Radiance's luminance; only input 1: one picture), also at an offset ``ri(1, dx, dy)``
+  (the pixel at ``x + round(dx), y + round(dy)``, edges repeated, as pcomb); outputs ``ro go bo`` (or ``lo`` for
   all three; 0 when none is defined, as pcomb).
 
 Evaluation is over whole arrays at once: every expression is computed for every pixel
@@ -39,7 +40,7 @@ import numpy as np
 
 from hdrcl.errors import InputError
 
-__all__ = ["CalProgram", "parse", "parse_file", "Node", "LUMA"]
+__all__ = ["CalProgram", "parse", "parse_file", "Node", "LUMA", "call_function", "geometry_constants"]
 
 #: Radiance's ``li()`` weights (``bright()`` of its standard primaries, as pcomb prints them).
 LUMA = (0.265, 0.670, 0.065)
@@ -316,9 +317,9 @@ class CalProgram:
             return
         if name in _INPUTS:
             arg = node.kids[0]
-            if n != 1 or arg.kind != "num" or arg.value != 1:
+            if n not in (1, 3) or arg.kind != "num" or arg.value != 1:
                 raise InputError(f"{self.path}, line {node.line}: only the one input picture exists: "
-                                 f"'{name}(1)', not '{node.text()}'")
+                                 f"'{name}(1)' or '{name}(1,dx,dy)', not '{node.text()}'")
             return
         wanted = {"if": (3, 3), "atan2": (2, 2), "select": (2, 10 ** 6), "min": (1, 10 ** 6),
                   "max": (1, 10 ** 6)}.get(name, (1, 1) if name in _FUNCS1 else None)
@@ -420,11 +421,14 @@ class _Env:
             if self.inputs is None:
                 raise InputError(f"{self.prog.path}, line {node.line}: '{name}(1)' reads the picture, "
                                  f"which this file's role does not allow")
+            chans = self.inputs
+            if len(node.kids) == 3:  # pcomb's ri(1, dx, dy): the pixel at the nearest offset, edges repeated
+                chans = self.shifted(node, args, depth)
             c = _INPUTS[name]
             if c is None:
-                r, g, b = self.inputs
+                r, g, b = chans
                 return LUMA[0] * r + LUMA[1] * g + LUMA[2] * b
-            return self.inputs[c]
+            return chans[c]
         vals = [np.asarray(self.eval(a, args, depth + 1), np.float64) for a in node.kids]
         if name in _FUNCS1:
             return _FUNCS1[name](vals[0])
@@ -438,6 +442,18 @@ class _Env:
             return np.maximum.reduce(np.broadcast_arrays(*vals))
         return self.select(node, vals)
 
+    def shifted(self, node: Node, args: dict, depth: int):
+        """The inputs at ``(x + round(dx), y + round(dy))``, clamped to the picture (pcomb)."""
+        # non-finite offsets (the discarded branch of an if(), evaluated here for every pixel) read the pixel itself
+        dx, dy = (np.nan_to_num(np.asarray(self.eval(a, args, depth + 1), np.float64), nan=0.0, posinf=0.0,
+                                neginf=0.0) for a in node.kids[1:])
+        h, w = int(self.yres), int(self.xres)
+        full = [np.broadcast_to(ch, (h, w)) for ch in self.inputs]
+        xx = np.clip(self.x + np.floor(dx + 0.5), 0, w - 1).astype(np.int64)
+        yy = np.clip(self.y + np.floor(dy + 0.5), 0, h - 1).astype(np.int64)
+        xx, yy = np.broadcast_arrays(xx, yy)
+        return tuple(ch[h - 1 - yy, xx] for ch in full)
+
     def select(self, node: Node, vals):
         n = np.floor(vals[0] + 0.5)
         choices = vals[1:]
@@ -447,6 +463,19 @@ class _Env:
         for i, c in enumerate(choices, 1):
             out = np.where(n == i, c, out)
         return out
+
+
+def call_function(prog: CalProgram, name: str, *values) -> np.ndarray:
+    """A function the program defines (``rad(r)``), evaluated on arrays ``values``."""
+    d = prog.definitions.get(name)
+    if d is None or not d.is_function:
+        raise InputError(f"{prog.path}: defines no function {name}()")
+    if len(d.params) != len(values):
+        raise InputError(f"{prog.path}, line {d.line}: {name}() takes {len(d.params)} argument(s)")
+    env = _Env(prog, np.zeros(1), np.zeros(1), 1.0, 1.0, None)
+    with np.errstate(all="ignore"):
+        return np.asarray(env.eval(d.body, dict(zip(d.params, (np.asarray(v, np.float64) for v in values))), 0),
+                          np.float64)
 
 
 def parse(text: str, path: str = "<expression>") -> CalProgram:

@@ -45,7 +45,7 @@ from hdrcl.io import calexpr
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Vignetting", "read_vignetting", "read_nd_filter", "read_calibration_factor",
+__all__ = ["Vignetting", "RadialProjection", "read_projection", "read_vignetting", "read_nd_filter", "read_calibration_factor",
            "vignetting_option", "nd_filter_option", "calibration_factor_option", "check_factor_range",
            "SCENE_RANGE"]
 
@@ -156,6 +156,55 @@ def read_vignetting(path) -> Vignetting:
         raise InputError(f"{path}: not a vignetting .cal file: its factors do not depend on the pixel "
                          f"position (x, y) (a neutral density or calibration factor file?)")
     return Vignetting(None, geo.get("xc"), geo.get("yc"), geo.get("radius"), source=path, program=prog)
+
+
+@dataclass(frozen=True)
+class RadialProjection:
+    """A user projection: Radiance's ``fisheye_corr.cal`` convention, ``rad(r)`` the
+    corrected (output, equidistant) radius of a pixel at radius ``r`` of the input, radii
+    in units of the picture's width (the view's edge at 0.5); ``map_inverse > 0`` says the
+    file's ``rad`` is the inverse (output radius -> input radius)."""
+
+    source: str
+    program: calexpr.CalProgram
+    inverse: bool
+
+    def source_radius(self, rd: np.ndarray) -> np.ndarray:
+        """The input radius an output pixel at radius ``rd`` takes: ``rad(rd)`` for an
+        inverse file; else the exact inverse of ``rad`` where it rises over 0..0.5
+        (a table of 4097 radii, linear between them), otherwise Radiance's own
+        approximation ``2 rd - rad(rd)`` (fisheye_corr.cal's ``x + (x - xc)(1 - rmult)``)."""
+        rd = np.asarray(rd, np.float64)
+        if self.inverse:
+            return calexpr.call_function(self.program, "rad", rd)
+        r = np.linspace(0.0, 0.5, 4097)
+        f = calexpr.call_function(self.program, "rad", r)
+        if np.all(np.isfinite(f)) and np.all(np.diff(f) > 0):
+            return np.interp(rd, f, r, right=np.nan)
+        return 2.0 * rd - calexpr.call_function(self.program, "rad", rd)
+
+    def describe(self) -> dict:
+        return {"source": self.source, "program": self.program.canonical(), "inverse": self.inverse}
+
+
+def read_projection(path) -> RadialProjection:
+    """A ``--fisheye-projection FILE.cal``: Radiance's ``fisheye_corr.cal`` itself (its
+    ``rad(r)``, default ``mapsolid``), or a file that defines ``rad(r)`` (and optionally
+    ``map_inverse``). The radii the map needs (0..0.5) must map to finite radii."""
+    path = os.fspath(path)
+    prog = calexpr.parse_file(path)
+    d = prog.definitions.get("rad")
+    if d is None or not d.is_function or len(d.params) != 1:
+        raise InputError(f"{path}: a projection .cal file defines rad(r) (Radiance's fisheye_corr.cal: the "
+                         f"corrected radius of radius r, 0..0.5 of the picture's width)")
+    inverse = False
+    if prog.defines("map_inverse"):
+        inverse = bool(prog.evaluate(["map_inverse"], xres=1, yres=1)["map_inverse"].ravel()[0] > 0)
+    proj = RadialProjection(path, prog, inverse)
+    rs = proj.source_radius(np.linspace(0.0, 0.5, 257))
+    if not np.all(np.isfinite(rs[:-1])) or np.any(rs[:-1] < 0):
+        raise InputError(f"{path}: rad(r) does not give a finite, non-negative radius for every r in 0..0.5")
+    return proj
 
 
 def check_factor_range(factor: float, flag: str = "--calibration-factor", output=None) -> float:
