@@ -211,7 +211,7 @@ def test_no_private_name_crosses_packages():
 
 
 #: Waiting on their owners (notes/requests.md): removed from here when fixed.
-KNOWN_CLI = {"hdrcl.cli.falsecolor", "hdrcl.cli.glare"}
+KNOWN_CLI = set()
 
 
 def test_the_cli_imports_only_the_api_the_option_table_and_errors():

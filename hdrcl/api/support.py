@@ -35,6 +35,8 @@ _WHERE = {
     "THRESHOLD": "hdrcl.core.deghost",
     "format_figures": "hdrcl.report.pages",
     "falsecolor_file": "hdrcl.report.falsecolor",
+    "glare_of_file": "hdrcl.core.glare",
+    "glare_metrics": "hdrcl.core.glare",
     "expose_file": "hdrcl.core.exposure",
 }
 

@@ -21,7 +21,7 @@ from hdrcl.cli.options import InputFile
 def glare(luminance_map, as_json, view, threshold):
     """Glare metrics of a calibrated fisheye map with VIEW= (hdrcl's luminance chain, or a
     Radiance picture in its 179 lm/W convention): as evalglare computes them."""
-    from hdrcl.core.glare import glare_of_file
+    from hdrcl.api.support import glare_of_file
 
     res = glare_of_file(luminance_map, view=view, threshold=threshold)
     if as_json:

@@ -213,6 +213,7 @@ COMMAND_MODULES = {
     "demo": "hdrcl.cli.core",
     "tonemap": "hdrcl.cli.output",
     "falsecolor": "hdrcl.cli.falsecolor",
+    "glare": "hdrcl.cli.glare",
     "scan": "hdrcl.cli.shoot",
     "batch": "hdrcl.cli.shoot",
     "sample-shoot": "hdrcl.cli.shoot",
