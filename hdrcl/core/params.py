@@ -406,17 +406,11 @@ def check_response_fits(resp, source: str, image: str, bits: Optional[int], nch:
 
 
 def radiance_header(path) -> Tuple[int, int, int]:
-    """``(width, height, channels)`` of a radiance file, from its header (no pixels)."""
-    from hdrcl.io.frames import _open_input
-    from hdrcl.io.radiance import _pick_channels
+    """``(width, height, channels)`` of a radiance file, from its header (no pixels):
+    :func:`hdrcl.io.radiance.radiance_header`."""
+    from hdrcl.io.radiance import radiance_header as header
 
-    name = os.fspath(path)
-    inp = _open_input(name)
-    try:
-        spec = inp.spec()
-        return int(spec.width), int(spec.height), len(_pick_channels(spec, name))
-    finally:
-        inp.close()
+    return header(path)
 
 
 def check_expose(radiance_path, response, *, motion_blur=None, source: Optional[str] = None):

@@ -178,7 +178,7 @@ def _config():
     return config
 
 
-def _open_input(path):
+def open_input(path):
     """Open ``path`` for reading, raising InputError naming it when it cannot be opened.
 
     Returns the open ``ImageInput``; the caller closes it.
@@ -316,7 +316,7 @@ def read_info(path) -> FrameInfo:
         from hdrcl.io.raw import read_raw_info
 
         return read_raw_info(name)
-    inp = _open_input(name)
+    inp = open_input(name)
     try:
         return _info_from_spec(inp.spec(), name)
     finally:
@@ -366,7 +366,7 @@ def read_image(path) -> Image:
         check_pixel_limit(read_raw_info(name))
         f = read_raw(name)
         return Image(pixels=f.pixels, valid=None, info=f.info)
-    inp = _open_input(name)
+    inp = open_input(name)
     try:
         spec = inp.spec()
         info = _info_from_spec(spec, name)

@@ -8,7 +8,7 @@ from typing import Optional
 import numpy as np
 
 from hdrcl.errors import InputError
-from hdrcl.io.frames import _open_input, _read_error
+from hdrcl.io.frames import open_input, _read_error
 from hdrcl.io.outmeta import hdr_header
 from hdrcl.io.writers import METADATA_PREFIX
 
@@ -40,7 +40,7 @@ def radiance_header(path) -> tuple:
     """``(width, height, channels)`` of a radiance map from its header alone (channels:
     1 or 3, as :func:`read_radiance` returns them)."""
     name = os.fspath(path)
-    inp = _open_input(name)
+    inp = open_input(name)
     try:
         spec = inp.spec()
         return int(spec.width), int(spec.height), len(_pick_channels(spec, name))
@@ -62,7 +62,7 @@ def read_radiance_colorspace(path, *, require_float: bool = False) -> tuple:
         from hdrcl.io.outmeta import hdr_colorspace
 
         return pixels, hdr_colorspace(name) or "rec709"
-    inp = _open_input(name)
+    inp = open_input(name)
     try:
         tag = inp.spec().getattribute("oiio:ColorSpace")
     finally:
@@ -100,7 +100,7 @@ def read_radiance(path, *, require_float: bool = False) -> tuple:
         Missing, unreadable, truncated or corrupt file, or no grey/RGB channels.
     """
     name = os.fspath(path)
-    inp = _open_input(name)
+    inp = open_input(name)
     try:
         spec = inp.spec()
         channels = _pick_channels(spec, name)
@@ -239,7 +239,7 @@ def read_metadata(path) -> dict:
         The file is missing or its header cannot be read.
     """
     name = os.fspath(path)
-    inp = _open_input(name)
+    inp = open_input(name)
     try:
         spec = inp.spec()
         metadata = _with_hdr_line(name, _spec_metadata(spec))
@@ -267,7 +267,7 @@ def _with_hdr_line(name: str, metadata: dict) -> dict:
 
 def white_luminance(path) -> Optional[float]:
     """OpenEXR's ``whiteLuminance`` of a file (cd/m^2 of RGB 1, 1, 1), or None."""
-    inp = _open_input(os.fspath(path))
+    inp = open_input(os.fspath(path))
     try:
         value = inp.spec().getattribute("whiteLuminance")
     finally:

@@ -16,7 +16,7 @@ from hdrcl.io.frames import (
     _channel_layout,
     _channel_layout_counts,
     _name,
-    _open_input,
+    open_input,
     _read_error,
     check_compatible,
     check_pixel_limit,
@@ -130,7 +130,7 @@ class BracketReader:
             return out, None
         inp = self._inputs[k]
         if inp is None:
-            inp = self._inputs[k] = _open_input(name)
+            inp = self._inputs[k] = open_input(name)
             self._layout[k] = _channel_layout(inp.spec(), name)
         colour, alpha = self._layout[k]
         spec = inp.spec()
