@@ -131,3 +131,58 @@ def test_a_map_without_view_names_the_option(tmp_path):
     write_radiance(path, np.ones((8, 8, 3), np.float32))
     with pytest.raises(UsageError, match="--view"):
         g.glare_of_file(path)
+
+
+def _chain_like_map(path, lum, k0):
+    """A .hdr as the chain writes it: Radiance's units, VIEW=, luminanceChain with its K."""
+    from hdrcl.io.writers import write_radiance
+
+    rgb = np.repeat((lum / 179.0)[..., None], 3, axis=2).astype(np.float32)
+    meta = {"units": "cd/m2", "luminanceChain": json.dumps({"calibrationFactor": k0})}
+    write_radiance(path, rgb, metadata=meta, camera={"units": "cd/m2", "view": "-vta -vh 180 -vv 180"})
+
+
+def test_calibrate_luminance_writes_the_factor_the_lab_tools_read(tmp_path, radiance_bin):
+    from click.testing import CliRunner
+
+    import hdrcl.cli.glare  # noqa: F401  (registers the commands until cli/group.py lists them)
+    from hdrcl.cli import main
+    from hdrcl.io.radcal import read_calibration_factor
+
+    lum = _scene(120, seed=3, sun=0)
+    path = tmp_path / "map.hdr"
+    _chain_like_map(path, lum, 1.1)
+    ev = g.glare_of_file(path).vertical_illuminance
+    res = CliRunner().invoke(main, ["calibrate-luminance", str(path), "--illuminance", f"{2 * ev!r}",
+                                    "-o", str(tmp_path / "CF.cal")])
+    assert res.exit_code == 0, res.output
+    k = read_calibration_factor(tmp_path / "CF.cal")
+    assert k == pytest.approx(2.2, rel=1e-5)  # the map's own K (1.1) times measured / map
+    # Radiance reads the file: pcomb -f CF.cal multiplies the picture by K
+    out = subprocess.run([str(radiance_bin / "pcomb"), "-f", str(tmp_path / "CF.cal"), str(path)],
+                         capture_output=True, check=True).stdout
+    (tmp_path / "x.hdr").write_bytes(out)
+    before = subprocess.run([str(radiance_bin / "pvalue"), "-h", "-H", "-df", "-b", str(path)], capture_output=True,
+                            check=True).stdout
+    after = subprocess.run([str(radiance_bin / "pvalue"), "-h", "-H", "-df", "-b", str(tmp_path / "x.hdr")],
+                           capture_output=True, check=True).stdout
+    b, a = np.frombuffer(before, np.float32), np.frombuffer(after, np.float32)
+    ok = b > b.max() * 0.01
+    assert np.median(a[ok] / b[ok]) == pytest.approx(2.2, rel=0.01)
+    # a patch luminance: the mean over the disc
+    r = g.calibration_from_measurement(path, luminance=100.0, patch="10,60,3")
+    rows, cols = np.mgrid[0:120, 0:120]
+    disc = (cols + 0.5 - 10) ** 2 + (rows + 0.5 - 60) ** 2 <= 9
+    want = float(np.mean(g.read_luminance_map(path)[0][disc]))
+    assert r["calibration_factor"] == pytest.approx(1.1 * 100.0 / want, rel=1e-9)
+
+
+@pytest.mark.parametrize("kwargs,flag", [({}, "calibrate-luminance"), (dict(illuminance=1.0, luminance=2.0),
+                                                                      "calibrate-luminance"),
+                                         (dict(luminance=5.0), "--patch"), (dict(illuminance=-3.0), "--illuminance"),
+                                         (dict(luminance=5.0, patch="1,2"), "--patch")])
+def test_calibrate_luminance_refusals_name_the_option(tmp_path, kwargs, flag):
+    path = tmp_path / "map.hdr"
+    _chain_like_map(path, _scene(40, seed=1, sun=0), 1.0)
+    with pytest.raises(UsageError, match=flag):
+        g.calibration_from_measurement(path, **kwargs)

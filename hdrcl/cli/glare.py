@@ -1,5 +1,6 @@
 """``hdrcl glare``: vertical illuminance, DGP, DGI, UGR and the glare sources of a
-calibrated fisheye luminance map, by evalglare's method (:mod:`hdrcl.core.glare`)."""
+calibrated fisheye luminance map, by evalglare's method (:mod:`hdrcl.core.glare`);
+``hdrcl calibrate-luminance``: the calibration factor from a measurement, as a ``.cal``."""
 from __future__ import annotations
 
 import json
@@ -7,7 +8,7 @@ import json
 import click
 
 from hdrcl.cli.group import main, say
-from hdrcl.cli.options import InputFile
+from hdrcl.cli.options import InputFile, OutputFile, check_inputs_not_outputs
 
 
 @main.command()
@@ -35,3 +36,30 @@ def glare(luminance_map, as_json, view, threshold):
     for i, s in enumerate(res.sources, 1):
         say(f"  {i}: {s.luminance:.6g} cd/m2, {s.solid_angle:.4g} sr, position index {s.position_index:.3f}, "
             f"at column {s.column:.1f}, row {s.row:.1f} ({s.pixels} pixels, up to {s.max_luminance:.6g} cd/m2)")
+
+
+@main.command(name="calibrate-luminance")
+@click.argument("luminance_map", type=InputFile("luminance map"))
+@click.option("-o", "--output", required=True, type=OutputFile((".cal",), "calibration factor"),
+              help="The calibration factor .cal to write (ro=ri(1)*K; ...: the lab tools and pcomb read it).")
+@click.option("--illuminance", type=float, default=None, metavar="LUX",
+              help="Vertical illuminance measured at the lens (lux), against the map's (as evalglare -V).")
+@click.option("--luminance", type=float, default=None, metavar="CD",
+              help="Luminance measured on a patch (cd/m2), against the map's mean over --patch.")
+@click.option("--patch", default=None, metavar="COLUMN,ROW,RADIUS",
+              help="The measured spot in pixels of the map (from its top left).")
+@click.option("--view", default=None, metavar="VIEW", help="Radiance view of the map [default: its VIEW=].")
+def calibrate_luminance(luminance_map, output, illuminance, luminance, patch, view):
+    """Derive the calibration factor K from a measured vertical illuminance or patch
+    luminance and write it as a .cal (give it to --calibration-factor, or to pcomb -f)."""
+    from hdrcl.core.glare import calibration_from_measurement
+    from hdrcl.io.radcal import write_calibration_factor
+
+    check_inputs_not_outputs([luminance_map], output)
+    r = calibration_from_measurement(luminance_map, illuminance=illuminance, luminance=luminance, patch=patch,
+                                     view=view)
+    note = (f"hdrcl calibrate-luminance: measured {r['measured']:g}, map {r['map_value']:.6g} "
+            f"({r['quantity']}), map made with K={r['previous_factor']:g}")
+    write_calibration_factor(output, r["calibration_factor"], note)
+    say(f"wrote {output}: calibration factor {r['calibration_factor']:.6g} (measured {r['measured']:g} / map "
+        f"{r['map_value']:.6g} {r['quantity']}, x the map's own {r['previous_factor']:g})")

@@ -46,6 +46,7 @@ import numpy as np
 from hdrcl.errors import InputError, UsageError
 
 __all__ = ["GlareSource", "GlareResult", "glare_metrics", "glare_of_file", "ViewSpec", "parse_glare_view",
+           "calibration_from_measurement",
            "DEFAULT_THRESHOLD", "PEAK_LIMIT", "SEARCH_ANGLE"]
 
 #: Radiance's ``bright()`` weights of its standard primaries (``CIE_rf``, ``CIE_gf``, ``CIE_bf``).
@@ -336,3 +337,62 @@ def glare_of_file(path, *, view: Optional[str] = None, threshold: float = DEFAUL
     if not text:
         raise UsageError(f"{os.fspath(path)}: the map has no VIEW= (give --view, e.g. '-vta -vh 180 -vv 180')")
     return glare_metrics(lum, parse_glare_view(text), threshold=threshold, view_text=text)
+
+
+def _parse_patch(text) -> Tuple[float, float, float]:
+    try:
+        vals = tuple(float(v) for v in str(text).split(","))
+    except ValueError:
+        vals = ()
+    if len(vals) != 3 or not all(math.isfinite(v) for v in vals) or not vals[2] > 0:
+        raise UsageError(f"--patch: expected COLUMN,ROW,RADIUS in pixels of the map (radius > 0), not '{text}'")
+    return vals
+
+
+def calibration_from_measurement(path, *, illuminance: Optional[float] = None, luminance: Optional[float] = None,
+                                 patch=None, view: Optional[str] = None) -> dict:
+    """The calibration factor that makes a map agree with a measurement: a vertical
+    illuminance at the lens (``illuminance``, lux; the map's ``Ev`` computed as evalglare
+    does) or a patch's luminance (``luminance`` cd/m^2 in the disc ``patch`` =
+    ``column,row,radius``, pixel centres from the top left). A map made with a
+    calibration factor ``K0`` (its ``luminanceChain``) gives ``K = K0 x measured /
+    map``, the factor to use in its place."""
+    import json
+
+    if (illuminance is None) == (luminance is None):
+        raise UsageError("calibrate-luminance: give one of --illuminance LUX or --luminance CD with --patch")
+    measured = float(illuminance if illuminance is not None else luminance)
+    flag = "--illuminance" if illuminance is not None else "--luminance"
+    if not (measured > 0 and math.isfinite(measured)):
+        raise UsageError(f"{flag}: expected a positive measurement, not {measured:g}")
+    lum, file_view = read_luminance_map(path)
+    if illuminance is not None:
+        text = view or file_view
+        if not text:
+            raise UsageError(f"{os.fspath(path)}: the map has no VIEW= (give --view, e.g. '-vta -vh 180 -vv 180')")
+        value = glare_metrics(lum, parse_glare_view(text), view_text=text).vertical_illuminance
+        what = "vertical illuminance (lx)"
+    else:
+        if patch is None:
+            raise UsageError("--luminance: needs --patch COLUMN,ROW,RADIUS (the measured spot on the map)")
+        cx, cy, r = _parse_patch(patch)
+        rows, cols = np.mgrid[0:lum.shape[0], 0:lum.shape[1]]
+        disc = (cols + 0.5 - cx) ** 2 + (rows + 0.5 - cy) ** 2 <= r * r
+        if not disc.any():
+            raise UsageError(f"--patch: {patch} holds no pixel centre of the {lum.shape[1]}x{lum.shape[0]} map")
+        value = float(np.mean(lum[disc]))
+        what = f"mean luminance (cd/m2) of {int(disc.sum())} pixel(s)"
+    if not (value > 0 and math.isfinite(value)):
+        raise InputError(f"{os.fspath(path)}: the map's {what} is {value:g}; nothing to calibrate against")
+    from hdrcl.io.radiance import read_metadata
+
+    previous = 1.0
+    chain = read_metadata(os.fspath(path)).get("luminanceChain")
+    if chain:
+        try:
+            previous = float(json.loads(chain).get("calibrationFactor", 1.0))
+        except (ValueError, TypeError, AttributeError):
+            previous = 1.0
+    k = previous * measured / value
+    return {"calibration_factor": k, "measured": measured, "map_value": value, "quantity": what,
+            "previous_factor": previous}

@@ -47,6 +47,7 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["Vignetting", "RadialProjection", "read_projection", "read_vignetting", "read_nd_filter", "read_calibration_factor",
            "vignetting_option", "nd_filter_option", "calibration_factor_option", "check_factor_range",
+           "calibration_factor_text", "write_calibration_factor",
            "SCENE_RANGE"]
 
 MAX_POWER = 8
@@ -205,6 +206,25 @@ def read_projection(path) -> RadialProjection:
     if not np.all(np.isfinite(rs[:-1])) or np.any(rs[:-1] < 0):
         raise InputError(f"{path}: rad(r) does not give a finite, non-negative radius for every r in 0..0.5")
     return proj
+
+
+def calibration_factor_text(k: float, comment: str = "") -> str:
+    """A calibration factor ``.cal`` in the lab's own form (HDRICalibrationTool's
+    ``CF_*.cal``: ``ro=ri(1)*K; go=gi(1)*K; bo=bi(1)*K;`` one per line), which ``pcomb -f``
+    and :func:`read_calibration_factor` read; ``comment`` goes first as ``{ ... }``."""
+    k = float(k)
+    if not (k > 0 and math.isfinite(k)):
+        raise UsageError(f"calibration factor: expected a positive finite factor, not {k:g}")
+    clean = " ".join(str(comment).replace("{", "(").replace("}", ")").split())
+    head = f"{{ {clean} }}\n" if clean else ""
+    return head + "".join(f"{o}={i}(1)*{k:.6g};\n" for o, i in _OUT)
+
+
+def write_calibration_factor(path, k: float, comment: str = "") -> None:
+    """Write :func:`calibration_factor_text` to ``path``, atomically."""
+    from hdrcl.io.atomic import write_text
+
+    write_text(os.fspath(path), calibration_factor_text(k, comment))
 
 
 def check_factor_range(factor: float, flag: str = "--calibration-factor", output=None) -> float:
