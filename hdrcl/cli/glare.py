@@ -52,14 +52,10 @@ def glare(luminance_map, as_json, view, threshold):
 def calibrate_luminance(luminance_map, output, illuminance, luminance, patch, view):
     """Derive the calibration factor K from a measured vertical illuminance or patch
     luminance and write it as a .cal (give it to --calibration-factor, or to pcomb -f)."""
-    from hdrcl.core.glare import calibration_from_measurement
-    from hdrcl.io.radcal import write_calibration_factor
+    from hdrcl.api.support import calibrate_luminance_file
 
     check_inputs_not_outputs([luminance_map], output)
-    r = calibration_from_measurement(luminance_map, illuminance=illuminance, luminance=luminance, patch=patch,
-                                     view=view)
-    note = (f"hdrcl calibrate-luminance: measured {r['measured']:g}, map {r['map_value']:.6g} "
-            f"({r['quantity']}), map made with K={r['previous_factor']:g}")
-    write_calibration_factor(output, r["calibration_factor"], note)
+    r = calibrate_luminance_file(luminance_map, output, illuminance=illuminance, luminance=luminance, patch=patch,
+                                 view=view)
     say(f"wrote {output}: calibration factor {r['calibration_factor']:.6g} (measured {r['measured']:g} / map "
         f"{r['map_value']:.6g} {r['quantity']}, x the map's own {r['previous_factor']:g})")

@@ -46,7 +46,7 @@ import numpy as np
 from hdrcl.errors import InputError, UsageError
 
 __all__ = ["GlareSource", "GlareResult", "glare_metrics", "glare_of_file", "ViewSpec", "parse_glare_view",
-           "calibration_from_measurement",
+           "calibration_from_measurement", "calibrate_luminance_file",
            "DEFAULT_THRESHOLD", "PEAK_LIMIT", "SEARCH_ANGLE"]
 
 #: Radiance's ``bright()`` weights of its standard primaries (``CIE_rf``, ``CIE_gf``, ``CIE_bf``).
@@ -396,3 +396,16 @@ def calibration_from_measurement(path, *, illuminance: Optional[float] = None, l
     k = previous * measured / value
     return {"calibration_factor": k, "measured": measured, "map_value": value, "quantity": what,
             "previous_factor": previous}
+
+
+def calibrate_luminance_file(path, output, *, illuminance: Optional[float] = None, luminance: Optional[float] = None,
+                             patch=None, view: Optional[str] = None) -> dict:
+    """:func:`calibration_from_measurement`, written to ``output`` as the lab's
+    calibration factor ``.cal`` (:func:`hdrcl.io.radcal.write_calibration_factor`)."""
+    from hdrcl.io.radcal import write_calibration_factor
+
+    r = calibration_from_measurement(path, illuminance=illuminance, luminance=luminance, patch=patch, view=view)
+    note = (f"hdrcl calibrate-luminance: measured {r['measured']:g}, map {r['map_value']:.6g} "
+            f"({r['quantity']}), map made with K={r['previous_factor']:g}")
+    write_calibration_factor(output, r["calibration_factor"], note)
+    return r
