@@ -192,6 +192,8 @@ class LuminanceChain:
         """``(N, N, 3)`` factors of the vignetting step (float64); outside the view,
         where the map is black, a non-finite factor is 0."""
         v = self.vignetting
+        if getattr(self, "_vig_factors", None) is not None:
+            return self._vig_factors
         if v.program is not None:
             f = v.factors(self.size)
         else:
@@ -199,6 +201,7 @@ class LuminanceChain:
             f = np.repeat(fm.vignetting_factors(self.size, v.coefficients, xc, yc, radius)[..., None], 3, axis=2)
         outside = ~fm.inside_view(self.size)
         f[outside[..., None] & ~np.isfinite(f)] = 0.0
+        self._vig_factors = f  # evaluated once: checked by from_options, applied by finish
         return f
 
     def crop_box(self) -> Tuple[int, int, int]:

@@ -95,14 +95,19 @@ class Vignetting:
                 f"not this {n}x{n} one (centre and radius {half:g}): the correction is applied as the file says")
 
 
-def _factor_map(prog, path: str, xres: int, yres: int, what: str) -> np.ndarray:
-    """The per-channel factors ``ro/ri`` .. of a program, checked to be factors: the
-    outputs for inputs ``(1, 1, 1)`` and :data:`_PROBE` must scale with their own channel."""
+def _factor_map(prog, path: str, xres: int, yres: int, what: str, full: bool = True) -> np.ndarray:
+    """The per-channel factors ``ro/ri`` .. of a program on an ``xres x yres`` picture
+    (``full``: every pixel; else a 17 x 17 grid across it), checked to be factors: on the
+    grid, the outputs for inputs ``(1, 1, 1)`` and :data:`_PROBE` must scale with their
+    own channel."""
     for out, _ in _OUT:
         if not (prog.defines(out) or prog.defines("lo")):
             raise InputError(f"{path}: a {what} .cal file must define {out} (as '{out}=K*{out[0]}i(1);')")
-    one = prog.evaluate([o for o, _ in _OUT], xres=xres, yres=yres, inputs=(1.0, 1.0, 1.0))
-    probe = prog.evaluate([o for o, _ in _OUT], xres=xres, yres=yres, inputs=_PROBE)
+    names = [o for o, _ in _OUT]
+    gx = np.unique(np.round(np.linspace(0, xres - 1, 17)))[None, :]
+    gy = np.unique(np.round(np.linspace(0, yres - 1, 17)))[:, None]
+    one = prog.evaluate(names, xres=xres, yres=yres, inputs=(1.0, 1.0, 1.0), x=gx, y=gy)
+    probe = prog.evaluate(names, xres=xres, yres=yres, inputs=_PROBE, x=gx, y=gy)
     with np.errstate(all="ignore"):
         for (out, inp), p in zip(_OUT, _PROBE):
             a, b = one[out], probe[out]
@@ -110,12 +115,14 @@ def _factor_map(prog, path: str, xres: int, yres: int, what: str) -> np.ndarray:
             if not np.allclose(b[ok], p * a[ok], rtol=1e-9, atol=0.0):
                 raise InputError(f"{path}: not a {what} factor file: {out} must be a factor times {inp}(1) "
                                  f"(as '{out}=K*{inp}(1);'), with no other channel or offset")
+    if full:
+        one = prog.evaluate(names, xres=xres, yres=yres, inputs=(1.0, 1.0, 1.0))
     return np.stack([one[o] for o, _ in _OUT], axis=-1)
 
 
 def _constant_factors(path: str, what: str) -> Tuple[float, float, float]:
     prog = calexpr.parse_file(path)
-    f = _factor_map(prog, path, 8, 8, what)
+    f = _factor_map(prog, path, 8, 8, what, full=False)
     if not np.all(f == f[:1, :1]):
         raise InputError(f"{path}: a {what} .cal file is one factor per channel; this one depends on "
                          f"the pixel position (x, y)")
@@ -152,7 +159,7 @@ def read_vignetting(path) -> Vignetting:
     probe = int(round(2 * geo["radius"])) if geo.get("radius") and 2 <= 2 * geo["radius"] <= 4096 else 64
     if geo.get("radius") is not None and not geo["radius"] > 0:
         raise InputError(f"{path}: the vignetting radius must be positive, not {geo['radius']:g}")
-    f = _factor_map(prog, path, probe, probe, "vignetting")
+    f = _factor_map(prog, path, probe, probe, "vignetting", full=False)
     if np.all(f == f[:1, :1]):
         raise InputError(f"{path}: not a vignetting .cal file: its factors do not depend on the pixel "
                          f"position (x, y) (a neutral density or calibration factor file?)")
