@@ -134,6 +134,24 @@ def test_anything_outside_the_language_is_one_line_naming_file_line_token(tmp_pa
     assert "\n" not in msg and msg.startswith(f"{path}, line {line}: ") and token in msg, msg
 
 
+@pytest.mark.parametrize("text", [
+    "a = " + "(" * 300 + "1" + ")" * 300 + ";",
+    "a = " + "+".join(["1"] * 100000) + ";",
+    "a = " + "^".join(["2"] * 2000) + ";",
+    "f(x)=x; a = " + "f(" * 400 + "1" + ")" * 400 + ";",
+    "".join(f"v{i} = v{i + 1};" for i in range(3000)) + "v3000 = 1; a = v0;",
+    "f(x) = f(x); a = f(1);",
+])
+def test_deep_nesting_is_one_line_not_a_recursion_error(tmp_path, text):
+    path = _write(tmp_path, "deep.cal", text)
+    with pytest.raises(InputError) as err:
+        calexpr.parse_file(path).evaluate(["a"], xres=2, yres=2)
+    assert str(err.value).startswith(str(path)) and "\n" not in str(err.value)
+    vig = _write(tmp_path, "vig.cal", text.replace("a = ", "r = ") + "ro=ri(1)*r; go=gi(1)*r; bo=bi(1)*r;")
+    with pytest.raises(InputError):
+        radcal.read_vignetting(vig)
+
+
 def test_radcal_reports_the_language_error_with_file_line_and_token(tmp_path):
     path = _write(tmp_path, "vignetting_f5d6.cal", "sq(x)=x*x;\nr=sqrt(sq(x-500)+sq(y-500))/500;\nsf=1/(1+r#2);")
     with pytest.raises(InputError, match=r"vignetting_f5d6.cal, line 3: .*'#"):

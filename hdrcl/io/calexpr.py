@@ -45,7 +45,9 @@ __all__ = ["CalProgram", "parse", "parse_file", "Node", "LUMA", "call_function",
 #: Radiance's ``li()`` weights (``bright()`` of its standard primaries, as pcomb prints them).
 LUMA = (0.265, 0.670, 0.065)
 MAX_TEXT = 1 << 20
-MAX_DEPTH = 200
+MAX_DEPTH = 100  # parentheses, calls and ^ nested in one expression (Python's recursion stays bounded)
+MAX_HEIGHT = 150  # operators in one expression's longest chain (1+1+...: Radiance recurses as deep)
+MAX_EVAL_DEPTH = 200  # definitions and function calls nested while evaluating
 
 _FUNCS1 = {"sqrt": np.sqrt, "exp": np.exp, "log": np.log, "log10": np.log10, "sin": np.sin, "cos": np.cos,
            "tan": np.tan, "asin": np.arcsin, "acos": np.arccos, "atan": np.arctan, "floor": np.floor,
@@ -120,6 +122,21 @@ def _strip_comments(text: str, path: str) -> str:
     return "".join(out)
 
 
+def _printable(text: str) -> str:
+    """``text`` with control characters written as escapes (one error line, readable)."""
+    return "".join(ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii") for ch in text)
+
+
+def _height(node: Node) -> int:
+    """The longest chain of nodes below ``node`` (iterative: no recursion)."""
+    best, stack = 0, [(node, 1)]
+    while stack:
+        n, h = stack.pop()
+        best = max(best, h)
+        stack.extend((k, h + 1) for k in n.kids)
+    return best
+
+
 def _tokens(text: str, path: str) -> List[Tuple[str, str, int]]:
     toks, pos, line = [], 0, 1
     while pos < len(text):
@@ -130,9 +147,9 @@ def _tokens(text: str, path: str) -> List[Tuple[str, str, int]]:
             continue
         m = _TOKEN.match(text, pos)
         if not m:
-            bad = re.match(r"\S+", text[pos:]).group(0)[:20]
+            bad = _printable(re.match(r"\S+", text[pos:]).group(0)[:20])
             raise InputError(f"{path}, line {line}: '{bad}' is not in Radiance's .cal language "
-                             f"(unexpected character '{ch}')")
+                             f"(unexpected character '{_printable(ch)}')")
         kind = m.lastgroup
         toks.append((kind, m.group(0), line))
         pos = m.end()
@@ -220,6 +237,8 @@ class _Parser:
         return left
 
     def e3(self, depth):
+        if depth > MAX_DEPTH:
+            self.fail("expression nested too deeply")
         left = self.e4(depth)
         if self.tok[0] == "op" and self.tok[1] == "^":
             line = self.tok[2]
@@ -342,7 +361,7 @@ class CalProgram:
         env = _Env(self, np.asarray(x, np.float64), np.asarray(y, np.float64), float(xres), float(yres), inputs)
         shape = np.broadcast_shapes(np.shape(env.x), np.shape(env.y))
         out = {}
-        with np.errstate(all="ignore"):
+        with np.errstate(all="ignore"), _no_recursion_error(self.path):
             for name in names:
                 if name in self.definitions:
                     value = env.var(name, self.definitions[name].line, 0)
@@ -354,6 +373,21 @@ class CalProgram:
                     raise InputError(f"{self.path}: defines no '{name}'")
                 out[name] = np.broadcast_to(np.asarray(value, np.float64), shape)
         return out
+
+
+class _no_recursion_error:
+    """A RecursionError while evaluating becomes one InputError line naming the file."""
+
+    def __init__(self, path: str):
+        self.path = path
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is RecursionError:
+            raise InputError(f"{self.path}: definitions nested too deeply to evaluate") from None
+        return False
 
 
 class _Env:
@@ -388,7 +422,7 @@ class _Env:
         return value
 
     def eval(self, node: Node, args: dict, depth: int):
-        if depth > MAX_DEPTH:
+        if depth > MAX_EVAL_DEPTH:
             raise InputError(f"{self.prog.path}, line {node.line}: definitions nested too deeply (recursion?)")
         k = node.kind
         if k == "num":
@@ -482,10 +516,16 @@ def parse(text: str, path: str = "<expression>") -> CalProgram:
     """The program of ``.cal`` text (:class:`InputError` naming ``path``, line, token)."""
     toks = _tokens(_strip_comments(text, path), path)
     prog = CalProgram(path)
-    for d in _Parser(toks, path).statements():
-        prog.definitions.pop(d.name, None)
-        prog.definitions[d.name] = d
-    prog.check_names()
+    try:
+        for d in _Parser(toks, path).statements():
+            if _height(d.body) > MAX_HEIGHT:
+                raise InputError(f"{path}, line {d.line}: the expression of '{d.name}' is nested more than "
+                                 f"{MAX_HEIGHT} operators deep")
+            prog.definitions.pop(d.name, None)
+            prog.definitions[d.name] = d
+        prog.check_names()
+    except RecursionError:
+        raise InputError(f"{path}: expressions nested too deeply") from None
     return prog
 
 
@@ -543,6 +583,9 @@ def geometry_constants(prog: CalProgram) -> Dict[str, float]:
         for k in node.kids:
             walk(k)
 
-    for d in prog.definitions.values():
-        walk(d.body)
+    try:
+        for d in prog.definitions.values():
+            walk(d.body)
+    except RecursionError:  # definitions chained thousands deep: no geometry to compare
+        return {}
     return found
