@@ -97,22 +97,25 @@ class GlareResult:
         return asdict(self)
 
 
-def parse_glare_view(text: str) -> ViewSpec:
+def parse_glare_view(text: str, where: str = "VIEW") -> ViewSpec:
     """A ``VIEW=`` text, checked as Radiance's view parser does (the view types glare
-    metrics are computed for: ``-vta`` and ``-vth``)."""
+    metrics are computed for: ``-vta`` and ``-vth``); errors start with ``where``."""
     from hdrcl.core.fisheye import parse_view
 
-    _, vtype, vh, vv = parse_view(text)
+    try:
+        _, vtype, vh, vv = parse_view(text)
+    except UsageError as exc:
+        raise UsageError(f"{where}: {str(exc).split(': ', 1)[-1]}") from None
     words = str(text).split()
     vecs = {"-vd": (0.0, 1.0, 0.0), "-vu": (0.0, 0.0, 1.0)}
     for i, w in enumerate(words):
         if w in vecs:
             vecs[w] = tuple(float(v) for v in words[i + 1:i + 4])
     if vtype not in ("a", "h"):
-        raise UsageError(f"VIEW '{text}': glare metrics need a fisheye view (-vta or -vth), not -vt{vtype}")
+        raise UsageError(f"{where}: glare metrics need a fisheye view (-vta or -vth), not -vt{vtype} ('{text}')")
     for name, v in vecs.items():
         if not math.hypot(*v) > 0:
-            raise UsageError(f"VIEW '{text}': {name} must not be 0 0 0")
+            raise UsageError(f"{where}: {name} must not be 0 0 0 ('{text}')")
     return ViewSpec(vtype, vecs["-vd"], vecs["-vu"], vh, vv)
 
 
@@ -120,7 +123,7 @@ def _frame(view: ViewSpec):
     vdir = np.asarray(view.vdir, np.float64) / np.linalg.norm(view.vdir)
     hvec = np.cross(vdir, np.asarray(view.vup, np.float64))
     if not np.linalg.norm(hvec) > 0:
-        raise UsageError("VIEW: the up vector is parallel to the view direction")
+        raise UsageError("VIEW: the up vector (-vu) is parallel to the view direction (-vd)")
     hvec /= np.linalg.norm(hvec)
     vvec = np.cross(hvec, vdir)
     return vdir, hvec, vvec
@@ -336,7 +339,8 @@ def glare_of_file(path, *, view: Optional[str] = None, threshold: float = DEFAUL
     text = view or file_view
     if not text:
         raise UsageError(f"{os.fspath(path)}: the map has no VIEW= (give --view, e.g. '-vta -vh 180 -vv 180')")
-    return glare_metrics(lum, parse_glare_view(text), threshold=threshold, view_text=text)
+    where = "--view" if view else f"{os.fspath(path)}: VIEW="
+    return glare_metrics(lum, parse_glare_view(text, where), threshold=threshold, view_text=text)
 
 
 def _parse_patch(text) -> Tuple[float, float, float]:
@@ -370,7 +374,8 @@ def calibration_from_measurement(path, *, illuminance: Optional[float] = None, l
         text = view or file_view
         if not text:
             raise UsageError(f"{os.fspath(path)}: the map has no VIEW= (give --view, e.g. '-vta -vh 180 -vv 180')")
-        value = glare_metrics(lum, parse_glare_view(text), view_text=text).vertical_illuminance
+        where = "--view" if view else f"{os.fspath(path)}: VIEW="
+        value = glare_metrics(lum, parse_glare_view(text, where), view_text=text).vertical_illuminance
         what = "vertical illuminance (lx)"
     else:
         if patch is None:
