@@ -227,7 +227,8 @@ def test_factor_range_follows_the_output_format():
 
 
 @pytest.mark.parametrize("view", ["-vtv -vh 180 -vv 180", "-vth -vh 181 -vv 180", "-vta -vh 361 -vv 180",
-                                  "-vtc -vh 360 -vv 180", "-vts -vh 360 -vv 100", "-vtv -vh 90 -vv 0"])
+                                  "-vtc -vh 360 -vv 180", "-vts -vh 360 -vv 100", "-vtv -vh 90 -vv 0",
+                                  "-vta -vd 0 0 0", "-vta -vu 0 1 0", "-vta -vd 0 0 1"])
 def test_views_radiance_rejects_are_refused(view):
     from hdrcl.core.fisheye import parse_view
 

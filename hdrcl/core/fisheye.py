@@ -69,10 +69,20 @@ def parse_lens_circle(value) -> Tuple[float, float, float]:
     return vals
 
 
+def _check_view_vectors(vecs: dict, text) -> None:
+    """Radiance's ``setview``: a view direction, and an up vector not parallel to it."""
+    d, u = np.asarray(vecs["-vd"], np.float64), np.asarray(vecs["-vu"], np.float64)
+    if not np.linalg.norm(d) > 0:
+        raise UsageError(f"--view: -vd must not be 0 0 0 (Radiance's view parser: zero view direction): '{text}'")
+    if not np.linalg.norm(np.cross(d, u)) > 1e-6 * np.linalg.norm(d) * max(np.linalg.norm(u), 1e-300):
+        raise UsageError(f"--view: -vu is parallel to -vd (Radiance's view parser refuses it): '{text}'")
+
+
 def parse_view(text) -> Tuple[str, str, float, float]:
     """A Radiance view (``-vta -vh 186 -vv 186``): ``(text, type, vh, vv)``."""
     words = str(text).split()
     vtype, vh, vv, i = "v", 45.0, 45.0, 0
+    vecs = {"-vd": [0.0, 1.0, 0.0], "-vu": [0.0, 0.0, 1.0]}
     while i < len(words):
         w = words[i]
         if len(w) == 4 and w.startswith("-vt") and w[3] in _VIEW_TYPES:
@@ -89,7 +99,10 @@ def parse_view(text) -> Tuple[str, str, float, float]:
             vh = args[0]
         elif w == "-vv":
             vv = args[0]
+        elif w in ("-vd", "-vu"):
+            vecs[w] = args
         i += 1 + n
+    _check_view_vectors(vecs, text)
     if not words:
         raise UsageError("--view: expected Radiance view options such as '-vta -vh 186 -vv 186', not ''")
     for name, angle, (limit, closed) in (("-vh", vh, _VIEW_LIMITS[vtype][:2]), ("-vv", vv, _VIEW_LIMITS[vtype][2:])):
