@@ -191,3 +191,14 @@ def test_calibrate_luminance_refusals_name_the_option(tmp_path, kwargs, flag):
     _chain_like_map(path, _scene(40, seed=1, sun=0), 1.0)
     with pytest.raises(UsageError, match=flag):
         g.calibration_from_measurement(path, **kwargs)
+
+
+@pytest.mark.parametrize("view", ["-vth -vh 180 -vv 180", "-vta -vh 180 -vv 180 -vd 0 1 0.2 -vu 0 0 1",
+                                  "-vta -vh 200 -vv 200"])
+def test_other_fisheye_views_equal_evalglare(tmp_path, radiance_bin, view):
+    path = tmp_path / "v.hdr"
+    _write(radiance_bin, path, _scene(240, seed=5), view=view)
+    want = _evalglare(radiance_bin, path)
+    got = g.glare_of_file(path)
+    assert got.vertical_illuminance == pytest.approx(want["E_v"], rel=1e-4)
+    assert abs(got.dgp - want["dgp"]) <= 0.005 and abs(got.ugr - want["ugr"]) <= 0.5
