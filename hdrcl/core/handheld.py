@@ -378,12 +378,21 @@ def _register(reg: _Registrar, anchor: int, j: int, model: str, names):
     va, vb = (reg.valid[k][0] if reg.valid[k] is not None else None for k in (anchor, j))
     est = RC.tile_estimate(reg.levels(anchor)[0], va, reg.levels(j)[0], vb, m0)
     tried = []
-    for start in ([] if est is None else [None, est.full()[0]]):
-        if start is not None:
-            kind, f, r = _fit_models(reg, anchor, j, start, model, richest="similarity")
-        d = RC.disagreement(f.matrix, est)
-        tried.append(d)
-        if f.converged and d <= AGREE_PX and _refusal(f, 0.0, f.matrix, h, w) is None:
+    if est is not None:
+        # The fit as made, again from the second estimate, and (auto) a similarity from
+        # either start (a few samples cannot tell a translation from a similarity): the
+        # one closest to the second estimate, if it agrees.
+        start = est.full()[0]
+        cands = [(kind, f, r), _fit_models(reg, anchor, j, start, model, richest="similarity")]
+        if model == "auto":
+            cands += [_fit_models(reg, anchor, j, m, "similarity") for m in (m0, start)]
+        for kind_c, f_c, r_c in cands:
+            d = RC.disagreement(f_c.matrix, est)
+            tried.append(d)
+            if d == min(tried) and _degenerate(f_c.matrix, h, w) is None:
+                kind, f, r = kind_c, f_c, r_c
+        d = min(tried)
+        if d <= AGREE_PX and _degenerate(f.matrix, h, w) is None:  # two estimates agree: converged or not
             return kind, f, max(d, r) if np.isfinite(r) else d, None
     if f.samples >= FEW_SAMPLES:  # plenty to go on, and yet no estimate to confirm it
         why = _refusal(f, r, f.matrix, h, w) or (
