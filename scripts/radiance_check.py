@@ -62,6 +62,8 @@ def main(argv=None) -> int:
     ap.add_argument("--mp", type=float, default=2.0)
     ap.add_argument("--frames", type=int, default=5)
     ap.add_argument("--work", default=None)
+    ap.add_argument("--scenes", action="store_true",
+                    help="also hdrcl glare against evalglare on the glare test scenes (tests/test_glare.py)")
     args = ap.parse_args(argv)
     import pyradiance
 
@@ -139,8 +141,28 @@ def main(argv=None) -> int:
     e = dict(zip(names.split(","), map(float, values.split())))
     print(f"hdrcl glare vs evalglare on hdrcl's map: DGP {g.dgp:.4f} / {e['dgp']:.4f}, UGR {g.ugr:.2f} / "
           f"{e['ugr']:.2f}, DGI {g.dgi:.2f} / {e['dgi']:.2f}, sources {len(g.sources)}")
+    if args.scenes:
+        scenes(rb, d)
     print(f"(files in {d})")
     return 0
+
+
+def scenes(rb: str, folder: str) -> None:
+    """hdrcl glare against evalglare -d on the scenes of tests/test_glare.py."""
+    sys.path.insert(0, os.path.join(HERE, "..", "tests"))
+    from pathlib import Path
+
+    from test_glare import SCENES, _evalglare, _scene, _write
+
+    from hdrcl.core.glare import glare_of_file
+
+    print(f"{'scene':38s} {'Ev hdrcl/evalglare':>22s} {'DGP':>18s} {'UGR':>18s} {'DGI':>18s}")
+    for name in sorted(SCENES):
+        p = Path(folder) / f"scene{len(name)}.hdr"
+        _write(Path(rb), p, _scene(300, seed=len(name), **SCENES[name]))
+        w, r = _evalglare(Path(rb), p), glare_of_file(p)
+        print(f"{name:38s} {r.vertical_illuminance:10.2f}/{w['E_v']:10.2f} {r.dgp:8.5f}/{w['dgp']:8.5f} "
+              f"{r.ugr:8.3f}/{w['ugr']:8.3f} {r.dgi:8.3f}/{w['dgi']:8.3f}")
 
 
 if __name__ == "__main__":
