@@ -25,7 +25,7 @@ from hdrcl.shoot import scene as scene_mod
 from hdrcl.shoot.grouping import group_frames
 from hdrcl.shoot.ladder import MAX_STEP
 from hdrcl.shoot.scan import scan_directory
-from hdrcl.shoot.scene import GRID, Thumb, compare
+from hdrcl.shoot.scene import GRID, Thumb, Verdict, compare
 
 try:
     import cardgen
@@ -126,6 +126,33 @@ def test_any_order_and_step_but_no_repeat():
     b = [c.add(t, gap=3.0) for t in (1 / 500, 1 / 1000)]
     m = group_frames(c.frames, compare=scene_signal)
     assert files(m) == [a, b] and m.sets[0].reason == "exposure repeats frame 2 of the set"
+
+
+def dark_signal(a, b):
+    """As ``scene_signal``, but a frame tagged ``scene=None`` shows too little to compare."""
+    if a.scene is None or b.scene is None:
+        return Verdict("unknown", pixels=5)
+    return scene_signal(a, b)
+
+
+@pytest.mark.parametrize("gap, joined", [(70.0, True), (200.0, False)])
+def test_the_darkest_frames_of_a_night_ladder_join_as_it_goes_on(gap, joined):
+    """The last frames of a hand ladder over minutes show too little to compare: the
+    ladder going on one way at its own pace (not after a pause) vouches for them."""
+    c = Card()
+    ts = [30.0, 8.0, 2.0, 0.5, 1 / 8, 1 / 30, 1 / 125]
+    gaps = [9.0, 40.0, 81.0, 25.0, 60.0, 33.0]
+    a = [c.add(t, gap=g) for t, g in zip(ts, [0.0] + gaps)]
+    d = [c.add(t, gap=g, scene=None) for t, g in ((1 / 500, gap), (1 / 2000, 50.0))]
+    m = group_frames(c.frames, compare=dark_signal)
+    assert files(m) == ([a + d] if joined else [a, d])
+    if joined:
+        assert m.sets[0].joins[6].endswith("scene not comparable, the ladder the scene vouched for goes on one way")
+    # A frame that walks back is no continuation.
+    c = Card()
+    a = [c.add(t, gap=g) for t, g in zip(ts, [0.0] + gaps)]
+    d = [c.add(t, gap=g, scene=None) for t, g in ((1 / 60, 70.0), (1 / 250, 50.0))]
+    assert files(group_frames(c.frames, compare=dark_signal)) == [a, d]
 
 
 def fi(t, mode=1, bias=None, k=0):

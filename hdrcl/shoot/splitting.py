@@ -420,6 +420,21 @@ def _any_order(frames: List[FrameInfo]):
     return distinct_of(frames)
 
 
+def _goes_on(p: _Group, frames: List[FrameInfo]):
+    """The one-way ladder ``frames`` form when they carry on, in its direction and by
+    plausible steps (:data:`MIN_STEP` to :data:`MAX_STEP` stops), a one-way ladder of 3+
+    frames the scene vouched for (``p``); or None. The darkest frames of a night ladder
+    show too little to compare: the ladder going on, at its own pace, vouches for them."""
+    before = unique(p.frames)
+    if len(before) < 3 or not any("same scene" in j for j in p.joins):
+        return None
+    a, b = ladder_of(before, even=False), ladder_of(frames, even=False)
+    if a is None or b is None:
+        return None
+    way = a.order.split(",")[0]
+    return b if way in ("ascending", "descending") and b.order.split(",")[0] == way else None
+
+
 def _nearest_pair(a: List[FrameInfo], b: List[FrameInfo]):
     """The frame of ``a`` and the frame of ``b`` nearest each other in exposure (the
     latest of ``a`` and the earliest of ``b`` on ties): the pair whose thumbnails have
@@ -442,15 +457,21 @@ def _bridge_reason(p: _Group, grp: _Group, compare: Compare) -> Optional[str]:
     if _hard_reason(p.frames, f) is not None:
         return None
     g, lad, verdict = _bridge_parts(p, grp, compare)
+    seen = verdict is not None and verdict.kind != "unknown"
+    limit = BRIDGE_SEEN + (p.frames[-1].exposure_time or 0.0) if seen else BRIDGE_UNSEEN
+    scene = verdict.describe() if seen else "scene not compared"
+    if g is not None and verdict is not None and verdict.kind == "unknown":
+        goes_on = _goes_on(p, unique(p.frames + grp.frames))
+        if goes_on is not None and (lad is None or g > limit):
+            # at the ladder's own pace (its gaps short of a pause), never after a pause
+            lad, limit = goes_on, max([BRIDGE_UNSEEN] + [x for x in p.gaps if x is not None and x <= PAUSE])
+            scene = f"{verdict.describe()}, the ladder the scene vouched for goes on one way"
     if g is None or lad is None:
         return None
-    seen = verdict is not None and verdict.kind != "unknown"
     if seen and verdict.kind != "same":
         return None
-    limit = BRIDGE_SEEN + (p.frames[-1].exposure_time or 0.0) if seen else BRIDGE_UNSEEN
     if g > limit:
         return None
-    scene = verdict.describe() if seen else "scene not compared"
     what = f"gap {g:.1f} s" if g <= PAUSE else f"pause of {g / 60:.1f} min ({g:.1f} s)"
     if p.reason == "exposure ladder restarts":
         what = (f"ladder turns back ({format_exposure(p.frames[-1].exposure_time)} -> "
