@@ -224,6 +224,10 @@ def test_factor_range_follows_the_output_format():
 
     with pytest.raises(UsageError, match="^--nd-filter with --calibration-factor: "):
         LuminanceChain.from_options(lens_circle="10,10,20", resize=20, nd_filter="1e20,1,1", calibration_factor="1e10")
+    # with the output known, its format's range: 1e-30 fits float32 (an EXR) but not RGBE's /179
+    LuminanceChain.from_options(lens_circle="10,10,20", resize=20, calibration_factor="1e-30", output="o.exr")
+    with pytest.raises(UsageError, match=r"^--calibration-factor: .*\.hdr"):
+        LuminanceChain.from_options(lens_circle="10,10,20", resize=20, calibration_factor="1e-30", output="o.hdr")
 
 
 @pytest.mark.parametrize("view", ["-vtv -vh 180 -vv 180", "-vth -vh 181 -vv 180", "-vta -vh 361 -vv 180",

@@ -114,7 +114,7 @@ def parse_view(text) -> Tuple[str, str, float, float]:
 
 
 def chain_or_none(*, lens_circle=None, resize=None, projection=None, vignetting=None, nd_filter=None,
-                  calibration_factor=None, view=None, device=None) -> Optional["LuminanceChain"]:
+                  calibration_factor=None, view=None, device=None, output=None) -> Optional["LuminanceChain"]:
     """The chain of the command-line options, or None when none is given; the other
     options without ``--lens-circle`` are a usage error naming them."""
     if lens_circle is None:
@@ -126,7 +126,7 @@ def chain_or_none(*, lens_circle=None, resize=None, projection=None, vignetting=
         return None
     return LuminanceChain.from_options(lens_circle=lens_circle, resize=DEFAULT_RESIZE if resize is None else resize,
                                        projection=projection, vignetting=vignetting, nd_filter=nd_filter,
-                                       calibration_factor=calibration_factor, view=view, device=device)
+                                       calibration_factor=calibration_factor, view=view, device=device, output=output)
 
 
 class LuminanceChain:
@@ -151,9 +151,12 @@ class LuminanceChain:
 
     @classmethod
     def from_options(cls, *, lens_circle, resize=DEFAULT_RESIZE, projection=None, vignetting=None, nd_filter=None,
-                     calibration_factor=None, view=None, device=None) -> "LuminanceChain":
+                     calibration_factor=None, view=None, device=None, output=None) -> "LuminanceChain":
         """Every option checked (UsageError names the flag; a bad ``.cal`` file is an
-        InputError naming it). ``lens_circle`` is required; the others may be None."""
+        InputError naming it). ``lens_circle`` is required; the others may be None.
+        ``output`` (the file to write, when known): the calibration and ND factors are
+        checked against what its format holds (:func:`hdrcl.io.radcal.check_factor_range`),
+        else against float32's range."""
         circle = parse_lens_circle(lens_circle)
         try:
             n = int(resize)
@@ -172,7 +175,8 @@ class LuminanceChain:
         nd = nd_filter_option(nd_filter) if nd_filter is not None else None
         k = calibration_factor_option(calibration_factor) if calibration_factor is not None else 1.0
         for f in {min(nd or (1.0,)), max(nd or (1.0,))}:
-            check_factor_range(k * f, "--calibration-factor" if nd is None else "--nd-filter with --calibration-factor")
+            check_factor_range(k * f, "--calibration-factor" if nd is None else "--nd-filter with --calibration-factor",
+                               output=output)
         if view is None and projection is not None:
             view = DEFAULT_VIEW
         chain = cls(circle, n, projection, vig, nd, k, view, device)
