@@ -68,6 +68,10 @@ def test_merge_options_are_checked_once_and_say_what_they_ignore():
     o = MergeOptions(align_model="Similarity", ignore_color="0,0,255", reference_exposure="1/125")
     assert o.align_model == "similarity" and o.ignore_color == (0, 0, 255) and o.reference_exposure == 0.008
     assert o.ignored() == ["--align-model similarity is ignored without --align"]
+    assert len(MergeOptions(reference_exposure=0.01, absolute=True).ignored()) == 1
+    assert MergeOptions(reference_exposure=0.01).ignored("x.pfm") == [
+        "--reference-exposure is ignored: a .pfm file holds radiance relative to 1 s"]
+    assert MergeOptions(reference_exposure=0.01).ignored("x.exr") == []
     assert MergeOptions(align=True, align_model="shift").ignored() == []
 
 
@@ -243,3 +247,105 @@ def test_batch_and_merge_give_the_same_pixels_up_to_the_recorded_scale(tmp_path,
     assert a.shape == b.shape
     same, err = _same_up_to_scale(a.astype(np.float64), b.astype(np.float64), tol=2e-3)
     assert same, err
+
+
+@pytest.mark.parametrize("args,word", [
+    (["-o", "{d}/o.pfm", "--reference-exposure", "1e-3"], "--reference-exposure"),
+    (["-o", "{d}/o.exr", "--absolute", "--reference-exposure", "1e-3"], "--reference-exposure"),
+    (["-o", "{d}/o.exr", "--align-model", "shift"], "--align-model"),
+])
+def test_an_ignored_option_is_named_in_one_warning(tmp_path, cl_device, args, word):
+    """Issue 29: an option the merge ignores is named in one warning line (exit 0)."""
+    import subprocess
+
+    shoot, frames = _shoot_one_set(tmp_path)
+    cmd = [sys.executable, "-m", "hdrcl", "merge", *frames] + [a.format(d=tmp_path) for a in args]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if word in ln]
+    assert len(lines) == 1 and "ignored" in lines[0], r.stderr
+
+
+def test_batch_names_an_ignored_align_model(tmp_path, cl_device):
+    import subprocess
+
+    shoot, _frames = _shoot_one_set(tmp_path)
+    r = subprocess.run([sys.executable, "-m", "hdrcl", "batch", str(shoot), "-o", str(tmp_path / "out"),
+                        "--align-model", "shift", "--no-preview"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if "--align-model" in ln]
+    assert len(lines) == 1 and "ignored" in lines[0], r.stderr
+
+
+def test_a_times_list_in_reverse_order_of_brightness_is_refused_by_merge_and_batch(tmp_path, cl_device):
+    """Issue 29: times.txt backwards (the brightest frame listed shortest): merge and
+    batch both refuse the set, naming the list, and merge writes nothing."""
+    import subprocess
+
+    shoot = tmp_path / "shoot"
+    paths, times = _bracket(str(shoot), "f", 96, 128)
+    (shoot / "times.txt").write_text("".join(f"{os.path.basename(p)} {t}\n" for p, t in zip(paths, times[::-1])))
+    r = subprocess.run([sys.executable, "-m", "hdrcl", "merge", *paths, "-o", str(tmp_path / "m.exr")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 3, r.stderr
+    err = [ln for ln in r.stderr.splitlines() if "error" in ln]  # after the line naming the list used
+    assert len(err) == 1 and "times.txt" in err[0] and "reverse order" in err[0], r.stderr
+    assert not (tmp_path / "m.exr").exists()
+    r = _cli("batch", shoot, "-o", tmp_path / "out", "--no-preview", "--frames-per-set", 3)
+    assert r.exit_code == 1, r.output
+    (entry,) = json.loads((tmp_path / "out" / "report.json").read_text())["sets"]
+    assert entry["status"] == "failed" and "times.txt" in entry["error"] and "reverse order" in entry["error"], entry
+
+
+def test_batch_name_is_limited_in_bytes_before_anything_runs(tmp_path):
+    """Issue 29: ``--name "é×120{index}"`` (480 bytes) is refused at once, exit 2, one
+    line, nothing written; a name of 200 characters but more bytes too."""
+    import subprocess
+
+    shoot, _frames = _shoot_one_set(tmp_path)
+    for name in ("é×" * 120 + "{index}", "é" * 150 + "{index}"):
+        out = tmp_path / "out"
+        r = subprocess.run([sys.executable, "-m", "hdrcl", "batch", str(shoot), "-o", str(out), "--name", name],
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 2, r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1 and "bytes" in r.stderr, r.stderr
+        assert not out.exists()
+    r = subprocess.run([sys.executable, "-m", "hdrcl", "batch", str(shoot), "-o", str(tmp_path / "ok"), "--name",
+                        "é" * 90 + "{index}", "--no-preview"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+
+
+AFTER_WORK = """
+import atexit, os, signal, sys
+atexit.register(lambda: os.kill(os.getpid(), signal.SIGTERM))  # while the interpreter shuts down
+sys.argv = ["hdrcl", "sample-shoot", sys.argv[1]]
+from hdrcl.cli import main
+main()
+"""
+
+
+def test_sigterm_after_the_work_is_committed_is_not_a_silent_143(tmp_path):
+    """Issue 29: a SIGTERM that arrives once the command's work is committed (the process
+    exiting) ends with the command's exit code, not a silent 143."""
+    r = subprocess.run([sys.executable, "-c", AFTER_WORK, str(tmp_path / "s")], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0 or (r.returncode == 143 and len(r.stderr.strip().splitlines()) == 1), \
+        (r.returncode, r.stderr)
+    assert any((tmp_path / "s").rglob("*.jpg"))
+
+
+def test_calibrate_16_bit_frames_to_rsp_is_refused_from_the_headers(tmp_path):
+    """Issue 29: one line, exit 2, before any solve (no warnings of the solve first)."""
+    from hdrcl.io.writers import write_ldr
+
+    paths = []
+    for k, t in enumerate((0.25, 1.0, 4.0)):
+        p = tmp_path / f"f{k}.tif"
+        z = np.clip(np.linspace(0, 65535 * t / 4, 64 * 48 * 3), 0, 65535).reshape(48, 64, 3).astype(np.uint16)
+        write_ldr(str(p), z)
+        paths.append(str(p))
+    r = subprocess.run([sys.executable, "-m", "hdrcl", "calibrate", *paths, "--times", "1/4,1,4", "-o",
+                        str(tmp_path / "r.rsp")], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and ".rsp" in r.stderr and "16-bit" in r.stderr, r.stderr
+    assert not (tmp_path / "r.rsp").exists()

@@ -161,10 +161,7 @@ def merge(images: Sequence[PathOrArray], times: Optional[Sequence[float]] = None
     Every option is checked before any file is decoded (:mod:`hdrcl.core.params`), a
     patch against the frames' size too.
     """
-    from types import SimpleNamespace
-
     from hdrcl.core.params import check_image_size, check_images, check_options, to_rgb
-    from hdrcl.core.scale import radiometric_factors
 
     images = check_images(images)
     o = options.replace(**kwargs) if options is not None else MergeOptions(**kwargs)
@@ -186,18 +183,10 @@ def merge(images: Sequence[PathOrArray], times: Optional[Sequence[float]] = None
         name = os.fspath(response) if isinstance(response, (str, os.PathLike)) else "response"
         raise UsageError(f"{name}: a response for {resp.bits}-bit frames, but the frames are "
                          f"{8 * br.frames[0].dtype.itemsize}-bit")
-    if o.align:
-        from hdrcl.core.handheld import align_bracket
+    from hdrcl.core.engine import GivenResponse, ResponseSource
+    from hdrcl.core.inmemory import MemoryJob
 
-        al = align_bracket(br.frames, br.valid, br.times, o.device, o.crop, o.align_model, br.paths)
-        br = Bracket(frames=al.frames, times=br.times, valid=al.valid, paths=br.paths, infos=br.infos)
-    res = _merge.merge_bracket(br, resp, weight=o.weight, samples=o.samples, smoothness=o.smoothness, seed=o.seed,
-                               device=o.device, fit_exposures=o.fit_exposures,
-                               exposure_tolerance=o.exposure_tolerance, deghost=o.deghost)
-    radiance = res.radiance
-    h, w, nch = radiance.shape
-    factors, _units = radiometric_factors(br.paths, br.infos, SimpleNamespace(frames=br.frames, valid=br.valid),
-                                          res.times, res.response, o.replace(ignore_color=None), nch, h, w)
-    if factors is not None:
-        radiance = (radiance * np.asarray(factors, np.float32)).astype(np.float32)
+    source = ResponseSource() if resp is None else GivenResponse(
+        resp, os.fspath(response) if isinstance(response, (str, os.PathLike)) else "given")
+    radiance = MemoryJob(br, o, source).run().radiance
     return to_rgb([radiance], channel_order)[0]

@@ -37,6 +37,7 @@ _WHERE = {
     "falsecolor_file": "hdrcl.report.falsecolor",
     "glare_of_file": "hdrcl.core.glare",
     "glare_metrics": "hdrcl.core.glare",
+    "calibrate_luminance_file": "hdrcl.core.glare",
     "expose_file": "hdrcl.core.exposure",
 }
 

@@ -102,6 +102,14 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
     from hdrcl.api.support import calibrate as _calibrate
 
     check_inputs_not_outputs(list(images) + [times_file], output)
+    if str(output).lower().endswith(".rsp"):  # from the headers, before the solve
+        from hdrcl.api.support import read_infos
+        from hdrcl.errors import UsageError
+
+        bits = read_infos(list(images))[0].bits
+        if bits != 8:
+            raise UsageError(f"{output}: hdrgen's .rsp holds 8-bit responses; {images[0]} is {bits}-bit: "
+                             "write the response as .json")
     if times is None and times_file is None:
         _say_exposure_lists(images)
     resp = _calibrate(list(images), times, times_file=times_file, samples=samples, smoothness=smoothness,

@@ -186,10 +186,14 @@ def _terminate(signum, frame):
 
 
 @contextlib.contextmanager
-def _sigterm_exits():
+def _sigterm_exits(exiting: bool = False):
     """While a command runs (CLI process, main thread only): SIGTERM raises
     :class:`Terminated`; the previous handler is restored afterwards. ``batch`` installs
-    its own handler (it cancels its workers) and puts this one back when done."""
+    its own handler (it cancels its workers) and puts this one back when done.
+
+    ``exiting`` (the process is the command line itself, about to exit): once the
+    command has returned, its work is committed, so a SIGTERM while the interpreter shuts
+    down is ignored and the command's own exit code stands (never a silent 143)."""
     old = None
     if threading.current_thread() is threading.main_thread():
         with contextlib.suppress(ValueError, OSError):
@@ -199,7 +203,7 @@ def _sigterm_exits():
     finally:
         if old is not None:
             with contextlib.suppress(ValueError, OSError):
-                signal.signal(signal.SIGTERM, old)
+                signal.signal(signal.SIGTERM, signal.SIG_IGN if exiting else old)
 
 
 #: Each command and the module that defines it, imported when the command runs (or
@@ -214,6 +218,7 @@ COMMAND_MODULES = {
     "tonemap": "hdrcl.cli.output",
     "falsecolor": "hdrcl.cli.falsecolor",
     "glare": "hdrcl.cli.glare",
+    "calibrate-luminance": "hdrcl.cli.glare",
     "scan": "hdrcl.cli.shoot",
     "batch": "hdrcl.cli.shoot",
     "sample-shoot": "hdrcl.cli.shoot",
@@ -244,6 +249,7 @@ class HdrclGroup(click.Group):
         return self
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        exiting = args is None  # the process is the command line (not a caller's CliRunner)
         if args is None:
             args = sys.argv[1:]
         args = list(args)
@@ -252,7 +258,7 @@ class HdrclGroup(click.Group):
         if not standalone_mode:
             return super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
         try:
-            with _sigterm_exits():
+            with _sigterm_exits(exiting):
                 rv = super().main(args, prog_name or "hdrcl", complete_var, standalone_mode=False, **extra)
         except Terminated as exc:
             click.echo("hdrcl: terminated", err=True)

@@ -60,6 +60,7 @@ class Inputs:
     reference: Optional[tuple] = None  # (f-number, ISO) the times are relative to; None: the first frame's
     reference_exposure: Optional[float] = None  # seconds that 1.0 stands for; None: the options'
     timestamp: Optional[str] = None
+    times_from: Optional[str] = None  # where the times came from, when not the frames' EXIF (a list, --times)
 
     @classmethod
     def open(cls, paths, times=None, times_file=None) -> "Inputs":
@@ -69,7 +70,52 @@ class Inputs:
         paths, infos, rel = _open_files(paths, times, times_file)
         first = infos[0]
         stamp = first.capture_time.strftime("%Y:%m:%d %H:%M:%S") if first.capture_time else None
-        return cls(list(paths), list(infos), np.asarray(rel, np.float64), timestamp=stamp)
+        return cls(list(paths), list(infos), np.asarray(rel, np.float64), timestamp=stamp,
+                   times_from=times_source(paths, infos, times, times_file))
+
+
+def times_source(paths, infos, times=None, times_file=None) -> Optional[str]:
+    """Where a set's exposure times come from when not from its frames' EXIF: the times
+    file, ``--times``, or the exposure list found beside the frames; None for EXIF."""
+    if times_file is not None:
+        return os.fspath(times_file)
+    if times is not None:
+        return "--times"
+    try:
+        from hdrcl.io.metadata import header_exposures
+
+        used = header_exposures(paths, infos)[1]
+    except Exception:  # the lists were read already: whatever went wrong was said then
+        return None
+    return used[0] if used else None
+
+
+def check_brightness_order(grid, times, inputs: "Inputs") -> None:
+    """InputError naming the list when the frames' brightness falls as their exposure
+    times rise (a times list given backwards): no curve makes that a bracket."""
+    from hdrcl.errors import InputError
+
+    times = np.asarray(times, np.float64)
+    if times.size < 2 or np.unique(times).size != times.size:
+        return
+    ok = None
+    for v in grid.valid:
+        if v is not None:
+            ok = v.copy() if ok is None else ok & v
+    means = []
+    for f in grid.frames:
+        z = f.reshape(-1, f.shape[-1]).astype(np.float64).sum(axis=1)
+        means.append(float(z[ok.ravel()].mean()) if ok is not None and ok.any() else float(z.mean()))
+    order = np.argsort(times, kind="stable")
+    if np.all(np.diff(np.asarray(means)[order]) < 0):
+        where = inputs.times_from
+        if where is None:  # a batch's set: the list beside its frames, if they have no EXIF times
+            from hdrcl.core.bracket import read_infos
+
+            where = times_source(inputs.paths, read_infos(inputs.paths))
+        where = where or os.path.basename(inputs.paths[int(order[-1])])
+        raise InputError(f"{where}: the exposure times run in reverse order of the frames' brightness "
+                         f"(the {len(times)} frames get darker as their times grow); check the times")
 
 
 class ResponseSource:
@@ -236,7 +282,10 @@ class MergeJob(Timed):
             self.add_time("decode", self.source.decode_seconds)
 
     def respond(self) -> None:
-        """Solve the response from the grid, or take the one given."""
+        """Solve the response from the grid, or take the one given (after the exposures'
+        order is checked against the frames' brightness)."""
+        if self.grid is not None:
+            check_brightness_order(self.grid, self.times, self.inputs)
         if self.response is None:
             with self.timed("solve"):
                 self.response = self.responses.solve(self, self.grid)
@@ -311,7 +360,7 @@ class MergeJob(Timed):
         if self.own or self.options.fit_exposures != "off":
             return None
         from hdrcl.core.exposure_fit import ExposureCheck
-        from hdrcl.core.fusion import fusion_tables
+        from hdrcl.core.pipeline import fusion_tables
 
         order = np.argsort(self.times, kind="stable")
         tables = fusion_tables(self.response, self.source.dtype, self.nch, self.options.weight)[0]
@@ -539,3 +588,4 @@ def _report_exposure_check(check, result, tolerance):
         logger.warning("%s", m)
         result.warnings.append(m)
     return list(msgs)
+

@@ -1,4 +1,6 @@
-"""Fusing a bracket into a radiance map: the OpenCL kernel or its NumPy twin."""
+"""Fusing a bracket held in memory into a radiance map: a thin caller of the streaming
+path (:func:`hdrcl.core.pipeline.stream_merge`, array source and sink), the OpenCL kernel
+or its NumPy twin."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -7,9 +9,8 @@ from typing import Optional, Sequence
 import numpy as np
 
 from hdrcl.cl.backend import get_processor
-from hdrcl.core import reference
+from hdrcl.core.pipeline import fusion_tables  # noqa: F401 (its home was here)
 from hdrcl.core.response import Response
-from hdrcl.core.weights import weight_table
 
 
 @dataclass
@@ -27,21 +28,6 @@ class FusionResult:
     counts: dict = field(default_factory=dict)
     backend: str = "opencl"
     ghost_mask: Optional[np.ndarray] = None
-
-
-def fusion_tables(response: Response, dtype, nch: int, weight: str = "hat"):
-    """``g`` per channel at every code, shape (C, L), and the weights (L,) for frames of
-    ``dtype`` with ``nch`` channels; UsageError when the response's depth differs."""
-    tables = response.table_for(nch)
-    levels = tables.shape[1]
-    if int(np.iinfo(dtype).max) + 1 != levels:
-        from hdrcl.errors import UsageError
-
-        raise UsageError(
-            f"the response describes {response.bits}-bit images but the frames are "
-            f"{8 * np.dtype(dtype).itemsize}-bit"
-        )
-    return tables, weight_table(levels, weight)
 
 
 def fuse_frames(
@@ -68,28 +54,18 @@ def fuse_frames(
     :mod:`hdrcl.core.deghost`); ``counts`` then has ``ghost`` and ``ghost_unresolved``, and
     ``ghost_mask`` the (H, W) mask.
     """
-    order = np.argsort(np.asarray(times, np.float64), kind="stable")
-    frames = [frames[i] for i in order]
-    log_t = np.log(np.asarray(times, np.float64)[order])
-    vals = None if valid is None else [valid[i] for i in order]
-    tables, wts = fusion_tables(response, frames[0].dtype, frames[0].shape[2], weight)
-    proc = get_processor("fusion", device)
-    if proc is None:
-        rad, counts = reference.fuse(frames, log_t, tables, wts, vals, clip_mask=clip_mask)
-        res = FusionResult(rad.astype(np.float32), counts, "numpy")
-    else:
-        rad, counts = proc.fuse(frames, log_t, tables, wts, vals, clip_mask=clip_mask)
-        res = FusionResult(rad, counts, "opencl")
-    if deghost:
-        from hdrcl.core import deghost as dg
+    from hdrcl.core.pipeline import ArraySink, ArraySource, FusionSpec, stream_merge
 
-        ref = dg.reference_index(times, ghost_reference)
-        model = dg.learn(frames, log_t, tables, wts, vals, ghost_threshold)
-        mask = dg.find(frames, log_t, tables, vals, res.radiance, model)
-        res.counts["ghost_unresolved"] = dg.replace(res.radiance, frames, log_t, tables, mask, vals, ref)
-        res.counts["ghost"] = int(np.count_nonzero(mask))
-        res.ghost_mask = mask
-    return res
+    frames = list(frames)
+    h, w, nch = frames[0].shape
+    vals = [None] * len(frames) if valid is None else list(valid)
+    sink = ArraySink(h, w, nch)
+    mask = np.zeros((h, w), bool) if deghost else None
+    spec = FusionSpec(weight=weight, has_valid=any(v is not None for v in vals), device=device, deghost=deghost,
+                      ghost_mask=mask, ghost_threshold=ghost_threshold, ghost_reference=ghost_reference,
+                      clip_mask=clip_mask, processor=get_processor("fusion", device))
+    counts, backend = stream_merge(ArraySource(frames, vals), times, response, sink, spec)
+    return FusionResult(sink.array, counts, backend, mask)
 
 
 def radiance_bounds(response: Response, times: Sequence[float], nch: int) -> tuple:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import logging
 import os
-import time as _time
 from typing import Optional, Sequence, Union
 
 import numpy as np
@@ -40,29 +39,15 @@ def merge_bracket(
     (then with the exposures that calibration refined, see :func:`calibrate`).
     ``deghost``, ``ghost_threshold`` and ``ghost_reference`` as
     :func:`hdrcl.core.fusion.fuse_frames`."""
-    from hdrcl.core.fusion import fuse_frames
+    from hdrcl.core.engine import response_source
+    from hdrcl.core.inmemory import MemoryJob
     from hdrcl.core.params import check_options
 
-    o = check_options(frames=len(bracket.frames), weight=weight, samples=samples, smoothness=smoothness, seed=seed,
-                      fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance, deghost=deghost,
-                      ghost_threshold=ghost_threshold, ghost_reference=ghost_reference)
-    samples, smoothness, seed, exposure_tolerance = o["samples"], o["smoothness"], o["seed"], o["exposure_tolerance"]
-    t0 = _time.perf_counter()
-    if response is None:
-        response = calibrate(bracket, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
-                             fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance)
-    t1 = _time.perf_counter()
-    times = exposures_used(response, bracket.times)
-    res = fuse_frames(bracket.frames, times, response, weight=weight, valid=bracket.valid, device=device,
-                      deghost=deghost, ghost_threshold=ghost_threshold, ghost_reference=ghost_reference)
-    t2 = _time.perf_counter()
-    warnings = list(response.warnings)
-    if res.counts.get("no_data"):
-        warnings.append(f"{res.counts['no_data']} pixel-channels are invalid in every frame and were set to 0")
-    return MergeResult(radiance=res.radiance, response=response, counts=res.counts, times=times,
-                       paths=bracket.paths, backend=res.backend,
-                       seconds={"calibrate": t1 - t0, "fuse": t2 - t1}, warnings=warnings,
-                       nominal=np.asarray(bracket.times, np.float64))
+    o = MergeOptions(weight=weight, samples=samples, smoothness=smoothness, seed=seed, device=device,
+                     fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance, deghost=deghost,
+                     ghost_threshold=ghost_threshold, ghost_reference=ghost_reference)
+    check_options(frames=len(bracket.frames), ghost_reference=ghost_reference)
+    return MemoryJob(bracket, o, response_source(response)).run()
 
 
 def merge_files(paths: Sequence[Union[str, os.PathLike]], output: Union[str, os.PathLike],
@@ -177,7 +162,7 @@ def merge_files(paths: Sequence[Union[str, os.PathLike]], output: Union[str, os.
     extras = Extras(**rest)  # TypeError naming an unknown keyword, as before
     check_options(frames=len(paths), ghost_reference=options.ghost_reference)
     output = check_targets(paths, output, options, extras, response)
-    for line in options.ignored():
+    for line in options.ignored(output, chain=extras.chain is not None):
         logger.warning("%s", line)
     source = response_source(response)
     inputs = Inputs.open(paths, times, times_file)

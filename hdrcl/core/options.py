@@ -78,11 +78,28 @@ class MergeOptions:
         """A copy with ``changes`` (checked again)."""
         return dataclasses.replace(self, **changes)
 
-    def ignored(self) -> List[str]:
-        """One line per option given that this merge ignores (logged once, as a warning)."""
+    def ignored(self, output=None, chain: bool = False) -> List[str]:
+        """One line per option given that this merge ignores, each logged once as a
+        warning: ``align_model`` without ``align``; ``reference_exposure`` when the file
+        holds absolute units (``absolute``, ``reference_patch``, a luminance ``chain``) or
+        is of a type that holds radiance relative to 1 s (``output``'s extension: PFM)."""
         out = []
         if not self.align and self.align_model != "auto":
             out.append(f"--align-model {self.align_model} is ignored without --align")
+        if self.reference_exposure is not None:
+            why = None
+            if self.absolute or self.reference_patch is not None or chain:
+                why = "the file holds absolute units (cd/m^2)"
+            elif output is not None:
+                import os
+
+                from hdrcl.core.encode import SCALED_EXTENSIONS
+
+                ext = os.path.splitext(os.fspath(output))[1].lower()
+                if ext not in SCALED_EXTENSIONS:
+                    why = f"a {ext} file holds radiance relative to 1 s"
+            if why:
+                out.append(f"--reference-exposure is ignored: {why}")
         return out
 
     def asdict(self) -> dict:

@@ -18,13 +18,28 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from hdrcl.core import reference
-from hdrcl.core.fusion import fusion_tables
+from hdrcl.core.weights import weight_table
 from hdrcl.core.response import Response
 
 logger = logging.getLogger(__name__)
 
 #: Rows per strip on the NumPy path (the OpenCL path takes its processor's strip size).
 NUMPY_STRIP_PIXELS = 1 << 18
+
+
+def fusion_tables(response: Response, dtype, nch: int, weight: str = "hat"):
+    """``g`` per channel at every code, shape (C, L), and the weights (L,) for frames of
+    ``dtype`` with ``nch`` channels; UsageError when the response's depth differs."""
+    tables = response.table_for(nch)
+    levels = tables.shape[1]
+    if int(np.iinfo(dtype).max) + 1 != levels:
+        from hdrcl.errors import UsageError
+
+        raise UsageError(
+            f"the response describes {response.bits}-bit images but the frames are "
+            f"{8 * np.dtype(dtype).itemsize}-bit"
+        )
+    return tables, weight_table(levels, weight)
 
 
 def fusion_processor(device: Optional[str] = None, work: Optional[int] = None):

@@ -92,10 +92,21 @@ def check_template(template: str) -> str:
     return str(template)
 
 
+#: Longest output name in bytes (UTF-8): file systems take 255 bytes a name, and the
+#: hidden temporary name (``.<name>.tmp-1a2b3c4d.exr``) and the report's files
+#: (``<name>-coverage.png``) add up to about 40.
+MAX_NAME_BYTES = 200
+
+
+def _cut(name: str, limit: int = MAX_NAME_BYTES) -> str:
+    """``name`` cut to at most ``limit`` bytes of UTF-8, on a character boundary."""
+    return name.encode("utf-8")[:limit].decode("utf-8", "ignore")
+
+
 def _safe(name: str) -> str:
     """``name`` without characters unsafe in file names (each becomes ``_``), leading or
-    trailing dots and spaces, at most 200 characters."""
-    return _UNSAFE.sub("_", name).strip(" .")[:200].strip(" .")
+    trailing dots and spaces, at most :data:`MAX_NAME_BYTES` bytes."""
+    return _cut(_UNSAFE.sub("_", name).strip(" .")).strip(" .")
 
 
 def _folder_of(s) -> str:
@@ -167,6 +178,13 @@ def output_stems(manifest, template: Optional[str] = None) -> Dict[int, str]:
     sets = sorted(manifest.sets, key=lambda s: s.index)
     fields = name_fields(manifest)
     stems = {i: _safe(template.format(**f)) or f"set{i}" for i, f in fields.items()}
+    if explicit:  # a name the file system cannot hold is the template's problem: said before any work
+        for i, f in sorted(fields.items()):
+            full = _UNSAFE.sub("_", template.format(**f)).strip(" .")
+            size = len(full.encode("utf-8"))
+            if size > MAX_NAME_BYTES:
+                raise UsageError(f"--name '{_cut(template, 60)}': set {i}'s name is {size} bytes; at most "
+                                 f"{MAX_NAME_BYTES} (a file name holds 255 bytes with hdrcl's temporary suffix)")
     bad = _clashes(stems)
     if bad and explicit:
         a, b = sorted(i for i in bad if stems[i].casefold() == stems[min(bad)].casefold())[:2]

@@ -302,7 +302,7 @@ def _check_run(options: BatchOptions, s: RunSettings, response) -> None:
         raise UsageError("--jobs and --scheduler exclude each other: the Dask cluster decides the parallelism")
     if options.preview_size < 16:
         raise UsageError("--preview-size must be at least 16 pixels")
-    for line in options.merge.ignored():
+    for line in options.merge.ignored(chain=bool(options.luminance)):
         logger.warning("%s", line)
 
 
