@@ -63,7 +63,7 @@ def test_times_file_malformed_line(tmp_path, line):
         f"{path} line 4: expected 'file seconds' or HDRShop columns")
 
 
-@pytest.mark.parametrize("value", ["-2", "0", "-0.5", "inf", "nan"])
+@pytest.mark.parametrize("value", ["-2", "0", "-0.5", "-1e3"])
 def test_times_file_time_not_positive_names_line_and_value(tmp_path, value):
     path = tmp_path / "image_list.txt"
     path.write_text(f"# header\nb.jpg 1 1 8 0 0\nc.jpg {value} 0.5 8 0 0\n")

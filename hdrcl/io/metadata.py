@@ -251,8 +251,7 @@ def read_times_file(path) -> dict:
     Raises
     ------
     InputError
-        The file cannot be read, a line is malformed (a time that is not positive: the
-        message names the line and the value), or a file is listed twice.
+        The file cannot be read, a line is malformed (or its time not positive), or a file is listed twice.
     """
     name = os.fspath(path)
     check_regular(name, "times file")  # a FIFO or a device would block or never end
@@ -274,14 +273,9 @@ def read_times_file(path) -> dict:
         if len(fields) < 2 or len(fields) > 6:
             raise bad
         seconds = _parse_seconds(fields[1])
+        if seconds is None and _float_field(fields[1]) is not None:  # a number, but no exposure: -2, 0
+            raise InputError(f"{name} line {lineno}: {fields[0]}: exposure time {fields[1]} s is not a positive time")
         if seconds is None:
-            try:
-                value = float(fields[1])
-            except ValueError:
-                value = None
-            if value is not None:  # a number, but no exposure: -2, 0, inf
-                raise InputError(f"{name} line {lineno}: {_clip(fields[0])}: exposure time {_clip(fields[1])} s "
-                                 "is not a positive time")
             raise bad
         exposure = Exposure(time=seconds)
         if len(fields) >= 3:
