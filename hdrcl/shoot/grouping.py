@@ -26,8 +26,11 @@ bracket set ends and the next begins, using several signals together:
   set, which splits sets shot back to back even when the gap between them is shorter
   than the longest exposure. With auto bracketing the exposure bias sequence (``0, -2,
   +2`` or ``-2, 0, +2``...) is the ladder: a repeated bias value starts a new set. A
-  hand-made monotonic ladder of three or more frames that turns back also restarts, and
-  so does an auto-bracket pattern (``0, -2, +2, -4, +4``) that the next frame breaks.
+  repeated (time, aperture, ISO) with a new exposure bias that carries the bias on one
+  way (a phone in auto mode with 0.25-0.5 EV compensation steps) is a duplicate, not a
+  repeat. A hand-made monotonic ladder of three or more frames that turns back ends
+  the run (the bridges join it back when the scene matches and nothing repeats), and an
+  auto-bracket pattern (``0, -2, +2, -4, +4``) that the next frame breaks ends the set.
   A frame that carries a one-way ladder on past its end by a plausible step (0.45-4.5
   stops, even when uneven: a phone going on in ISO from its own table) continues it.
   A frame that repeats the exposure of the frame just before, with the ladder going on
@@ -39,16 +42,20 @@ bracket set ends and the next begins, using several signals together:
 * **The scene** (with ``compare``, which ``scan_directory`` gives by default): small
   exposure-normalised thumbnails of a frame and of the set's frame nearest in exposure
   (:mod:`hdrcl.shoot.scene`); a changed scene ends the set.
-* **Long gaps bridged**: runs that only a long gap (or an auto / manual change)
-  separates are joined when together they form one exposure ladder (evenly spaced in
-  ``t``, ``t * ISO`` or the exposure bias, in an order people shoot; unevenly but one
-  way when the scene matches: :mod:`hdrcl.shoot.ladder`) and the scene matches:
-  hand-made brackets with 5-80 s between frames, and pauses of up to a quarter of an
-  hour on one view while the ladder goes on (:mod:`hdrcl.shoot.splitting`).
+* **Long gaps bridged**: runs that only a long gap (an auto / manual change, a hand
+  ladder turning back) separates are joined when the scene matches and no exposure
+  repeats, in any order and with any step (:func:`hdrcl.shoot.ladder.distinct_of`: a
+  compact's third-stop ladder, a ladder shot 1, 2, 1/2 s then on down, a moon ladder
+  1/4 -> 1/250 s then 1/2 -> 8 s); where the scene cannot be compared, when they form
+  one evenly spaced exposure ladder in an order people shoot
+  (:func:`hdrcl.shoot.ladder.ladder_of`), or carry on one way a ladder the scene vouched
+  for (the darkest frames of a night ladder). Hand-made brackets with 5-80 s between
+  frames, and pauses of up to a quarter of an hour on one view while the ladder goes
+  on (:mod:`hdrcl.shoot.splitting`).
 
 The rule behind all of these: frames belong together when the scene matches and
 together they form one plausible bracket (every exposure once, a span of stops),
-whatever the gaps. One shutter time with the ISO stepping is a ladder in ``t * ISO``
+whatever the gaps, the order or the step. One shutter time with the ISO stepping is a ladder in ``t * ISO``
 (the merge uses it), so it is a set.
 
 No fixed set size is guessed: sets may differ in size. Every set records why it ended
