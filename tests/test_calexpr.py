@@ -163,14 +163,26 @@ def test_large_coefficients_are_one_error_without_numpy_warnings(tmp_path, recwa
     (issue 29); the chain's check names the flag when the factor is not finite inside."""
     from hdrcl.core.fisheye import LuminanceChain
 
-    text = LAB_VIG.replace("(-0.528613562104476)*(r^4)", "(1e300)*(r^40)")
+    text = LAB_VIG.replace("500", "32").replace("(-0.528613562104476)*(r^4)", "(1e-10)*(r^2500)")  # overflows outside
     path = _write(tmp_path, "big.cal", text)
     chain = LuminanceChain.from_options(lens_circle="32,32,64", resize=64, vignetting=str(path))
     assert chain.vignetting.program is not None
     assert not [w for w in recwarn.list if issubclass(w.category, RuntimeWarning)]
-    bad = _write(tmp_path, "bad.cal", LAB_VIG.replace("(-0.528613562104476)*(r^4)", "(-1e300)*(r^4)"))
+    bad = _write(tmp_path, "bad.cal", LAB_VIG.replace("500", "32").replace("(-0.528613562104476)*(r^4)",
+                                                                          "(-1e300)*(r^4)"))
     with pytest.raises(UsageError, match="^--vignetting: .*bad.cal"):
         LuminanceChain.from_options(lens_circle="32,32,64", resize=64, vignetting=str(bad))
+    assert not [w for w in recwarn.list if issubclass(w.category, RuntimeWarning)]
+
+
+def test_vignetting_factors_the_output_cannot_hold_are_refused(tmp_path, recwarn):
+    """1 / (1 + 1e300 r^8) is finite and positive but would underflow every value to 0."""
+    from hdrcl.core.fisheye import LuminanceChain
+
+    path = _write(tmp_path, "tiny.cal", LAB_VIG.replace("500", "32").replace("(-0.528613562104476)*(r^4)",
+                                                                            "(1e300)*(r^8)"))
+    with pytest.raises(UsageError, match=r"^--vignetting \(.*tiny.cal"):
+        LuminanceChain.from_options(lens_circle="32,32,64", resize=64, vignetting=str(path))
     assert not [w for w in recwarn.list if issubclass(w.category, RuntimeWarning)]
 
 

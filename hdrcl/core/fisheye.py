@@ -144,6 +144,7 @@ class LuminanceChain:
         self.view = parse_view(view) if view is not None else None
         self.device = device
         self.vertical_illuminance: Optional[float] = None
+        self._output = None  # the file to write, when from_options was told (factor ranges)
         self.backend = "numpy"
         self._acc = None
         self._box = None
@@ -180,6 +181,7 @@ class LuminanceChain:
         if view is None and projection is not None:
             view = DEFAULT_VIEW
         chain = cls(circle, n, projection, vig, nd, k, view, device)
+        chain._output = output
         if vig is not None:
             chain._check_vignetting()
         return chain
@@ -204,6 +206,11 @@ class LuminanceChain:
                 "the correction ro/ri(1), go/gi(1), bo/bi(1)"
             raise UsageError(f"--vignetting: {what} of {self.vignetting.source} is not finite and positive "
                              f"over the lens circle")
+        nd = np.asarray(self.nd_filter if self.nd_filter is not None else (1.0, 1.0, 1.0), np.float64)
+        for value in (float(f[inside].min()) * self.calibration_factor * float(nd.min()),
+                      float(f[inside].max()) * self.calibration_factor * float(nd.max())):
+            check_factor_range(value, f"--vignetting ({self.vignetting.source}, with the ND and calibration factors)",
+                               output=self._output)
 
     def _vignetting_factors(self) -> np.ndarray:
         """``(N, N, 3)`` factors of the vignetting step (float64); outside the view,
