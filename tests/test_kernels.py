@@ -285,3 +285,60 @@ def test_fusion_twin_keeps_highlight_hue():
     assert out[0, 0, 0] >= out[0, 0, 1] >= out[0, 0, 2]
     bounds = np.exp(tables[[0, 1, 2], [255, 254, 252]] - np.log(0.01))
     np.testing.assert_allclose(out[0, 1], bounds.max())
+
+
+@pytest.mark.parametrize("shift", [0, 1, 37, 127])
+def test_fusion_in_place_at_any_address(cl_device, shift):
+    """Frames, output and clip mask at addresses that are not aligned (the kernels use
+    the host's memory in place, from the aligned address below each strip): equal to
+    the twin, and nothing written outside the output and the mask."""
+    from hdrcl.cl.fusion import FusionProcessor
+
+    frames, log_t, tables, _ = _messy_bracket(8, 3, 6, h=29, w=41, seed=5)
+    h, w, c = frames[0].shape
+    n = h * w * c
+
+    def at(k, a):  # a copy of `a` that starts k bytes after a 128-byte boundary
+        raw = np.zeros(a.nbytes + 512, np.uint8)
+        start = (-raw.ctypes.data) % 128 + k
+        v = raw[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
+        v[...] = a
+        return v
+
+    moved = [at((shift + 13 * j) % 128, f) for j, f in enumerate(frames)]
+    out_raw = np.full(n + 64, 7.0, np.float32)
+    out = out_raw[shift % 32:shift % 32 + n].reshape(h, w, c)
+    mask_raw = np.full(h * w + 256, 9, np.uint8)
+    mask = mask_raw[shift:shift + h * w].reshape(h, w)
+    w8 = weight_table(256, "gaussian")
+    proc = FusionProcessor(ctx=cl_device, strip_pixels=7 * w + 3)  # strips start at odd rows
+    got, gc = proc.fuse(moved, log_t, tables, w8, out=out, clip_mask=mask)
+    tmask = np.zeros((h, w), np.uint8)
+    want, wc = ref.fuse(frames, log_t, tables, w8, clip_mask=tmask)
+    assert got is out
+    np.testing.assert_allclose(out, want, rtol=RTOL, atol=0)
+    assert gc == wc
+    np.testing.assert_array_equal(mask, tmask)
+    assert (out_raw[:shift % 32] == 7.0).all() and (out_raw[shift % 32 + n:] == 7.0).all()
+    assert (mask_raw[:shift] == 9).all() and (mask_raw[shift + h * w:] == 9).all()
+
+
+def test_fusion_every_pixel_to_fix(cl_device):
+    """A strip where every pixel goes to fuse_fix (codes in random order across the
+    frames): the list of pixels to fix holds them all, and the result is the twin's."""
+    from hdrcl.cl.fusion import FusionProcessor
+
+    rng = np.random.default_rng(11)
+    frames = [rng.choice(np.array([0, 3, 128, 252, 255], np.uint8), (40, 50, 3)) for _ in range(5)]
+    frames[0][...] = 255  # the shortest frame clipped, longer ones in range: out of order everywhere
+    log_t = np.log(np.array([0.01, 0.02, 0.04, 0.08, 0.16]))
+    cam = s.Camera(a=1.0, x0=(1.0, 1.3, 0.7))
+    tables = _tables(cam, 3, 8)
+    w8 = weight_table(256)
+    mask_k = np.zeros((40, 50), np.uint8)
+    mask_t = np.zeros((40, 50), np.uint8)
+    got, gc = FusionProcessor(ctx=cl_device).fuse(frames, log_t, tables, w8, clip_mask=mask_k)
+    want, wc = ref.fuse(frames, log_t, tables, w8, clip_mask=mask_t)
+    np.testing.assert_allclose(got, want, rtol=RTOL, atol=0)
+    assert gc == wc and wc["clipped_high"] == 40 * 50 * 3
+    np.testing.assert_array_equal(mask_k, mask_t)

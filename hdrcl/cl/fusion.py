@@ -1,11 +1,13 @@
 """Host side of ``kernels/fusion.cl``: a bracket in, a float32 radiance map out."""
 from __future__ import annotations
 
+import ctypes
 import math
 from typing import Optional, Sequence
 
 import numpy as np
 import pyopencl as cl
+import pyopencl.cltypes as cltypes
 
 from hdrcl.cl.processing import OpenCLProcessor, round_up
 
@@ -21,6 +23,23 @@ def clip_codes(levels: int) -> tuple:
     written again (this layer does not import ``core``; a test holds the two equal)."""
     high = int(round(250 * (levels - 1) / 255.0))
     return levels - 1 - high, high
+
+
+#: Intel's CPU runtime works in host memory only from 128-byte aligned addresses (else it
+#: copies, at about 3 GB/s); a frame strip is passed from the aligned address at or below
+#: its start, with its offset (:func:`_aligned_view`).
+_HOST_ALIGN = 128
+
+
+def _aligned_view(a: np.ndarray):
+    """``(view, offset)``: a ctypes byte array over ``a``'s memory (C-contiguous) that
+    starts at the :data:`_HOST_ALIGN`-byte boundary at or below ``a``'s first byte, and
+    the bytes from there to that first byte. The bytes before it are in the same memory
+    page (4096 is a multiple of the alignment), so they can be read; the kernels read
+    only from the offset on."""
+    addr = a.ctypes.data
+    start = addr - addr % _HOST_ALIGN
+    return (ctypes.c_ubyte * (a.nbytes + addr - start)).from_address(start), addr - start
 
 
 class FusionPlan:
@@ -69,10 +88,16 @@ class FusionPlan:
         self.rows = proc.strip_rows(width)
         self.spix = self.rows * width
         self.plane = self.spix * nch
-        self.frames_b = proc.buffer("frames", nframes * self.plane * self.dtype.itemsize, cl.mem_flags.READ_ONLY)
+        self.frames_b = proc.buffer("frames", 4 if nframes <= 16 else nframes * self.plane * self.dtype.itemsize,
+                                    cl.mem_flags.READ_ONLY)
         self.valid_b = proc.buffer("valid", nframes * self.spix if has_valid else 4, cl.mem_flags.READ_ONLY)
         self.out_b = proc.buffer("out", self.plane * 4, cl.mem_flags.READ_WRITE)
         self.mask_b = proc.buffer("clipmask", self.spix, cl.mem_flags.READ_WRITE)
+        # fuse and fuse_tail list the pixels fuse_fix must walk (counts[3] of them)
+        self.todo_b = proc.buffer("todo", self.spix * 4, cl.mem_flags.READ_WRITE)
+        self.frame_args = nframes <= 16
+        self.zero_copy = proc.ctx.shares_host_memory
+        self._dummy = proc.buffer("nothing", 128, cl.mem_flags.READ_ONLY)
         self._ones = np.ones(self.spix, np.uint8) if has_valid else None
         self._zero = np.zeros(1, np.uint32)
 
@@ -81,36 +106,93 @@ class FusionPlan:
         """Fuse one strip: ``frames`` are ``(rows, W, C)`` slices, ``out`` the matching
         float32 ``(rows, W, C)`` destination (contiguous). ``clip_mask``, a contiguous
         uint8 ``(rows, W)`` array, receives the pixels' clip flags (1 some channel clipped
-        high, 2 clipped low; see :func:`hdrcl.core.reference.fuse`)."""
+        high, 2 clipped low; see :func:`hdrcl.core.reference.fuse`).
+
+        On a device that shares host memory the kernels read ``frames`` and write ``out``
+        and ``clip_mask`` where they are (buffers over the host arrays, no copies)."""
         q = self.proc.queue
         npix = frames[0].shape[0] * self.w
         if npix > self.spix:
             raise ValueError("strip larger than the plan's strip size")
-        size = self.dtype.itemsize
-        for j, f in enumerate(frames):
-            cl.enqueue_copy(q, self.frames_b, np.ascontiguousarray(f), dst_offset=j * self.plane * size,
-                            is_blocking=False)
-            if self.has_valid:
+        held = []  # host views and buffers that must live until the queue is done with them
+        fargs = self._frame_args(frames, held)
+        if self.has_valid:
+            for j in range(self.p):
                 v = self._ones[:npix] if valid[j] is None else np.ascontiguousarray(valid[j], dtype=np.uint8)
                 cl.enqueue_copy(q, self.valid_b, v, dst_offset=j * self.spix, is_blocking=False)
-        args = (np.int32(npix), np.int32(self.p), np.int32(self.levels), np.int32(self.plane), np.int32(self.spix))
-        bufs = (self.frames_b, self.valid_b, self.lut, self.lt2, self.out_b, self.counts_b)
-        if npix >= 4:
-            self.knl(q, (round_up(npix // 4),), None, *bufs, *args)
-        if npix % 4:
-            self.tail(q, (round_up(npix % 4),), None, *bufs, *args, np.int32(npix - npix % 4))
-        cl.enqueue_copy(q, self.counts, self.counts_b, is_blocking=True)
-        fixed = bool(self.counts[3])
-        if fixed:  # the fast path flagged values that need the bound rules
-            self.fix(q, (round_up(npix),), None, self.frames_b, self.valid_b, self.lut, self.lt2, self.ghi, self.glo,
-                     self.out_b, self.counts_b, self.mask_b, *args)
-            cl.enqueue_copy(q, self.counts_b, self._zero, dst_offset=12, is_blocking=False)
+        out_b = self._host_buffer(out, np.float32, npix * self.c, self.out_b, held)
+        mask_b = self.mask_b
         if clip_mask is not None:
-            if fixed:
+            clip_mask[...] = 0  # fuse_fix writes the flagged pixels only
+            mask_b = self._host_buffer(clip_mask, np.uint8, npix, self.mask_b, held)
+        args = (np.int32(npix), np.int32(self.p), np.int32(self.levels), np.int32(self.spix))
+        tabs = (self.valid_b, self.lut, self.lt2)
+        if npix >= 4:
+            self.knl(q, (round_up(npix // 4),), None, *fargs, *tabs, out_b, self.counts_b, self.todo_b, *args)
+        if npix % 4:
+            self.tail(q, (round_up(npix % 4),), None, *fargs, *tabs, out_b, self.counts_b, self.todo_b, *args,
+                      np.int32(npix - npix % 4))
+        cl.enqueue_copy(q, self.counts, self.counts_b, is_blocking=True)
+        nfix = int(self.counts[3])
+        if nfix:  # the fast path listed pixels with values that need the bound rules
+            if clip_mask is not None and mask_b is self.mask_b:  # fuse_fix writes the listed pixels only
+                cl.enqueue_fill_buffer(q, self.mask_b, np.uint8(0), 0, npix)
+            self.fix(q, (round_up(nfix),), None, *fargs, *tabs, self.ghi, self.glo, out_b, self.counts_b,
+                     self.todo_b, mask_b, np.int32(nfix), *args[1:])
+            cl.enqueue_copy(q, self.counts_b, self._zero, dst_offset=12, is_blocking=False)
+            if clip_mask is not None and mask_b is self.mask_b:
                 cl.enqueue_copy(q, clip_mask, self.mask_b, is_blocking=False)
+        self._finish(out, out_b, held)
+
+    def _frame_args(self, frames, held: list) -> tuple:
+        """Kernel arguments for the strip's frames: up to 16 frames, one buffer per frame
+        (over the host array where the device shares host memory, from an aligned address
+        at or before the strip: :func:`_aligned_view`) and the element offsets; beyond,
+        one packed copy."""
+        q = self.proc.queue
+        size = self.dtype.itemsize
+        if not self.frame_args:
+            for j, f in enumerate(frames):
+                cl.enqueue_copy(q, self.frames_b, np.ascontiguousarray(f), dst_offset=j * self.plane * size,
+                                is_blocking=False)
+            return (self.frames_b, np.int32(self.plane))
+        mf = cl.mem_flags
+        bufs, offs = [], np.zeros(16, np.int32)
+        for j, f in enumerate(frames):
+            f = np.ascontiguousarray(f)
+            if self.zero_copy:
+                view, off = _aligned_view(f)
+                held.append((f, view))
+                bufs.append(cl.Buffer(self.proc.ctx.context, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=view))
+                offs[j] = off // size
             else:
-                clip_mask[...] = 0
-        cl.enqueue_copy(q, out, self.out_b, is_blocking=True)
+                bufs.append(cl.Buffer(self.proc.ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=f))
+        bufs += [self._dummy] * (16 - len(bufs))
+        return (*bufs, offs.view(cltypes.int16)[0])
+
+    def _host_buffer(self, a: np.ndarray, dtype, n: int, fallback, held: list):
+        """A read-write buffer over host array ``a`` (contiguous, of ``dtype``, ``n``
+        elements), or ``fallback`` (the plan's own; the caller copies back) when ``a`` is
+        not such an array or the device does not share host memory."""
+        if (not self.zero_copy or a.dtype != dtype or not a.flags.c_contiguous or not a.flags.writeable
+                or a.size != n):
+            return fallback
+        buf = cl.Buffer(self.proc.ctx.context, cl.mem_flags.READ_WRITE | cl.mem_flags.USE_HOST_PTR, hostbuf=a)
+        held.append((a, buf))
+        return buf
+
+    def _finish(self, out: np.ndarray, out_b, held: list) -> None:
+        """Wait for the strip: results in host memory (a map of each host buffer, or the
+        copy back from the plan's own), then drop the buffers over host arrays."""
+        q = self.proc.queue
+        if out_b is self.out_b:
+            cl.enqueue_copy(q, out, self.out_b, is_blocking=True)
+        for a, buf in held:
+            if isinstance(buf, cl.Buffer):  # a map makes the kernels' writes visible in host memory
+                m, _ = cl.enqueue_map_buffer(q, buf, cl.map_flags.READ, 0, a.shape, a.dtype, is_blocking=False)
+                m.base.release(q)
+        q.finish()
+        held.clear()
 
     def result_counts(self) -> dict:
         cl.enqueue_copy(self.proc.queue, self.counts, self.counts_b, is_blocking=True)
@@ -166,9 +248,9 @@ class FusionProcessor(OpenCLProcessor):
 
 def profile_kernel(proc: FusionProcessor, frames, log_times, tables, weights, repeats: int = 3) -> float:
     """Seconds the ``fuse`` kernel alone takes over whole in-memory ``frames`` (best of
-    ``repeats``), measured by OpenCL profiling events with the data already on the
-    device: the figure behind "kernel bandwidth" in ``scripts/bench.py`` (``npix % 4``
-    pixels at the end, fuse_tail's, are left out)."""
+    ``repeats``), measured by OpenCL profiling events with the frames given in place as
+    the strips are: the figure behind "kernel bandwidth" in ``scripts/bench.py``
+    (``npix % 4`` pixels at the end, fuse_tail's, are left out)."""
     ctx = proc.ctx
     h, w, c = frames[0].shape
     dtype = frames[0].dtype
@@ -176,13 +258,19 @@ def profile_kernel(proc: FusionProcessor, frames, log_times, tables, weights, re
     q = cl.CommandQueue(ctx.context, properties=cl.command_queue_properties.PROFILING_ENABLE)
     npix = h * w
     mf = cl.mem_flags
-    packed = np.stack([np.ascontiguousarray(f).reshape(-1) for f in frames])
-    fb = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=packed)
+    held: list = []
+    if plan.frame_args:
+        fargs = plan._frame_args([np.ascontiguousarray(f) for f in frames], held)
+    else:
+        packed = np.stack([np.ascontiguousarray(f).reshape(-1) for f in frames])
+        fargs = (cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=packed), np.int32(npix * c))
     ob = cl.Buffer(ctx.context, mf.READ_WRITE, npix * c * 4)
+    todo = cl.Buffer(ctx.context, mf.READ_WRITE, npix)
     best = float("inf")
     for _ in range(max(1, repeats)):
-        ev = plan.knl(q, (round_up(npix // 4),), None, fb, plan.valid_b, plan.lut, plan.lt2, ob, plan.counts_b,
-                      np.int32(npix), np.int32(len(frames)), np.int32(plan.levels), np.int32(npix * c), np.int32(npix))
+        ev = plan.knl(q, (round_up(npix // 4),), None, *fargs, plan.valid_b, plan.lut, plan.lt2, ob, plan.counts_b,
+                      todo, np.int32(npix), np.int32(len(frames)), np.int32(plan.levels), np.int32(npix))
         ev.wait()
         best = min(best, (ev.profile.end - ev.profile.start) * 1e-9)
+    held.clear()
     return best
