@@ -3,6 +3,7 @@ warning nests one conclusion inside another."""
 import logging
 
 import numpy as np
+import pytest
 
 from hdrcl.core import synthetic as s
 from hdrcl.core.exposure_fit import verify_exposures
@@ -54,3 +55,28 @@ def test_no_consensus_warning_is_not_nested(caplog):
     for t in text:
         assert t.count("metadata is kept") + t.count("metadata kept") <= 1, t
         assert "((" not in t and not ("(" in t and t.count("(") > t.count(")")), t
+
+
+def test_standard_attributes_describe_the_capture_not_the_shoot_reference():
+    """Issue 29: a Sony set shot at f/1.4 ISO 1600 in a batch whose shoot reference is
+    f/8 ISO 100 was written with FNumber 8, isoSpeed 100, ExposureTime 8. The standard
+    attributes describe the capture; the reference goes to hdrcl's own attributes."""
+    from types import SimpleNamespace
+
+    from hdrcl.io.outmeta import camera_from_infos, hdr_header_lines, standard_attributes
+
+    infos = [SimpleNamespace(fnumber=1.4, iso=1600.0, make="Sony", model="ILCE-7M3", lens=None,
+                             focal_length=None, extra={}) for _ in range(3)]
+    cam = camera_from_infos(infos, reference=(8.0, 100.0), exposure_time=8.0)
+    attrs = dict(standard_attributes(".exr", cam))
+    assert attrs["FNumber"] == 1.4 and attrs["isoSpeed"] == 1600.0
+    # the same white point at the capture's settings: 8 s at f/8 ISO 100 = 1/65.3 s at f/1.4 ISO 1600
+    assert attrs["ExposureTime"] == pytest.approx(8.0 * (1.4 / 8.0) ** 2 * (100.0 / 1600.0))
+    assert attrs["hdrcl:referenceFNumber"] == 8.0 and attrs["hdrcl:referenceISO"] == 100.0
+    # Radiance's EXPOSURE= stays the reference exposure the stored values were scaled by
+    assert "EXPOSURE=8.000000e+00" in hdr_header_lines(cam, "rec709", None)
+    # an ISO ladder has no one ISO: no isoSpeed, and no ExposureTime that would need one
+    infos[1].iso = 3200.0
+    attrs = dict(standard_attributes(".exr", camera_from_infos(infos, exposure_time=0.5)))
+    assert "isoSpeed" not in attrs and "ExposureTime" not in attrs and attrs["FNumber"] == 1.4
+    assert attrs["hdrcl:referenceISO"] == 1600.0

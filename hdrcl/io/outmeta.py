@@ -12,10 +12,13 @@ read by standard names:
 ``make``, ``model``    ``cameraMake``, ...Model    camera (OpenEXR 3.2 standard names)
 ``lens``               ``lensModel``
 ``focal_length``       ``nominalFocalLength``      mm
-``fnumber``, ``iso``   ``aperture``, ``isoSpeed``  the reference exposure: a value of 1 in
-``exposure_time``      ``expTime``                 the map is what a frame of ``expTime``
-                                                   at this f-number and ISO records as 1
-                                                   (:mod:`hdrcl.core.encode`)
+``fnumber``, ``iso``   ``aperture``, ``isoSpeed``  the capture's f-number and ISO (where all
+                                                   frames share one); a value of 1 in the
+``exposure_time``      ``expTime``                 map is what a frame of ``expTime`` at
+                                                   them records as 1 (:mod:`hdrcl.core.encode`)
+``reference_fnumber``  ``hdrcl:referenceFNumber``  the settings the exposures are relative
+``reference_iso``      ``hdrcl:referenceISO``      to (a batch's shoot-wide ones), with
+                                                   ``hdrcl:referenceExposure``
 ``units`` = ``cd/m2``  ``whiteLuminance`` = 1      a calibrated luminance map
                                                    (:mod:`hdrcl.core.fisheye`): 1.0 is 1
                                                    cd/m^2; ``.hdr``: no ``EXPOSURE=`` line
@@ -25,8 +28,9 @@ read by standard names:
 =====================  ==========================  =========================================
 
 The reference f-number and ISO are the first frame's (the merge expresses every frame's
-exposure at its settings, :func:`hdrcl.io.metadata.relative_exposures`); they are left out
-when the map has absolute units. Radiance (``.hdr``) files get the standard header lines
+exposure at its settings, :func:`hdrcl.io.metadata.relative_exposures`), or a batch's
+shoot-wide ones; the standard attributes always describe the capture itself. All are left
+out when the map has absolute units. Radiance (``.hdr``) files get the standard header lines
 ``SOFTWARE=``, ``EXPOSURE=`` (the reference exposure: Radiance tools divide the stored
 values by it to get radiance relative to 1 s), ``PRIMARIES=`` and
 ``CAPDATE=``, which OpenImageIO's RGBE writer does not write, so they are inserted into
@@ -78,7 +82,8 @@ def standard_attributes(ext: str, camera: Optional[Mapping]) -> list:
     if cam.get("units") == "cd/m2":  # a calibrated luminance map: 1.0 is 1 cd/m^2
         out.append(("whiteLuminance", 1.0))
     for key, name in (("focal_length", "nominalFocalLength"), ("fnumber", "FNumber"), ("iso", "isoSpeed"),
-                      ("exposure_time", "ExposureTime")):
+                      ("exposure_time", "ExposureTime"), ("reference_fnumber", "hdrcl:referenceFNumber"),
+                      ("reference_iso", "hdrcl:referenceISO")):
         value = cam.get(key)
         if value is not None and float(value) > 0:
             out.append((name, float(value)))
@@ -101,7 +106,7 @@ def hdr_header_lines(camera: Optional[Mapping], colorspace: str, timestamp: Opti
     # (:data:`WHITE_EFFICACY_KEY` on its HDRCL= line), with no EXPOSURE= line at all:
     # evalglare refuses a picture whose EXPOSURE= line a Radiance tool has indented.
     cam = camera or {}
-    exposure = float(cam.get("exposure_time") or 1.0)
+    exposure = float(cam.get("reference_exposure") or cam.get("exposure_time") or 1.0)
     lines = [f"SOFTWARE={software()}"]
     absolute = str(cam.get("units", "")).startswith("cd/m2") or \
         str((metadata or {}).get("units", "")).startswith("cd/m2")
@@ -275,7 +280,35 @@ def camera_from_infos(infos: Sequence, *, owner: Optional[str] = None, units: st
                      None)
     cam["owner"] = owner
     if units == "relative" and infos:
-        n, iso = reference if reference is not None else (getattr(infos[0], "fnumber", None),
-                                                          getattr(infos[0], "iso", None))
-        cam.update({"exposure_time": float(exposure_time), "fnumber": n, "iso": iso})
+        cam.update(_capture_exposure(infos, reference, float(exposure_time)))
     return {k: v for k, v in cam.items() if v not in (None, "")}
+
+
+def _one_value(infos: Sequence, key: str) -> Optional[float]:
+    """The frames' common value of ``key`` (f-number, ISO), None where they differ or
+    any lacks it."""
+    values = {round(float(v), 6) if v else None for v in (getattr(i, key, None) for i in infos)}
+    return None if len(values) != 1 or None in values else values.pop()
+
+
+def _capture_exposure(infos: Sequence, reference: Optional[tuple], t_ref: float) -> dict:
+    """The standard exposure attributes describe the capture; the reference they stand
+    for is hdrcl's own.
+
+    A value of 1 is what a frame of ``t_ref`` seconds at the reference f-number and ISO
+    records as white (``reference``: a batch's shoot-wide settings, else the first frame's).
+    ``FNumber`` and ``isoSpeed`` are the frames' own where they all share one, and
+    ``ExposureTime`` is the same reference at those settings (``t_ref (N/N_ref)^2
+    ISO_ref/ISO``), so the three describe one photograph as the camera took it; the
+    reference settings go to ``hdrcl:referenceFNumber`` / ``hdrcl:referenceISO`` (with
+    ``hdrcl:referenceExposure``, which readers divide out)."""
+    first = (getattr(infos[0], "fnumber", None), getattr(infos[0], "iso", None))
+    n_ref, iso_ref = reference if reference is not None else first
+    n_cap, iso_cap = _one_value(infos, "fnumber"), _one_value(infos, "iso")
+    out = {"fnumber": n_cap, "iso": iso_cap, "reference_fnumber": n_ref, "reference_iso": iso_ref,
+           "reference_exposure": t_ref}
+    if n_cap is not None and iso_cap is not None and n_ref and iso_ref:
+        out["exposure_time"] = t_ref * (n_cap / float(n_ref)) ** 2 * (float(iso_ref) / iso_cap)
+    elif n_cap is None and iso_cap is None and not n_ref and not iso_ref:
+        out["exposure_time"] = t_ref  # no settings recorded: the reference is the frames' own
+    return out
