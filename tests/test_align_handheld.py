@@ -150,19 +150,25 @@ def test_tiny_frames_merge_untouched(tmp_path, caplog):
 # ------------------------------------------------- Memorial moved: the merge
 
 
-def _case(memorial, tmp_path, seed, rot, fill):
-    from moved import IGNORE, moved_merge, tripod_merge
+@pytest.fixture(scope="module")
+def tripod(memorial, tmp_path_factory):
+    from moved import tripod_merge
 
-    tri = tripod_merge(str(memorial), str(tmp_path))
-    return moved_merge(str(memorial), str(tmp_path), seed, rot, (0, 0, 0) if fill == "black" else IGNORE, tri)
+    return tripod_merge(str(memorial), str(tmp_path_factory.mktemp("tripod")))
+
+
+def _case(memorial, tmp_path, seed, rot, fill, tripod):
+    from moved import IGNORE, moved_merge
+
+    return moved_merge(str(memorial), str(tmp_path), seed, rot, (0, 0, 0) if fill == "black" else IGNORE, tripod)
 
 
 @pytest.mark.parametrize("fill", ["black", "ignore"])
-def test_memorial_moved_merges_close_to_the_tripod(cl_device, memorial, tmp_path, fill):
+def test_memorial_moved_merges_close_to_the_tripod(cl_device, memorial, tmp_path, fill, tripod):
     """Memorial moved as a hand-held camera moves (<= 1.5 degrees, 20 px, 1 %): merged
     with --align, not refused, every frame measured, close to the tripod merge (one seed
     here; the sweep below)."""
-    rms, res, mats, moved, names = _case(memorial, tmp_path, 1, 1.5, fill)
+    rms, res, mats, moved, names = _case(memorial, tmp_path, 1, 1.5, fill, tripod)
     assert not [a for a in res.alignment if a["model"] == "inherited"]
     assert rms < RMS_CI, rms
 
@@ -177,6 +183,6 @@ RMS_CI = 0.25
 @pytest.mark.parametrize("fill", ["black", "ignore"])
 @pytest.mark.parametrize("rot", [1.5, 0.5])
 @pytest.mark.parametrize("seed", [1, 2, 3, 4, 5])
-def test_memorial_moved_sweep(cl_device, memorial, tmp_path, seed, rot, fill):
-    rms, res, mats, moved, names = _case(memorial, tmp_path, seed, rot, fill)
+def test_memorial_moved_sweep(cl_device, memorial, tmp_path, seed, rot, fill, tripod):
+    rms, res, mats, moved, names = _case(memorial, tmp_path, seed, rot, fill, tripod)
     assert rms < 0.15, rms

@@ -452,13 +452,18 @@ _WARPERS: dict = {}
 def warp_one(frame, m, valid, warper, out=None):
     """``(frame, valid)`` warped by ``m``: untouched for the identity, an exact copy for a
     whole-pixel shift, else resampled (device or twin; on the device into ``out`` when
-    it is a free array of the frame's size and type)."""
+    it is a free array of the frame's size and type). Black fill at the frame's border
+    (:func:`hdrcl.core.warp.border_fill`) is masked before a frame is moved."""
     from hdrcl.core.align import _shift
 
     if W.is_integer_shift(m):
         dx, dy = int(round(m[0, 2])), int(round(m[1, 2]))
         if dx == 0 and dy == 0:
             return frame, None if valid is None else np.asarray(valid, bool)
+    fill = W.border_fill(frame)  # a moved frame's black corners are no measurement: masked with it
+    if fill is not None:
+        valid = ~fill if valid is None else np.asarray(valid, bool) & ~fill
+    if W.is_integer_shift(m):
         base = np.ones(frame.shape[:2], bool) if valid is None else np.asarray(valid, bool)
         return _shift(np.asarray(frame), dy, dx), _shift(base, dy, dx, fill=False)
     # Fusion's clip level: a channel blended from a clipped code is clipped (a lower bound

@@ -144,6 +144,23 @@ def warp_frame(frame: np.ndarray, matrix: np.ndarray, valid: Optional[np.ndarray
     return (out[:, :, 0] if squeeze else out), ok
 
 
+def border_fill(frame: np.ndarray) -> Optional[np.ndarray]:
+    """Fill: the pixels at code 0 in every channel that connect to the frame's border
+    (the black a camera or a converter paints where a rotation uncovered the frame), as
+    an ``(H, W)`` bool mask, or None when there is none. Such a pixel is no measurement:
+    a warp that blends it into its neighbours makes dark, oddly coloured edges."""
+    f = np.asarray(frame)
+    zero = f == 0 if f.ndim == 2 else np.all(f == 0, axis=2)
+    if not (zero[0].any() or zero[-1].any() or zero[:, 0].any() or zero[:, -1].any()):
+        return None
+    from scipy import ndimage
+
+    seed = np.zeros_like(zero)
+    seed[[0, -1]] = zero[[0, -1]]
+    seed[:, [0, -1]] = zero[:, [0, -1]]
+    return ndimage.binary_propagation(seed, mask=zero)
+
+
 # ------------------------------------------------------------------------ geometry
 
 
