@@ -349,3 +349,26 @@ def test_calibrate_16_bit_frames_to_rsp_is_refused_from_the_headers(tmp_path):
     assert r.returncode == 2, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and ".rsp" in r.stderr and "16-bit" in r.stderr, r.stderr
     assert not (tmp_path / "r.rsp").exists()
+
+
+def test_dry_run_plans_a_stale_saved_response_as_calibrate(tmp_path, cl_device):
+    """The plan says what the run does: a saved curve whose pooled frames changed since is
+    solved again, so the dry run says "calibrate" for its group, "saved" for the others."""
+    shoot, out = tmp_path / "shoot", tmp_path / "out"
+    assert _cli("sample-shoot", shoot).exit_code == 0
+    assert _cli("batch", shoot, "-o", out, "--no-preview").exit_code == 0
+
+    def plan():
+        r = _cli("batch", shoot, "-o", out, "--no-preview", "--dry-run", "--json")
+        assert r.exit_code == 0, r.output
+        return json.loads(r.output[r.output.index("{"):])["sets"]
+
+    before = plan()
+    assert before and all(s["response"]["source"] == "saved" for s in before), before
+    changed = before[0]["first"]
+    with open(changed, "ab") as f:  # the same picture, other bytes: another calibration key
+        f.write(b"\0")
+    after = plan()
+    group = before[0]["response"]["group"]
+    assert all(s["response"]["source"] == "calibrate" for s in after if s["response"]["group"] == group), after
+    assert any(s["response"]["source"] == "saved" for s in after if s["response"]["group"] != group), after

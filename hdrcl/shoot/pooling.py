@@ -123,6 +123,23 @@ def _calibrate_group(group: str, jobs: List[SetJob], out_dir: str, options: Batc
                      defer: bool = False) -> ResponseEntry:
     """Load the group's saved response if its key matches, else solve and save it; with
     ``defer``, a group of one set is left to that set's merge (:func:`solve_deferred`)."""
+    entry, usable = saved_response(group, jobs, out_dir, options)
+    if entry.source == "loaded":
+        logger.info("%s: response loaded from %s", group, entry.file)
+        return entry
+    if defer and len(usable) == 1 and len(jobs) == 1:
+        entry.deferred = True
+        entry.digest = _key_digest(entry.key)
+        entry.source = "calibrated"
+        entry.sets = [usable[0].index]
+        return entry
+    return _solve_pool(entry, usable, options)
+
+
+def saved_response(group: str, jobs: List[SetJob], out_dir: str, options: BatchOptions):
+    """``(entry, usable sets)``: the group's entry with its calibration key, ``source``
+    ``"loaded"`` (and its curve) when the file beside the outputs was saved for this
+    very key and reads back, else to be solved. The batch and its dry run both ask this."""
     path = response_path(group, out_dir)
     entry = ResponseEntry(group=group, file=path, sets=[j.index for j in jobs])
     usable, keyed = [], []
@@ -134,6 +151,7 @@ def _calibrate_group(group: str, jobs: List[SetJob], out_dir: str, options: Batc
             entry.warnings.append(f"set {j.index} not pooled: {exc}")
     key = _json_digest({"recipe": DIGEST_RECIPE, "hdrcl": __version__, "solve": options.solve_params(),
                         "reference": list(jobs[0].reference) if jobs else None, "sets": keyed})
+    entry.key = key
     saved = read_state(path, "pooled response") or {}  # absent or damaged: solve again
     calib = saved.get("calibration")
     if isinstance(calib, dict) and calib.get("key") == key:
@@ -147,19 +165,9 @@ def _calibrate_group(group: str, jobs: List[SetJob], out_dir: str, options: Batc
         else:
             entry.payload = {k: v for k, v in saved.items() if k != "calibration"}
             entry.digest = _key_digest(key)
-            entry.key = key
             entry.source = "loaded"
             entry.warnings += warns
-            logger.info("%s: response loaded from %s", group, path)
-            return entry
-    entry.key = key
-    if defer and len(usable) == 1 and len(jobs) == 1:
-        entry.deferred = True
-        entry.digest = _key_digest(key)
-        entry.source = "calibrated"
-        entry.sets = [usable[0].index]
-        return entry
-    return _solve_pool(entry, usable, options)
+    return entry, usable
 
 
 def _solve_pool(entry: ResponseEntry, usable: List[SetJob], options: BatchOptions, grids=None) -> ResponseEntry:

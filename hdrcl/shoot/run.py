@@ -392,7 +392,7 @@ def describe_batch(source, out_dir, *, options: Optional[BatchOptions] = None, s
     ------
     As :func:`run_batch` before it writes anything.
     """
-    from hdrcl.shoot.pooling import _cached, _pool_of
+    from hdrcl.shoot.pooling import _cached, _pool_of, saved_response
     from hdrcl.shoot.plan import response_path
 
     options = options or BatchOptions()
@@ -421,7 +421,13 @@ def describe_batch(source, out_dir, *, options: Optional[BatchOptions] = None, s
             resp = {"group": job.group, "file": os.fspath(response), "source": "given"}
             calib = {"kind": "given"}
         else:
-            there = os.path.isfile(path) and (not cached or usable[job.group])  # a damaged one is calibrated again
+            if cached:
+                there = os.path.isfile(path) and usable[job.group]  # a damaged one is calibrated again
+            else:  # loaded only when saved for this very calibration (the run's own test)
+                if job.group not in usable:
+                    usable[job.group] = saved_response(job.group, [plan.jobs[i] for i in _pool_of(members)],
+                                                       out_dir, options)[0].source == "loaded"
+                there = usable[job.group]
             resp = {"group": job.group, "file": path,
                     "source": ("cached" if cached else "saved") if there else "calibrate"}
             calib = ({"kind": "cached"} if there and cached else
