@@ -9,12 +9,18 @@ in rounds that alternate the tools so drift hits all alike:
   it), and the same with ``--jobs 2``;
 * the **decode floor**: every frame decoded once with OpenImageIO and nothing else, on
   ``os.cpu_count()`` threads in one process;
+* the **encode floor**: every output of that round's ``hdrcl batch`` (defaults) encoded
+  once more in its own format (the EXR's pixel type and compression: half, PIZ by
+  default; or .hdr) with OpenImageIO on all cores, one output after another, the encodes
+  timed only (as ``../shared/tools/io_floor.py`` does); decode + encode floor = the
+  **I/O floor**, what a batch cannot beat on the CPU;
 * a loop of **OpenCV**'s Debevec pipeline in one process (``cv2.imread`` per frame,
   ``createCalibrateDebevec().process``, ``createMergeDebevec().process``,
   ``cv2.imwrite(.hdr)`` per set), when ``opencv-python-headless`` is installed;
 
 and prints input megapixels per second (frames x pixels, summed over the shoot) for each,
-the ratios hdrcl / OpenCV and hdrcl / decode floor beside their targets, the seconds per
+the ratios batch wall / I/O floor, hdrcl / OpenCV and hdrcl / decode floor beside their
+targets (each round's own ratio, median of the rounds), the seconds per
 stage that ``hdrcl batch`` records in ``OUT/report.json`` (summed over sets), and
 start-up costs (``hdrcl --version`` and a tiny merge).
 
@@ -62,8 +68,9 @@ GEN_VERSION = 1
 SHAPES = ("one-camera", "per-camera")
 DEFAULT_FRAMES = {"one-camera": "7", "per-camera": "5,7,9,13,7,5"}
 
-#: Targets of issue 16: hdrcl batch (defaults) against the OpenCV loop and the decode floor.
-TARGETS = {"vs_opencv": 6.0, "vs_decode": 0.35}
+#: Targets: hdrcl batch (defaults) at least 5x the OpenCV loop and at most 1.6x the I/O
+#: floor (issue 26), at least 35 % of the decode floor's MP/s (issue 16).
+TARGETS = {"vs_opencv": 5.0, "vs_decode": 0.35, "io_floor": 1.6}
 
 #: Stage keys of report.json's per-set ``seconds``, printed in this order; keys not listed
 #: here follow in the order they are first met.
@@ -579,6 +586,50 @@ def worker_decode(spec: dict) -> dict:
             "megapixels": pixels / 1e6}
 
 
+def _outputs(folder: str) -> list:
+    """The radiance maps a batch wrote under ``folder`` (.exr and .hdr), sorted."""
+    found = []
+    for root, _, names in os.walk(folder):
+        found += [os.path.join(root, n) for n in names if n.lower().endswith((".exr", ".hdr"))]
+    return sorted(found)
+
+
+def worker_encode(spec: dict) -> dict:
+    """The encode floor: each of a batch's outputs (``spec["dir"]``) read back, then
+    encoded once more in its own format (pixel type, EXR compression) with OpenImageIO,
+    one output after another, each on all cores (OpenEXR compresses blocks in parallel);
+    time of the encodes only."""
+    import OpenImageIO as oiio
+
+    threads = os.cpu_count() or 1
+    maps = []
+    for p in _outputs(spec["dir"]):
+        inp = oiio.ImageInput.open(p)
+        if inp is None:
+            raise RuntimeError(f"{p}: {oiio.geterror()}")
+        sp = inp.spec()
+        maps.append((p, sp, inp.read_image(sp.format)))
+        inp.close()
+    oiio.attribute("threads", threads)
+    oiio.attribute("exr_threads", threads)
+    kinds = set()
+    with tempfile.TemporaryDirectory(dir=spec.get("tmp")) as tmp:
+        t0 = time.perf_counter()
+        for k, (p, sp, px) in enumerate(maps):
+            dst = os.path.join(tmp, f"{k}{os.path.splitext(p)[1]}")
+            out_spec = oiio.ImageSpec(sp.width, sp.height, sp.nchannels, sp.format)
+            comp = sp.get_string_attribute("compression")
+            if comp:
+                out_spec.attribute("compression", comp)
+            kinds.add(f"{os.path.splitext(p)[1].lower()} {sp.format} {comp or ''}".strip())
+            o = oiio.ImageOutput.create(dst)
+            if o is None or not o.open(dst, out_spec) or not o.write_image(px) or not o.close():
+                raise RuntimeError(f"{dst}: encode failed ({oiio.geterror()})")
+        encode_s = time.perf_counter() - t0
+    return {"encode_s": encode_s, "threads": threads, "outputs": len(maps),
+            "output_mp": sum(sp.width * sp.height for _, sp, _ in maps) / 1e6, "formats": sorted(kinds)}
+
+
 def _run(cmd, logdir, tag, timeout=3600, cwd=None) -> dict:
     return bench.run_measured(cmd, logdir, tag, timeout=timeout, cwd=cwd)
 
@@ -595,7 +646,9 @@ def _stage_sums(report_path: str) -> dict:
     return {"stages": sums, "summary": rep.get("summary")}
 
 
-def run_batch(info: dict, work: str, logdir: str, tag: str, jobs=None) -> dict:
+def run_batch(info: dict, work: str, logdir: str, tag: str, jobs=None, keep=None) -> dict:
+    """``hdrcl batch`` on the shoot; its outputs are moved to ``keep`` (for the encode
+    floor) when given, else removed."""
     out = os.path.join(work, "out", f"batch-{tag}")
     shutil.rmtree(out, ignore_errors=True)
     extra = ["--jobs", str(jobs)] if jobs else []
@@ -611,7 +664,28 @@ def run_batch(info: dict, work: str, logdir: str, tag: str, jobs=None) -> dict:
     if res.get("rc") == 0 and summ.get("done") != len(info["sets"]):
         res["error"] = f"report.json: {summ} (expected {len(info['sets'])} sets done)"
         res["rc"] = -1
+    if keep and res.get("rc") == 0:
+        shutil.rmtree(keep, ignore_errors=True)
+        os.replace(out, keep)
     shutil.rmtree(out, ignore_errors=True)
+    return res
+
+
+def run_encode(info: dict, work: str, logdir: str, tag: str, outputs: str) -> dict:
+    """The encode floor of one batch's outputs (``outputs``: the folder run_batch kept)."""
+    if not os.path.isdir(outputs):
+        return {"rc": -1, "error": "the batch before it failed: no outputs to encode"}
+    spec = os.path.join(work, "out", f"{info['key']}-encode.json")
+    with open(spec, "w") as f:
+        json.dump({"dir": outputs, "tmp": os.path.join(work, "out")}, f)
+    res = _run([sys.executable, SCRIPT, "--worker", "encode", spec], logdir, tag)
+    if res.get("rc") == 0:
+        res.update(json.loads(res["stdout"].strip().splitlines()[-1]))
+        res["process_wall_s"] = res["wall_s"]
+        res["wall_s"] = res["encode_s"]  # the floor: encoding only
+        if not res["outputs"]:
+            res.update(rc=-1, error=f"{outputs}: no .exr or .hdr outputs")
+    shutil.rmtree(outputs, ignore_errors=True)
     return res
 
 
@@ -656,14 +730,17 @@ def _stats(values: list) -> dict:
 
 def bench_shape(info: dict, work: str, logdir: str, runs: int, opencv: str) -> dict:
     mp = info["megapixels"]
-    kinds = ["hdrcl", "hdrcl_jobs2", "decode"] + (["opencv"] if opencv else [])
+    kinds = ["hdrcl", "encode", "hdrcl_jobs2", "decode"] + (["opencv"] if opencv else [])
+    kept = os.path.join(work, "out", f"{info['key']}-outputs")
     raw = {k: [] for k in kinds}
     _warm_page_cache(info)
     for i in range(runs):  # rounds: every tool once per round, so drift hits all alike
         for k in kinds:
             tag = f"{info['shape']}-{k}-{i}"
             if k == "hdrcl":
-                r = run_batch(info, work, logdir, tag)
+                r = run_batch(info, work, logdir, tag, keep=kept)
+            elif k == "encode":
+                r = run_encode(info, work, logdir, tag, kept)
             elif k == "hdrcl_jobs2":
                 r = run_batch(info, work, logdir, tag, jobs=2)
             elif k == "decode":
@@ -688,9 +765,12 @@ def bench_shape(info: dict, work: str, logdir: str, runs: int, opencv: str) -> d
             fig["cpu_s"] = _stats([r["user_s"] + r["sys_s"] for r in ok])  # the process tree's CPU time
             fig["background_cpu"] = _stats([r.get("background_cpu", 0.0) for r in ok])
             fig["background_all"] = [r.get("background_cpu", 0.0) for r in ok]
-            if k == "decode":
+            if k in ("decode", "encode"):
                 fig["threads"] = ok[0].get("threads")
                 fig["process_seconds"] = _stats([r["process_wall_s"] for r in ok])
+            if k == "encode":
+                fig["outputs"], fig["output_mp"] = ok[0]["outputs"], ok[0]["output_mp"]
+                fig["formats"] = ok[0]["formats"]
             if k == "opencv":
                 fig["phases"] = {p: statistics.median(r["phases"][p] for r in ok)
                                  for p in ("import_s", "imread_s", "calibrate_s", "merge_s", "imwrite_s")}
@@ -719,10 +799,22 @@ def bench_shape(info: dict, work: str, logdir: str, runs: int, opencv: str) -> d
         return {"median": statistics.median(rounds) if rounds else of_medians, "rounds": rounds,
                 "of_medians": of_medians}
 
+    # The I/O floor: each round's decode floor plus its encode floor.
+    floors = [rd["wall_s"] + re_["wall_s"] for rd, re_ in zip(raw["decode"], raw["encode"])
+              if rd.get("rc") == 0 and re_.get("rc") == 0]
+    if floors:
+        res["figures"]["io_floor"] = {"seconds": _stats(floors), "mp_per_s": _stats([mp / f for f in floors]),
+                                      "failed": len(raw["decode"]) - len(floors)}
     for h in ("hdrcl", "hdrcl_jobs2"):
         suffix = "" if h == "hdrcl" else "_jobs2"
         res["ratios"]["vs_opencv" + suffix] = ratio(h, "opencv")
         res["ratios"]["vs_decode" + suffix] = ratio(h, "decode")
+        # batch wall / I/O floor, round by round (lower is better; 1 = the floor)
+        rounds = [rh["wall_s"] / (rd["wall_s"] + re_["wall_s"]) for rh, rd, re_ in
+                  zip(raw[h], raw["decode"], raw["encode"]) if rh.get("rc") == 0 and rd.get("rc") == 0
+                  and re_.get("rc") == 0]
+        res["ratios"]["io_floor" + suffix] = {"median": statistics.median(rounds), "rounds": rounds} \
+            if rounds else None
     return res
 
 
@@ -807,15 +899,19 @@ def print_report(res: dict) -> None:
         names = {"hdrcl": "hdrcl batch SHOOT -r -o OUT (defaults)",
                  "hdrcl_jobs2": "hdrcl batch SHOOT -r -o OUT --jobs 2",
                  "decode": "decode floor (OIIO, {t} threads, decode only)",
+                 "encode": "encode floor (OIIO, {t} threads, the outputs)",
+                 "io_floor": "I/O floor (decode + encode floor)",
                  "opencv": "OpenCV loop ({t} threads: imread, Debevec, .hdr)"}
-        for k in ("hdrcl", "hdrcl_jobs2", "decode", "opencv"):
+        for k in ("hdrcl", "hdrcl_jobs2", "decode", "encode", "io_floor", "opencv"):
             f = r["figures"].get(k)
             if f is None:
                 if k == "opencv":
                     p(f"  {'OpenCV loop':48s} not measured ({res.get('opencv_note')})")
                 continue
             name = names[k].format(t=f.get("threads", "?"))
-            if "seconds" in f:
+            if "seconds" in f and k == "io_floor":
+                p(f"  {name:48s} {_mmm(f['seconds']):>23s} {_mmm(f['mp_per_s'], '{:.1f}'):>22s}")
+            elif "seconds" in f:
                 rss = f"{f['rss_mb']:.0f} MB"
                 bg = f"{100 * f['background_cpu']['max']:.0f} %"
                 p(f"  {name:48s} {_mmm(f['seconds']):>23s} {_mmm(f['mp_per_s'], '{:.1f}'):>22s} "
@@ -827,6 +923,20 @@ def print_report(res: dict) -> None:
         if "process_seconds" in dec:
             p(f"    (decode floor as a whole process, interpreter and imports included: "
               f"{_mmm(dec['process_seconds'])} s)")
+        enc = r["figures"].get("encode", {})
+        if "outputs" in enc:
+            p(f"    (encode floor: {enc['outputs']} outputs, {enc['output_mp']:.1f} MP, "
+              f"{', '.join(enc['formats'])}, as the batch wrote them)")
+        v = r["ratios"].get("io_floor")
+        v2 = r["ratios"].get("io_floor_jobs2")
+        if v:
+            verdict = "ok" if v["median"] <= TARGETS["io_floor"] else \
+                f"MISSED: needs {v['median'] / TARGETS['io_floor']:.2f}x less time"
+            jobs2 = f"{v2['median']:.2f}x" if v2 else "-"
+            p(f"  {'batch wall / I/O floor':22s} {v['median']:.2f}x [" + ", ".join(f"{x:.2f}x" for x in v["rounds"])
+              + f"]; --jobs 2: {jobs2}   target <= {TARGETS['io_floor']:g}x: {verdict}")
+        else:
+            p(f"  {'batch wall / I/O floor':22s} not measured (a batch, decode or encode run failed)")
         p("  ratios of MP/s, hdrcl defaults: the median of each round's own ratio [every round]; --jobs 2 beside")
         for key, label, target, pct in (("vs_opencv", "hdrcl / OpenCV", TARGETS["vs_opencv"], False),
                                         ("vs_decode", "hdrcl / decode floor", TARGETS["vs_decode"], True)):
@@ -924,7 +1034,7 @@ def main(argv=None) -> int:
     if a.worker:
         kind, spec = a.worker
         with open(spec) as f:
-            print(json.dumps({"decode": worker_decode}[kind](json.load(f))))
+            print(json.dumps({"decode": worker_decode, "encode": worker_encode}[kind](json.load(f))))
         return 0
     if a.mp <= 0 or a.sets < 1 or a.runs < 1:
         raise SystemExit("--mp must be > 0, --sets and --runs >= 1")
