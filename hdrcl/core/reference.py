@@ -87,13 +87,43 @@ def fuse(
         ``clipped_high``, ``clipped_low``, ``no_data``: samples (pixel-channels) that
         took each rule.
     """
-    p = len(frames)
     h, w, c = frames[0].shape
     log_t = np.asarray(log_times, np.float64)
     tables = np.asarray(tables, np.float64)
     levels = tables.shape[1]
     zlo, zhi = clip_levels(levels)
-    wts = evidence_weights(levels, weights)
+    sums = _fusion_sums(frames, log_t, tables, evidence_weights(levels, weights), valid, zlo, zhi)
+    num, den, num_all, den_all, first_z, last_z, first_p, last_p = sums
+    out = np.zeros((h, w, c))
+    pos = den > 0
+    out[pos] = np.exp(num[pos] / den[pos])
+    anyv = (first_p >= 0)[..., None] & np.ones((1, 1, c), bool)
+    zero = ~pos & anyv
+    high = zero & (first_z >= zhi)
+    low = zero & ~high & (last_z <= zlo)
+    _bound_values(out, zero & ~high & ~low, high, low, sums, tables, log_t)
+    if c > 1:  # hue: see the docstring
+        top = np.where(pos | high, out, -np.inf).max(axis=2, keepdims=True)
+        out = np.where(high, top, out)
+        bottom = np.where(pos | low, out, np.inf).min(axis=2, keepdims=True)
+        out = np.where(low, bottom, out)
+    if clip_mask is not None:
+        clip_mask[...] = high.any(axis=2).astype(np.uint8) | (2 * low.any(axis=2)).astype(np.uint8)
+    counts = {
+        "clipped_high": int(high.sum()),
+        "clipped_low": int(low.sum()),
+        "no_data": int((~anyv).sum()),
+    }
+    return out, counts
+
+
+def _fusion_sums(frames, log_t: np.ndarray, tables: np.ndarray, wts: np.ndarray, valid, zlo: int, zhi: int) -> tuple:
+    """The walk of :func:`fuse` over the frames, shortest first: ``(num, den)``, the
+    weighted sums of ``g - ln dt`` and of the weights over each value's evidence frames;
+    ``(num_all, den_all)`` the same over every valid frame (the contradiction rule); the
+    codes of the shortest and longest valid frames per value (``first_z``, ``last_z``,
+    -1 where none) and their indices per pixel (``first_p``, ``last_p``)."""
+    h, w, c = frames[0].shape
     num = np.zeros((h, w, c))
     den = np.zeros((h, w, c))
     num_all = np.zeros((h, w, c))  # over every valid frame: the contradiction rule
@@ -104,7 +134,7 @@ def fuse(
     first_p = np.full((h, w), -1, np.int64)
     last_p = np.full((h, w), -1, np.int64)
     chan = np.arange(c)
-    for j in range(p):
+    for j in range(len(frames)):
         z = frames[j].astype(np.int64)
         ok = np.ones((h, w), bool) if valid is None or valid[j] is None else np.asarray(valid[j], bool)
         ok3 = ok[..., None]
@@ -124,37 +154,28 @@ def fuse(
         first_z[newly] = z[newly]
         last_p[ok] = j
         last_z[ok] = z[ok]
-    out = np.zeros((h, w, c))
-    pos = den > 0
-    out[pos] = np.exp(num[pos] / den[pos])
-    anyv = (first_p >= 0)[..., None] & np.ones((1, 1, c), bool)
-    zero = ~pos & anyv
-    high = zero & (first_z >= zhi)
-    low = zero & ~high & (last_z <= zlo)
-    other = zero & ~high & ~low
+    return num, den, num_all, den_all, first_z, last_z, first_p, last_p
+
+
+def _bound_values(out: np.ndarray, other: np.ndarray, high: np.ndarray, low: np.ndarray, sums: tuple,
+                  tables: np.ndarray, log_t: np.ndarray) -> None:
+    """The values of :func:`fuse` whose evidence weighs nothing, written into ``out``:
+    ``other`` (frames that contradict each other) the weighted mean over every valid
+    frame where that weighs something, else, like ``high`` and ``low``, the bound rules
+    (the first if the shortest valid frame reads ``2 Z >= L``, else the second)."""
+    _, _, num_all, den_all, first_z, last_z, first_p, last_p = sums
+    h, w, c = out.shape
+    levels = tables.shape[1]
     mixed = other & (den_all > 0)
     out[mixed] = np.exp(num_all[mixed] / den_all[mixed])
     high_like = high | (other & ~mixed & (2 * first_z >= levels))
     low_like = (low | other) & ~mixed & ~high_like
-    cc = np.broadcast_to(chan, (h, w, c))
+    cc = np.broadcast_to(np.arange(c), (h, w, c))
     fp = np.broadcast_to(first_p[..., None], (h, w, c))
     lp = np.broadcast_to(last_p[..., None], (h, w, c))
     ghi, glo = bound_tables(tables)
     out[high_like] = np.exp(ghi[cc[high_like], first_z[high_like]] - log_t[fp[high_like]])
     out[low_like] = np.exp(glo[cc[low_like], last_z[low_like]] - log_t[lp[low_like]])
-    if c > 1:  # hue: see the docstring
-        top = np.where(pos | high, out, -np.inf).max(axis=2, keepdims=True)
-        out = np.where(high, top, out)
-        bottom = np.where(pos | low, out, np.inf).min(axis=2, keepdims=True)
-        out = np.where(low, bottom, out)
-    if clip_mask is not None:
-        clip_mask[...] = high.any(axis=2).astype(np.uint8) | (2 * low.any(axis=2)).astype(np.uint8)
-    counts = {
-        "clipped_high": int(high.sum()),
-        "clipped_low": int(low.sum()),
-        "no_data": int((~anyv).sum()),
-    }
-    return out, counts
 
 
 def bound_tables(tables: np.ndarray) -> tuple:
