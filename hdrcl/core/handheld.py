@@ -11,19 +11,25 @@ Stages, per frame:
    most well-exposed pixels), already registered, and the matrices are composed.
 3. **Model choice** (``auto``): the translation, unless the similarity lowers the
    residual misalignment by more than :data:`CLEAR_GAIN_PX` and :data:`CLEAR_GAIN_FRAC`
-   of it; then the homography under the same rule against the similarity. A result
-   within :data:`SNAP_PX` of a whole-pixel shift at every corner is taken as that shift
-   (an exact copy, no resampling; no motion at all leaves the frame untouched). A
-   bracket in which no frame moved :data:`STATIC_PX` or more is left as it is (model
-   ``none``: a tripod).
-4. **Refusal** of a frame that cannot be aligned (no convergence, a degenerate
-   transform, rank images that do not correlate, or a residual above
-   :data:`MAX_RESIDUAL_PX`): :class:`hdrcl.errors.InputError` naming the frame. (A
-   frame too sparse in texture for the tiles to measure a residual is not refused for
-   that alone: its residual is reported as unknown, None. A frame that shares fewer
-   than :data:`MIN_MEASURABLE` usable pixels with its neighbour, such as the shortest
-   exposure of a wide bracket that records only a lamp, cannot be measured at all: it
-   takes its neighbour's motion, model ``inherited``, with a warning naming it.)
+   of it; then the homography, only when it also lands the frame's tiles, block-matched
+   independently of the fit (:mod:`hdrcl.core.register_check`), clearly closer than the
+   similarity (:data:`HOMOGRAPHY_GAIN_PX`). A result within :data:`SNAP_PX` of a
+   whole-pixel shift at every corner is taken as that shift (an exact copy, no
+   resampling). A bracket in which no frame moved :data:`STATIC_PX` or more
+   (:func:`motion_px`: the median over the frame) is left as it is (model ``none``: a
+   tripod).
+4. **Trust** (:func:`_register`). A fit over fewer than :data:`FEW_SAMPLES` samples (a
+   dark frame: its pedestal is left out, :func:`hdrcl.core.register.usable_range`), or
+   one whose residual cannot be measured (NaN: no textured tile), is accepted only when
+   a second, independent estimate, block matching of tiles on the two frames' shared
+   bright structure, agrees with it within :data:`AGREE_PX` where the frame has content
+   (the fit is retried from that estimate first); else the frame takes its neighbour's
+   motion (model ``inherited``, with a warning naming it), and the next frames chain to
+   the last frame measured. A frame with plenty of samples that cannot be aligned (no
+   convergence, a degenerate transform, rank images that do not correlate, a residual
+   above :data:`MAX_RESIDUAL_PX`, or an unmeasurable residual no second estimate
+   confirms) is refused: :class:`hdrcl.errors.InputError` naming the frame. Frames under
+   :data:`MIN_SIDE` pixels on a side are merged as they are, with a warning.
 5. **Warp** (:mod:`hdrcl.core.warp`; on the device :class:`hdrcl.cl.warp.WarpProcessor`,
    each frame as soon as its matrix is final, on a worker thread while the host
    estimates the next), masks warped with the frames; ``crop`` keeps the largest
@@ -41,6 +47,7 @@ import numpy as np
 
 from hdrcl.core import register as R
 from hdrcl.core import warp as W
+from hdrcl.core.handheld_warp import _warper, _Warps, apply_alignment, warp_one  # noqa: F401 (the API here)
 from hdrcl.errors import InputError, UsageError
 
 logger = logging.getLogger(__name__)
@@ -68,12 +75,6 @@ HELD_OUT_RADIUS = 8
 #: the textured part (0.15 against 0.49 px, Memorial 0067 -> 0068) while bending the
 #: untextured corners by 6 px; a merge is not helped by either.
 HOMOGRAPHY_GAIN_PX = 0.5
-#: Interpolation of the warp: 4 (Keys' cubic, 4 x 4 taps) or 2 (bilinear).
-WARP_TAPS = 4
-#: Device warps run on a worker thread while the host estimates the next frames
-#: (24 MP x 7, 2 cores: alignment 5.5 s against 6.4 s one after the other, medians of 3;
-#: peak memory about 150 MB higher: the estimation's pyramids and the first warp at once).
-OVERLAP_WARPS = True
 #: ``auto``: a bracket whose every frame moved less than this (pixels, median over the
 #: frame: :func:`motion_px`) is static (a tripod): no frame is resampled. Registration
 #: between frames several stops apart is biased by up to about half a pixel on real
@@ -380,12 +381,13 @@ def _register(reg: _Registrar, anchor: int, j: int, model: str, names):
     tried = []
     if est is not None:
         # The fit as made, again from the second estimate, and (auto) a similarity from
-        # either start (a few samples cannot tell a translation from a similarity): the
-        # one closest to the second estimate, if it agrees.
+        # either start and a translation from the second estimate (a few samples cannot
+        # tell one from the other): the one closest to the second estimate, if it agrees.
         start = est.full()[0]
         cands = [(kind, f, r), _fit_models(reg, anchor, j, start, model, richest="similarity")]
         if model == "auto":
             cands += [_fit_models(reg, anchor, j, m, "similarity") for m in (m0, start)]
+            cands.append(_fit_models(reg, anchor, j, start, "shift"))
         for kind_c, f_c, r_c in cands:
             d = RC.disagreement(f_c.matrix, est)
             tried.append(d)
@@ -431,99 +433,6 @@ def _static(fits, h: int, w: int, valid=None):
     logger.info("align: no frame moved more than %.2f px: the frames are merged as they are", STATIC_PX)
     return [(k if k == "reference" else "none", np.eye(3), r if k == "reference" else max(r, d), a)
             for (k, _, r, a), d in zip(fits, motion)]
-
-
-def _warper(aligner):
-    """A :class:`~hdrcl.cl.warp.WarpProcessor` on the aligner's device, or None (NumPy)."""
-    ctx = getattr(aligner, "ctx", None)
-    if ctx is None:
-        return None
-    from hdrcl.cl.warp import WarpProcessor
-
-    proc = _WARPERS.get(id(ctx))
-    if proc is None or proc.ctx is not ctx:
-        proc = _WARPERS[id(ctx)] = WarpProcessor(ctx=ctx)
-    return proc
-
-
-_WARPERS: dict = {}
-
-
-def warp_one(frame, m, valid, warper, out=None):
-    """``(frame, valid)`` warped by ``m``: untouched for the identity, an exact copy for a
-    whole-pixel shift, else resampled (device or twin; on the device into ``out`` when
-    it is a free array of the frame's size and type). Black fill at the frame's border
-    (:func:`hdrcl.core.warp.border_fill`) is masked before a frame is moved."""
-    from hdrcl.core.align import _shift
-
-    if W.is_integer_shift(m):
-        dx, dy = int(round(m[0, 2])), int(round(m[1, 2]))
-        if dx == 0 and dy == 0:
-            return frame, None if valid is None else np.asarray(valid, bool)
-    fill = W.border_fill(frame)  # a moved frame's black corners are no measurement: masked with it
-    if fill is not None:
-        valid = ~fill if valid is None else np.asarray(valid, bool) & ~fill
-    if W.is_integer_shift(m):
-        base = np.ones(frame.shape[:2], bool) if valid is None else np.asarray(valid, bool)
-        return _shift(np.asarray(frame), dy, dx), _shift(base, dy, dx, fill=False)
-    # Fusion's clip level: a channel blended from a clipped code is clipped (a lower bound
-    # blended with its neighbours would be a believable mid-range value fusion trusts).
-    clip_hi = W.clip_high(int(np.iinfo(np.asarray(frame).dtype).max))
-    if warper is not None:
-        if out is not None and (out.dtype != frame.dtype or out.size != np.size(frame)
-                                or not out.flags.c_contiguous or np.may_share_memory(out, frame)):
-            out = None
-        res, ok, _ = warper.warp(frame, m, valid, taps=WARP_TAPS, out=out, clip_hi=clip_hi)
-        return res.reshape(frame.shape), ok
-    return W.warp_frame(frame, m, valid, taps=WARP_TAPS, clip_hi=clip_hi)
-
-
-class _Warps:
-    """Frames warped into ``out_f``/``out_v`` (by position in ``order``) as their
-    matrices become final: on one worker thread when a device warps (it runs while the
-    host estimates the next frames), recycling, with ``inplace``, the memory of frames
-    already replaced."""
-
-    def __init__(self, out_f, out_v, order, warper, inplace: bool):
-        self.out_f, self.out_v, self.order, self.warper, self.inplace = out_f, out_v, order, warper, inplace
-        self.spare = None
-        self.done: set = set()
-        self.futs: list = []
-        self.pool = None
-        if warper is not None and OVERLAP_WARPS:
-            from concurrent.futures import ThreadPoolExecutor
-
-            self.pool = ThreadPoolExecutor(1, thread_name_prefix="hdrcl-warp")
-
-    def submit(self, pos: int, m: np.ndarray) -> None:
-        if pos in self.done:
-            return
-        self.done.add(pos)
-        if self.pool is None:
-            self._one(pos, m)
-        else:
-            self.futs.append(self.pool.submit(self._one, pos, m))
-
-    def _one(self, pos: int, m: np.ndarray) -> None:
-        i = self.order[pos]
-        src = self.out_f[i]
-        self.out_f[i], self.out_v[i] = warp_one(src, m, self.out_v[i], self.warper, self.spare)
-        if self.spare is not None and np.may_share_memory(self.out_f[i], self.spare):
-            self.spare = None
-        if self.inplace and self.out_f[i] is not src and isinstance(src, np.ndarray) and src.flags.writeable \
-                and src.flags.c_contiguous and not any(np.may_share_memory(src, f) for f in self.out_f):
-            self.spare = src
-
-    def finish(self) -> None:
-        """Wait for every warp (the first error raised) and stop the worker."""
-        if self.pool is None:
-            return
-        try:
-            for f in self.futs:
-                f.result()
-        finally:
-            self.pool.shutdown(wait=True, cancel_futures=True)
-            self.pool = None  # what is submitted from now on is warped at once
 
 
 def align_bracket(frames, valid, times, device=None, crop: bool = False, model: str = "auto",
@@ -594,19 +503,3 @@ def alignment_meta(shifts, alignment) -> dict:
         meta["alignTransforms"] = [[v for row in a["matrix"] for v in row] for a in alignment]
         meta["alignResidualPx"] = [a["residual_px"] for a in alignment]
     return meta
-
-
-def apply_alignment(frames, valid, alignment, crop=None, device=None):
-    """The frames and masks as a merge aligned them, from its ``result.alignment``
-    (and ``result.crop``): for measuring what was merged (quality report)."""
-    from hdrcl.core.align import get_aligner
-
-    warper = _warper(get_aligner(device))
-    out_f, out_v = [], []
-    for f, v, a in zip(frames, valid, alignment):
-        g, u = warp_one(f, np.asarray(a["matrix"], np.float64), v, warper)
-        out_f.append(g)
-        out_v.append(u)
-    if crop is not None:
-        out_f, out_v = W.crop_frames(out_f, out_v, crop)
-    return out_f, out_v
