@@ -185,3 +185,24 @@ def test_falsecolor_reads_every_kind_of_luminance_map(fisheye_shoot, cl_device):
     assert chain[N // 2, N // 2] == pytest.approx(K * exr[int(CY), int(CX)] * 1.0, rel=0.25)
     res = CliRunner().invoke(main, ["falsecolor", str(d / "rel.hdr"), "-o", str(d / "rel.png")])
     assert res.exit_code == 3 and "not a luminance map" in res.output and not (d / "rel.png").exists()
+
+
+def test_merge_takes_a_projection_cal_file_on_the_command_line(fisheye_shoot, cl_device):
+    """--fisheye-projection FILE.cal from the command line (it was a fixed choice that
+    refused every file): Radiance's fisheye_corr.cal, whose default rad(r) is the
+    equisolid-to-equidistant mapping, gives the built-in projection's map."""
+    from test_projection_cal import FISHEYE_CORR
+
+    d = fisheye_shoot
+    (d / "fisheye_corr.cal").write_text(FISHEYE_CORR)
+    frames = sorted(str(p) for p in (d / "shoot" / "dome1").glob("*.jpg"))
+    args = _chain_args(d)
+    builtin, user = d / "builtin.exr", d / "user.exr"
+    assert CliRunner().invoke(main, ["merge", *frames, "-o", str(builtin), *args]).exit_code == 0
+    args[args.index("--fisheye-projection") + 1] = str(d / "fisheye_corr.cal")
+    res = CliRunner().invoke(main, ["merge", *frames, "-o", str(user), *args])
+    assert res.exit_code == 0, res.output
+    a, _ = read_radiance(str(builtin))
+    b, _ = read_radiance(str(user))
+    inside = a > 0
+    assert np.median(np.abs(b[inside] / a[inside] - 1)) < 0.01

@@ -38,6 +38,7 @@ _WHERE = {
     "glare_of_file": "hdrcl.core.glare",
     "glare_metrics": "hdrcl.core.glare",
     "calibrate_luminance_file": "hdrcl.core.glare",
+    "calibrate_luminance_file": "hdrcl.core.glare",
     "expose_file": "hdrcl.core.exposure",
 }
 

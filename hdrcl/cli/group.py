@@ -219,6 +219,7 @@ COMMAND_MODULES = {
     "falsecolor": "hdrcl.cli.falsecolor",
     "glare": "hdrcl.cli.glare",
     "calibrate-luminance": "hdrcl.cli.glare",
+    "calibrate-luminance": "hdrcl.cli.glare",
     "scan": "hdrcl.cli.shoot",
     "batch": "hdrcl.cli.shoot",
     "sample-shoot": "hdrcl.cli.shoot",

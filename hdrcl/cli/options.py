@@ -344,11 +344,12 @@ def luminance_options(f):
                           "left; square crop, black outside the circle); implies --absolute."),
         click.option("--resize", type=int, default=None, metavar="PIXELS",
                      help="With --lens-circle: side of the square output, area-averaged [default: 1000]."),
-        click.option("--fisheye-projection", type=click.Choice(["equisolid-to-equidistant"]), default=None,
-                     help="With --lens-circle: correct the lens projection (Radiance's fisheye_corr.cal)."),
+        click.option("--fisheye-projection", metavar="equisolid-to-equidistant|FILE.cal", default=None,
+                     help="With --lens-circle: correct the lens projection (Radiance's fisheye_corr.cal), or your "
+                          "own rad(r) in a .cal file (fisheye_corr.cal's convention)."),
         click.option("--vignetting", metavar="FILE.cal|A1,...,A8",
                      help="With --lens-circle: divide by 1 + A1 r + ... + A8 r^8 (r = 0 at the centre, 1 at the "
-                          "circle), or a Radiance vignetting .cal file."),
+                          "circle), or a Radiance vignetting .cal file (evaluated as pcomb -f)."),
         click.option("--nd-filter", metavar="FILE.cal|KR,KG,KB",
                      help="With --lens-circle: neutral density filter factors per channel, or its .cal file."),
         click.option("--calibration-factor", metavar="FILE.cal|K",

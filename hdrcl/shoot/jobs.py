@@ -175,8 +175,9 @@ def _luminance_identity(options: tuple) -> dict:
 
     chain = chain_or_none(**dict(options))
     d = dict(chain.describe(), view=chain.view[0] if chain.view else None)
-    if isinstance(d.get("vignetting"), dict):
-        d["vignetting"] = {k: v for k, v in d["vignetting"].items() if k != "source"}
+    for key in ("vignetting", "projection"):  # what a .cal file computes counts, not where it lies
+        if isinstance(d.get(key), dict):
+            d[key] = {k: v for k, v in d[key].items() if k != "source"}
     return d
 
 
