@@ -155,6 +155,21 @@ def test_the_darkest_frames_of_a_night_ladder_join_as_it_goes_on(gap, joined):
     assert files(group_frames(c.frames, compare=dark_signal)) == [a, d]
 
 
+@pytest.mark.parametrize("verdict, joined", [(Verdict("unknown", pixels=5), True),
+                                              (Verdict("unknown", rho=0.47, offset=-0.8, pixels=629), False)])
+def test_a_doubtful_match_bridges_nothing(verdict, joined):
+    """An even ladder 40 s apart is bridged when the thumbnails show too little to
+    compare, not when they were compared over most of the frame and matched neither
+    well nor badly (two views)."""
+    c = Card()
+    a = [c.add(t, gap=3.0) for t in (1 / 125, 1 / 60, 1 / 30)]
+    b = [c.add(t, gap=40.0 if k == 0 else 3.0) for k, t in enumerate((1 / 15, 1 / 8, 1 / 4))]
+    m = group_frames(c.frames, compare=lambda x, y: verdict if (x.path in a) != (y.path in a) else
+                     Verdict("same", rho=0.95, offset=0.0, pixels=500))
+    assert files(m) == ([a + b] if joined else [a, b])
+    assert verdict.doubtful is not joined
+
+
 def fi(t, mode=1, bias=None, k=0):
     return FrameInfo(path=f"F{k}.jpg", width=32, height=24, nchannels=3, exposure_time=t, fnumber=8.0, iso=100.0,
                      exposure_bias=bias, exposure_mode=mode, capture_time=T0 + dt.timedelta(seconds=30 * k))

@@ -87,6 +87,13 @@ class Verdict:
     pixels: int = 0
     basis: str = "structure"  # or "few cells": the strict match over few cells (module docstring)
 
+    @property
+    def doubtful(self) -> bool:
+        """Compared over a quarter of the thumbnail or more and found neither alike nor
+        different (a match between :data:`RHO_CHANGED` and :data:`RHO_SAME`): unlike a
+        frame too dark to compare, such a pair gives no reason to join across a gap."""
+        return self.kind == "unknown" and self.rho is not None and self.pixels >= GRID[0] * GRID[1] // 4
+
     def describe(self) -> str:
         if self.kind == "unknown":
             return "scene not comparable" if self.pixels else "no thumbnail"

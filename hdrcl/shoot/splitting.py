@@ -29,7 +29,9 @@ Three passes, every decision kept with its reason:
    frames, third-stop steps, a ladder shot 1, 2, 1/2 s then on down, pauses of minutes
    on one view while the ladder goes on. Without a thumbnail the scene cannot vouch, and
    gaps up to :data:`BRIDGE_UNSEEN` seconds are bridged; with a matching scene, up to
-   :data:`BRIDGE_SEEN` seconds (plus the exposure time).
+   :data:`BRIDGE_SEEN` seconds (plus the exposure time). Thumbnails compared over much of
+   the frame that match neither well nor badly (:attr:`hdrcl.shoot.scene.Verdict.doubtful`)
+   bridge nothing.
 
 With a ``--gap`` override the limit is exact and nothing is bridged.
 """
@@ -457,6 +459,8 @@ def _bridge_reason(p: _Group, grp: _Group, compare: Compare) -> Optional[str]:
     if _hard_reason(p.frames, f) is not None:
         return None
     g, lad, verdict = _bridge_parts(p, grp, compare)
+    if getattr(verdict, "doubtful", False):
+        return None
     seen = verdict is not None and verdict.kind != "unknown"
     limit = BRIDGE_SEEN + (p.frames[-1].exposure_time or 0.0) if seen else BRIDGE_UNSEEN
     scene = verdict.describe() if seen else "scene not compared"
