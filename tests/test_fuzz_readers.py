@@ -124,7 +124,8 @@ _times_text = st.lists(st.lists(_token, max_size=7).map(" ".join), max_size=6).m
 @FUZZ
 @given(text=_times_text, bom=st.booleans())
 def test_times_file_reader(base, tmp_path, text, bom):
-    from hdrcl.io.metadata import read_times_file, relative_exposures, resolve_exposures
+    from hdrcl.io.metadata import relative_exposures, resolve_exposures
+    from hdrcl.io.exposure_lists import read_times_file
 
     p = tmp_path / "times.txt"
     p.write_bytes((b"\xef\xbb\xbf" if bom else b"") + text.encode("utf-8", "surrogatepass"))
@@ -140,7 +141,7 @@ def test_times_file_reader(base, tmp_path, text, bom):
 @FUZZ
 @given(text=st.one_of(st.text(max_size=30), st.lists(_token, max_size=5).map(",".join)))
 def test_times_option(base, text):
-    from hdrcl.io.metadata import coerce_times, parse_times
+    from hdrcl.io.exposure_lists import coerce_times, parse_times
 
     for parse in (lambda t: parse_times(t, "--times"), coerce_times):
         try:

@@ -307,7 +307,8 @@ def test_aperture_bracketing_is_flagged():
 def test_iso_only_ladder_at_one_shutter_time_is_a_set():
     # A phone in pro mode at 1/125 s stepping ISO 100, 400, 1600: t * ISO is the ladder
     # (issue 19), and the merge's effective exposures step by it.
-    from hdrcl.io.metadata import Exposure, relative_exposures
+    from hdrcl.io.metadata import relative_exposures
+    from hdrcl.io.exposure_lists import Exposure
 
     sh = Shoot()
     a = sh.ladder([1 / 125] * 3, gap=0.3)

@@ -5,16 +5,8 @@ import numpy as np
 import pytest
 
 from hdrcl.errors import InputError, UsageError
-from hdrcl.io.metadata import (
-    Exposure,
-    FrameInfo,
-    check_exposures,
-    format_time,
-    parse_times,
-    read_times_file,
-    relative_exposures,
-    resolve_exposures,
-)
+from hdrcl.io.metadata import FrameInfo, check_exposures, format_time, relative_exposures, resolve_exposures
+from hdrcl.io.exposure_lists import Exposure, parse_times, read_times_file
 
 MEMORIAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "memorial"
 

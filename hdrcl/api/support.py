@@ -19,7 +19,7 @@ _WHERE = {
     "tonemap_file": "hdrcl.report.tonemap",
     "write_quality_report": "hdrcl.report.merge_report",
     "format_time": "hdrcl.io.metadata",
-    "parse_times": "hdrcl.io.metadata",
+    "parse_times": "hdrcl.io.exposure_lists",
     "header_exposures": "hdrcl.io.metadata",
     "read_info": "hdrcl.io.frames",
     "read_infos": "hdrcl.core.bracket",

@@ -26,7 +26,7 @@ def render(radiance: np.ndarray, response: Response, time: float, bits: Optional
     bits : {8, 16}, optional
         Output depth; default the response's own.
     """
-    from hdrcl.io.metadata import coerce_times
+    from hdrcl.io.exposure_lists import coerce_times
 
     (time,) = coerce_times([time], "time")
     bits = response.bits if bits is None else bits

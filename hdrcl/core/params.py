@@ -254,7 +254,7 @@ def _seconds(opt: Option, value, frames):
     if isinstance(value, bool) or not isinstance(value, (str, int, float)) and type(value).__module__ != "numpy":
         raise ParameterTypeError(f"{opt.flag}: expected a time in seconds (a number or '1/30'), "
                                  f"not {type(value).__name__}")
-    from hdrcl.io.metadata import parse_times
+    from hdrcl.io.exposure_lists import parse_times
 
     try:
         if isinstance(value, str):

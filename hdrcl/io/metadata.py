@@ -1,8 +1,9 @@
-"""Exposure information of photographs: EXIF fields, exposure lists, relative exposure.
+"""Exposure information of photographs: header fields and relative exposure.
 
 :class:`FrameInfo` is what :func:`hdrcl.io.frames.read_info` reads from a file's header.
-:class:`Exposure` is one frame's exposure settings, from ``--times``, a times file or
-EXIF; :func:`resolve_exposures` chooses among those sources and
+:class:`hdrcl.io.exposure_lists.Exposure` is one frame's exposure settings, from
+``--times``, a times file (:mod:`hdrcl.io.exposure_lists`) or EXIF;
+:func:`resolve_exposures` chooses among those sources and
 :func:`relative_exposures` turns the settings into the effective exposure times
 ``Δt_j`` that the Debevec-Malik model uses.
 
@@ -19,26 +20,20 @@ from typing import List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-from hdrcl.errors import InputError, UsageError, check_regular
+from hdrcl.errors import InputError, UsageError
+from hdrcl.io.exposure_lists import Exposure, coerce_times, list_in, read_times_file
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
     "FrameInfo",
-    "Exposure",
-    "parse_times",
-    "read_times_file",
     "relative_exposures",
     "resolve_exposures",
     "format_time",
     "check_exposures",
-    "EXPOSURE_LISTS",
     "header_exposures",
 ]
 
-#: Exposure lists looked for beside frames that carry no EXIF exposure time, in this
-#: order of preference (``merge``, ``calibrate``, ``scan`` and ``batch`` alike).
-EXPOSURE_LISTS = ("image_list.txt", "times.txt")
 
 # Two exposures whose effective times differ by less than this fraction (0.0014 stops)
 # are the same exposure: they add no range, but they are fused (less noise).
@@ -73,271 +68,16 @@ class FrameInfo:
     extra: dict = field(default_factory=dict)
 
 
-@dataclass
-class Exposure:
-    """One frame's exposure settings.
-
-    Attributes
-    ----------
-    time : float
-        Shutter time in seconds (> 0).
-    fnumber : float, optional
-        Aperture f-number; ``None`` when unknown.
-    iso : float, optional
-        Sensitivity; ``None`` when unknown.
-    gain_db : float
-        Extra amplification in decibels (amplitude: ``10 ** (gain_db / 20)``), as in
-        HDRShop image lists.
-    nd : float
-        Neutral-density filtering as optical density: the filter transmits
-        ``10 ** -nd`` of the light (ND 0.3 is one stop). HDRShop's ``ND_filters`` column
-        is read with this meaning.
-    """
-
-    time: float
-    fnumber: Optional[float] = None
-    iso: Optional[float] = None
-    gain_db: float = 0.0
-    nd: float = 0.0
-
-    @property
-    def factor(self) -> float:
-        """Exposure relative to a 1 s frame with no gain and no filter, ignoring
-        aperture and ISO: ``time * 10**(gain_db/20) * 10**(-nd)``."""
-        return self.time * 10.0 ** (self.gain_db / 20.0) * 10.0 ** (-self.nd)
-
-    def relative_to(self, reference: "Exposure") -> float:
-        """Effective exposure time in seconds as if shot at ``reference``'s f-number
-        and ISO with 0 dB gain and no ND filter.
-
-        ``time * (N_ref / N)**2 * (ISO / ISO_ref) * 10**(gain_db/20) * 10**(-nd)``; the
-        aperture (or ISO) term is left out when either frame lacks that value.
-        """
-        f = self.factor
-        if self.fnumber and reference.fnumber:
-            f *= (reference.fnumber / self.fnumber) ** 2
-        if self.iso and reference.iso:
-            f *= self.iso / reference.iso
-        return f
-
-
-#: Largest gain (dB) and neutral density a times file may give; beyond them the
-#: exposure factor leaves the range of a float.
-MAX_GAIN_DB = 200.0
-MAX_ND = 30.0
-
-
-def _parse_seconds(text: str) -> Optional[float]:
-    """``"1/30"``, ``"0.5"`` or ``"2"`` as seconds; None when not a positive finite time."""
-    text = text.strip()
-    try:
-        if "/" in text:
-            num, den = text.split("/", 1)
-            value = float(num) / float(den)
-        else:
-            value = float(text)
-    except (ValueError, ZeroDivisionError):
-        return None
-    if not math.isfinite(value) or value <= 0:
-        return None
-    return value
-
-
-def parse_times(text: str, name: str = "--times") -> list:
-    """Parse a comma-separated list of exposure times in seconds.
-
-    Parameters
-    ----------
-    text : str
-        For example ``"1/30,0.5,2"``: fractions, decimals or integers; spaces allowed.
-    name : str
-        The option or parameter the text came from, for messages (``--time``, ``times``).
-
-    Returns
-    -------
-    list of float
-
-    Raises
-    ------
-    UsageError
-        An entry is empty, not a number, zero, negative, infinite or NaN.
-    """
-    items = [t.strip() for t in str(text).split(",")]
-    if not any(items):
-        raise UsageError(f"{name}: no exposure times given")
-    out = []
-    for item in items:
-        value = _parse_seconds(item)
-        if value is None:
-            raise UsageError(f"{name}: '{_clip(item)}' is not a positive exposure time")
-        out.append(value)
-    return out
-
-
-def _clip(text: str, n: int = 40) -> str:
-    text = "".join(ch if ch.isprintable() else "?" for ch in str(text))
-    return text if len(text) <= n else text[: n - 3] + "..."
-
-
-def coerce_times(times, name: str = "--times") -> list:
-    """Exposure times as floats from what a caller may give: numbers, strings such as
-    ``"1/30"`` (one per frame), or one comma-separated string ``"1/30,1/60"``.
-
-    Raises
-    ------
-    UsageError
-        An entry is not a positive, finite number of seconds (the message names ``name``).
-    """
-    if isinstance(times, (str, bytes)):
-        return parse_times(times.decode() if isinstance(times, bytes) else times, name)
-    if isinstance(times, (Mapping, set, frozenset)):  # keys, or no order: never one time per frame
-        from hdrcl.errors import ParameterTypeError
-
-        raise ParameterTypeError(f"{name}: expected a list of exposure times, one per image in their order, "
-                                 f"not a {type(times).__name__}")
-    try:
-        items = list(times)
-    except TypeError:
-        raise UsageError(f"{name}: expected a list of exposure times, not {type(times).__name__}") from None
-    out = []
-    for t in items:
-        if isinstance(t, str):
-            value = _parse_seconds(t)
-        elif isinstance(t, bool):
-            value = None
-        else:
-            try:
-                value = float(t)
-            except (TypeError, ValueError):
-                value = None
-            if value is not None and (not math.isfinite(value) or value <= 0):
-                value = None
-        if value is None:
-            raise UsageError(f"{name}: '{_clip(t)}' is not a positive exposure time")
-        out.append(value)
-    return out
-
-
-def _float_field(text: str) -> Optional[float]:
-    try:
-        value = float(text)
-    except ValueError:
-        return None
-    return value if math.isfinite(value) else None
-
-
-def read_times_file(path) -> dict:
-    """Read a list of exposures, one file per line.
-
-    Two layouts are recognised line by line:
-
-    * ``file seconds`` where seconds may be a fraction (``IMG_1.JPG 1/30``);
-    * HDRShop image lists, ``file exposure 1/shutter_speed f/stop gain(db) ND_filters``
-      (trailing columns may be left out). The ``exposure`` column is the shutter time in
-      seconds (the Memorial Church list runs from 32 down to 1/1024 with ``1/shutter``
-      its reciprocal); it is used as the time, the f-stop, gain and ND as given.
-
-    ``#`` starts a comment; blank lines are skipped.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-
-    Returns
-    -------
-    dict of str to Exposure
-        Keyed by the file's base name.
-
-    Raises
-    ------
-    InputError
-        The file cannot be read, a line is malformed (or its time not positive), or a file is listed twice.
-    """
-    name = os.fspath(path)
-    check_regular(name, "times file")  # a FIFO or a device would block or never end
-    try:
-        with open(name, encoding="utf-8-sig") as fh:
-            lines = fh.read().splitlines()
-    except FileNotFoundError:
-        raise InputError(f"{name}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{name}: cannot read times file ({exc})") from None
-    result = {}
-    where = {}
-    inconsistent = []
-    for lineno, raw in enumerate(lines, 1):
-        fields = raw.split("#", 1)[0].split()
-        if not fields:
-            continue
-        bad = InputError(f"{name} line {lineno}: expected 'file seconds' or HDRShop columns")
-        if len(fields) < 2 or len(fields) > 6:
-            raise bad
-        seconds = _parse_seconds(fields[1])
-        if seconds is None and _float_field(fields[1]) is not None:  # a number, but no exposure: -2, 0
-            raise InputError(f"{name} line {lineno}: {fields[0]}: exposure time {fields[1]} s is not a positive time")
-        if seconds is None:
-            raise bad
-        exposure = Exposure(time=seconds)
-        if len(fields) >= 3:
-            extra = [_float_field(f) for f in fields[2:]]
-            if any(v is None for v in extra):
-                raise bad
-            inverse = extra[0]
-            if inverse <= 0:
-                raise bad
-            if abs(seconds * inverse - 1.0) > 0.01:
-                inconsistent.append(lineno)
-            if len(extra) >= 2:
-                if extra[1] <= 0:
-                    raise bad
-                exposure.fnumber = extra[1]
-            if len(extra) >= 3:
-                if abs(extra[2]) > MAX_GAIN_DB:
-                    raise InputError(f"{name} line {lineno}: gain {extra[2]:g} dB is out of range "
-                                     f"(at most {MAX_GAIN_DB:g} dB either way)")
-                exposure.gain_db = extra[2]
-            if len(extra) >= 4:
-                if extra[3] < 0 or extra[3] > MAX_ND:
-                    raise InputError(f"{name} line {lineno}: ND density {extra[3]:g} is out of range "
-                                     f"(0 to {MAX_ND:g})")
-                exposure.nd = extra[3]
-        key = os.path.basename(fields[0])
-        if key in result:
-            raise InputError(
-                f"{name} line {lineno}: {key} is already listed on line {where[key]}"
-            )
-        result[key] = exposure
-        where[key] = lineno
-    if inconsistent:
-        # Some HDRShop lists carry relative exposures in column 2; column 2 still wins.
-        logger.warning(
-            "%s: the exposure and 1/shutter_speed columns disagree on line(s) %s; "
-            "using the exposure column as seconds",
-            name, ", ".join(map(str, inconsistent)),
-        )
-    if not result:
-        raise InputError(f"{name}: no exposures listed")
-    return result
-
-
 def _has_time(info) -> bool:
     t = info.exposure_time
     return t is not None and math.isfinite(t) and t > 0
-
-
-def _list_in(folder: str) -> Optional[str]:
-    for name in EXPOSURE_LISTS:
-        candidate = os.path.join(folder, name)
-        if os.path.isfile(candidate):
-            return candidate
-    return None
 
 
 def header_exposures(paths, infos) -> Tuple[list, List[str]]:
     """Each frame's exposure from its header, or from the exposure list beside it.
 
     A frame with an EXIF exposure time keeps it (with its f-number and ISO); one
-    without takes its entry in the first of :data:`EXPOSURE_LISTS` in its own folder
+    without takes its entry in the first of :data:`hdrcl.io.exposure_lists.EXPOSURE_LISTS` in its own folder
     (time, f-number, gain and ND as listed). The one rule of ``merge``, ``calibrate``,
     ``scan`` and ``batch``.
 
@@ -361,7 +101,7 @@ def header_exposures(paths, infos) -> Tuple[list, List[str]]:
             continue
         folder = os.path.dirname(os.path.abspath(os.fspath(n)))
         if folder not in tables:
-            found = _list_in(folder)
+            found = list_in(folder)
             tables[folder] = (found, read_times_file(found) if found else {})
         found, table = tables[folder]
         e = table.get(os.path.basename(os.fspath(n)))
@@ -514,7 +254,7 @@ def resolve_exposures(
             logger.info("%s: exposures of the frames it lists (they carry no EXIF exposure time)", u)
         for n, e in zip(names, exposures):
             if e is None:
-                beside = _list_in(os.path.dirname(os.path.abspath(n)))
+                beside = list_in(os.path.dirname(os.path.abspath(n)))
                 raise InputError(f"{n}: no exposure time in EXIF; give --times or --times-file"
                                  + (f" (not listed in {beside})" if beside else ""))
     rel = relative_exposures(exposures)

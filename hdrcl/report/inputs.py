@@ -88,7 +88,8 @@ def shot_settings(infos: Sequence, times=None) -> Optional[List[dict]]:
     only when their effective exposures (:func:`hdrcl.io.metadata.relative_exposures`)
     are proportional to ``times`` within :data:`SETTINGS_RTOL`.
     """
-    from hdrcl.io.metadata import Exposure, relative_exposures
+    from hdrcl.io.metadata import relative_exposures
+    from hdrcl.io.exposure_lists import Exposure
 
     infos = list(infos or [])
     if not infos or any(i is None or not i.exposure_time or not np.isfinite(i.exposure_time)

@@ -251,7 +251,7 @@ def load_source(source, *, recursive: bool = False, frames_per_set: Optional[int
                          "not to a manifest (edit the manifest instead)")
     manifest = load_manifest(path, check_files=False)
     if times_file is not None:
-        from hdrcl.io.metadata import read_times_file
+        from hdrcl.io.exposure_lists import read_times_file
 
         table = read_times_file(times_file)
         for s in manifest.sets:

@@ -63,7 +63,8 @@ def _with_exposure_lists(infos, times_file):
     """
     from dataclasses import replace
 
-    from hdrcl.io.metadata import header_exposures, read_times_file
+    from hdrcl.io.metadata import header_exposures
+    from hdrcl.io.exposure_lists import read_times_file
 
     given = read_times_file(times_file) if times_file is not None else {}
     listed = {}  # frames without EXIF exposure time, by folder: one read of its list
@@ -91,7 +92,7 @@ def _with_exposure_lists(infos, times_file):
 
 
 def _in_list_order(lst: str, frames):
-    from hdrcl.io.metadata import read_times_file
+    from hdrcl.io.exposure_lists import read_times_file
 
     order = {name: k for k, name in enumerate(read_times_file(lst))}
     return sorted(frames, key=lambda f: order.get(os.path.basename(f.path), len(order)))
