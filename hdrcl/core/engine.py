@@ -27,7 +27,7 @@ import numpy as np
 from hdrcl.core.options import MergeOptions
 from hdrcl.core.pipeline import fusion_processor
 
-logger = logging.getLogger("hdrcl.core.merge")
+logger = logging.getLogger(__name__)
 
 
 class Timed:
