@@ -159,6 +159,16 @@ def test_batch_align_report_measures_the_aligned_set_as_merge_does(memorial_hand
     batched = entry["quality"]["looRmse"]
     assert merged is not None and batched is not None
     assert abs(merged - batched) < 0.5, (merged, batched)
+    # A rerun that finds the set up to date but its report gone measures it again, aligned too.
+    import shutil as _sh
+
+    _sh.rmtree(tmp_path / "qb")
+    r = _cli("batch", shoot, "--align", "-o", tmp_path / "out", "--frames-per-set", len(frames),
+             "--report", tmp_path / "qb")
+    assert r.exit_code == 0, r.output
+    (entry,) = json.loads((tmp_path / "out" / "report.json").read_text())["sets"]
+    assert entry["status"] == "skipped"
+    assert abs(entry["quality"]["looRmse"] - merged) < 0.5, (merged, entry["quality"]["looRmse"])
 
 
 def test_dry_run_does_not_call_a_damaged_cached_response_cached(tmp_path, cl_device):
