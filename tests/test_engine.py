@@ -80,6 +80,12 @@ def test_batch_options_wrap_merge_options():
     from hdrcl.shoot.jobs import BatchOptions
 
     assert BatchOptions(exposure_tolerance=2.0).merge.exposure_tolerance == 2.0
+    from hdrcl.core.options import MergeOptions
+
+    m = MergeOptions(align=True, align_model="shift", exposure_tolerance=1.0)
+    assert BatchOptions.wrap(m, preview=False).merge == m
+    with pytest.raises(UsageError, match="--absolute"):
+        BatchOptions.wrap(MergeOptions(absolute=True))
     with pytest.raises(UsageError, match="--crop needs --align"):
         BatchOptions(crop=True)
     with pytest.raises(UsageError, match="--exposure-tolerance"):

@@ -251,7 +251,7 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
     finish the rest).
     """
     from hdrcl.api.batch import BatchOptions, Cancelled, run_batch
-    from hdrcl.api.support import chain_or_none
+    from hdrcl.api.support import MergeOptions, chain_or_none
 
     def _cal(value):  # a .cal file by its absolute path: workers may run elsewhere
         return os.path.abspath(value) if isinstance(value, str) and value.lower().endswith(".cal") else value
@@ -267,12 +267,13 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
         from hdrcl.api.support import check_output
 
         check_output(report_json, what="JSON report")  # before any set is merged
-    opts = BatchOptions(weight=weight, samples=samples, smoothness=smoothness, seed=seed,
-                        ignore_color=ignore_color, deghost=deghost, dtype=dtype, compression=compression,
-                        preview=preview, preview_size=preview_size, tonemap=tonemap, colorspace=colorspace.lower(),
-                        device=device, report_dir=report_dir, align=align, crop=crop, neutral=neutral,
-                        fit_exposures=fit_exposures, reference_exposure=reference_exposure, align_model=align_model,
-                        output_format=output_format, luminance=luminance, exposure_tolerance=exposure_tolerance)
+    merge = MergeOptions(weight=weight, samples=samples, smoothness=smoothness, seed=seed, ignore_color=ignore_color,
+                         deghost=deghost, dtype=dtype, compression=compression, colorspace=colorspace.lower(),
+                         device=device, align=align, crop=crop, neutral=neutral, fit_exposures=fit_exposures,
+                         reference_exposure=reference_exposure, align_model=align_model,
+                         exposure_tolerance=exposure_tolerance)
+    opts = BatchOptions.wrap(merge, preview=preview, preview_size=preview_size, tonemap=tonemap,
+                             report_dir=report_dir, output_format=output_format, luminance=luminance)
     if dry_run:
         from hdrcl.api.batch import describe_batch
 

@@ -118,6 +118,24 @@ class BatchOptions:
     def __post_init__(self):
         self.merge  # noqa: B018 -- every merge option checked once, here (hdrcl.core.options)
 
+    @classmethod
+    def wrap(cls, merge, **batch) -> "BatchOptions":
+        """The batch's options around a :class:`hdrcl.core.options.MergeOptions` (``merge``)
+        and the batch-only fields (``batch``: preview, preview_size, tonemap, report_dir,
+        output_format, luminance). UsageError for a merge option a batch has no use for
+        (``reference_patch``, ``absolute``, ghost tuning, checked per set by ``merge``)."""
+        from hdrcl.errors import UsageError
+
+        unused = [f for f, v in (("--reference-patch", merge.reference_patch), ("--absolute", merge.absolute),
+                                 ("--ghost-threshold", merge.ghost_threshold),
+                                 ("--ghost-reference", merge.ghost_reference)) if v]
+        if unused:
+            raise UsageError(f"{', '.join(unused)}: not an option of batch")
+        names = ("weight", "samples", "smoothness", "seed", "ignore_color", "deghost", "dtype", "compression",
+                 "colorspace", "device", "align", "crop", "neutral", "fit_exposures", "reference_exposure",
+                 "align_model", "exposure_tolerance")
+        return cls(**{n: getattr(merge, n) for n in names}, **batch)
+
     @functools.cached_property
     def merge(self):
         """The :class:`hdrcl.core.options.MergeOptions` every set is merged with (the
