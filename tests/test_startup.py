@@ -153,3 +153,67 @@ def test_merge_loads_only_its_module():
             "print(','.join(m for m in ('hdrcl.cli.core', 'hdrcl.cli.shoot', 'hdrcl.cli.output', 'pyopencl') "
             "if m in sys.modules))")
     assert _python(code).stdout.strip() == "hdrcl.cli.core"
+
+
+CALIBRATE = """
+import json, sys
+import numpy as np
+from hdrcl.core.solve import recover_response
+rng = np.random.default_rng(0)
+scene = rng.uniform(-3, 3, (60, 80, 3))
+frames = [np.clip(255 / (1 + np.exp(-(scene + t))), 0, 255).astype(np.uint8) for t in (-1.5, 0.0, 1.5)]
+resp = recover_response(frames, [0.25, 1.0, 4.0], samples=400)
+print(json.dumps({"finite": bool(np.isfinite(resp.g).all()),
+                  "scipy": sorted(m for m in sys.modules if m == "scipy" or m.startswith("scipy."))[:3]}))
+"""
+
+
+def test_the_response_solve_and_sample_choice_load_no_scipy():
+    """The curve solve is a small dense system and the sample choice box sums: a small
+    set's calibration must not pay for importing scipy (0.15-0.2 s of CPU here)."""
+    r = _python(CALIBRATE)
+    assert json.loads(r.stdout) == {"finite": True, "scipy": []}
+
+
+def test_the_dense_solve_matches_the_whole_least_squares_system():
+    """The Schur-complement normal equations built with bincount give the paper's
+    least-squares solution: the same curve as lstsq on the whole (g, ln E) system."""
+    import numpy as np
+
+    from hdrcl.core.response import _segments, knot_positions
+    from hdrcl.core.solve import solve_curve
+    from hdrcl.core.weights import weight_values
+
+    rng = np.random.default_rng(3)
+    n, p, lam = 120, 4, 10.0
+    log_e = rng.uniform(-2, 2, n)
+    lt = np.log([0.1, 0.4, 1.6, 6.4])
+    z = np.clip(np.round(255 / (1 + np.exp(-(log_e[:, None] + lt)))), 0, 255).astype(np.int64)
+    usable = rng.random((n, p)) > 0.1
+    g = solve_curve(z, lt, 8, smoothness=lam, weight="hat", usable=usable)
+    knots = knot_positions(8)
+    k = knots.size
+    rows, rhs = [], []
+    for i in range(n):
+        for j in range(p):
+            w = weight_values(np.array([float(z[i, j])]), 256, "hat")[0] * usable[i, j]
+            r = np.zeros(k + n)
+            seg, f = _segments(np.array([float(z[i, j])]), knots)
+            r[seg[0]] += w * (1 - f[0])
+            r[seg[0] + 1] += w * f[0]
+            r[k + i] = -w
+            rows.append(r)
+            rhs.append(w * lt[j])
+    for c in range(1, k - 1):
+        r = np.zeros(k + n)
+        wk = lam * weight_values(knots[c:c + 1], 256, "hat")[0]
+        r[c - 1:c + 2] = [wk, -2 * wk, wk]
+        rows.append(r)
+        rhs.append(0.0)
+    r = np.zeros(k + n)
+    r[k // 2] = 1.0
+    rows.append(r)
+    rhs.append(0.0)
+    x = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)[0]
+    want = x[:k] - x[k // 2]
+    assert np.abs(g - want).max() < 1e-6

@@ -1,4 +1,4 @@
-"""Recovering the camera response g = ln f^-1 (CPU, scipy.sparse least squares).
+"""Recovering the camera response g = ln f^-1 (CPU least squares, NumPy only).
 
 The paper's objective, exactly::
 
@@ -35,6 +35,49 @@ def small_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return np.linalg.solve(a, b)
 
 
+#: Samples per block when the eliminated ln E unknowns are folded into the curve's
+#: system: bounds the temporary outer products to about 16 MB whatever --samples is.
+SCHUR_BLOCK_ENTRIES = 1 << 21
+
+
+def _curve_normal_equations(seg, a0, a1, w, wb, k, interior, wk):
+    """The curve's normal equations with every sample's ln E eliminated, built densely.
+
+    Row (i, j) of the least-squares system reads ``a0 g[seg] + a1 g[seg+1] - w lnE_i =
+    wb`` (``a0 + a1 = w``). In the normal equations ``[[G, B], [B^T, D]] [g; lnE] =
+    [u; e]`` each ln E_i appears only in its own sample's rows, so D is diagonal and the
+    Schur complement ``(G - B D^-1 B^T) g = u - B D^-1 e`` is exact: the same solution as
+    the whole system. G, B D^-1 B^T and the right side are sums of a few products per
+    sample, accumulated with ``bincount`` (no sparse matrices, no scipy import: a small
+    set's start-up does not pay for scipy.sparse). All inputs are (N, P) arrays; a
+    sample-frame with ``w = 0`` adds nothing.
+    """
+    kk = k * k
+    d1 = k + 1
+    g = (np.bincount((seg * d1).ravel(), (a0 * a0).ravel(), kk)
+         + np.bincount((seg * d1 + 1).ravel(), (a0 * a1).ravel(), kk)
+         + np.bincount((seg * d1 + k).ravel(), (a1 * a0).ravel(), kk)
+         + np.bincount(((seg + 1) * d1).ravel(), (a1 * a1).ravel(), kk))
+    cols = np.stack([interior - 1, interior, interior + 1])
+    vals = np.stack([wk, -2.0 * wk, wk])
+    g += np.bincount((cols[:, None, :] * k + cols[None, :, :]).ravel(),
+                     (vals[:, None, :] * vals[None, :, :]).ravel(), kk)
+    g[(k // 2) * d1] += 1.0  # the constraint row g(mid knot) = 0
+    d = (w * w).sum(axis=1)
+    d[d <= 0] = 1.0  # a sample with no usable measurement: its ln E is free (pinned to 0)
+    e = -(w * wb).sum(axis=1)
+    idx = np.concatenate([seg, seg + 1], axis=1)  # B's entries: (knot, -w a) per sample
+    val = np.concatenate([-w * a0, -w * a1], axis=1)
+    u = np.bincount(seg.ravel(), (a0 * wb).ravel(), k) + np.bincount((seg + 1).ravel(), (a1 * wb).ravel(), k)
+    rhs = u - np.bincount(idx.ravel(), (val * (e / d)[:, None]).ravel(), k)
+    step = max(1, SCHUR_BLOCK_ENTRIES // max(1, idx.shape[1] ** 2))
+    for s0 in range(0, idx.shape[0], step):
+        ib, vb, db = idx[s0:s0 + step], val[s0:s0 + step], d[s0:s0 + step]
+        g -= np.bincount((ib[:, :, None] * k + ib[:, None, :]).ravel(),
+                         (vb[:, :, None] * (vb / db[:, None])[:, None, :]).ravel(), kk)
+    return g.reshape(k, k), rhs
+
+
 def solve_curve(
     z: np.ndarray,
     log_times: np.ndarray,
@@ -66,58 +109,21 @@ def solve_curve(
     numpy.ndarray
         g at :func:`knot_positions` (float64), shifted so that ``g(levels // 2) = 0``.
     """
-    import scipy.sparse as sp
-
     smoothness = _check_smoothness(smoothness, weight)
     levels = 1 << bits
     knots = knot_positions(bits)
     k = knots.size
     z = np.asarray(z, np.float64)
-    n, p = z.shape
     w = weight_values(z, levels, weight)
     if usable is not None:
         w = np.where(usable, w, 0.0)
-    keep = w > 0
-    si, sj = np.nonzero(keep)
-    ws = w[si, sj]
-    seg, frac = _segments(z[si, sj], knots)
-    m = si.size
-    rows_d = np.arange(m)
-    # Data rows: w*g(z) (interpolated between knots) - w*lnE_i = w*ln dt_j
-    r = np.concatenate([rows_d, rows_d, rows_d])
-    c = np.concatenate([seg, seg + 1, k + si])
-    v = np.concatenate([ws * (1.0 - frac), ws * frac, -ws])
+    seg, frac = _segments(z, knots)
     lt = np.broadcast_to(np.asarray(log_times, np.float64), z.shape)
-    b_data = ws * lt[si, sj]
-    # Smoothness rows: lambda w(z) [1, -2, 1] at interior knots.
+    # Data rows: w*g(z) (interpolated between knots) - w*lnE_i = w*ln dt_j; smoothness
+    # rows lambda w(z) [1, -2, 1] at interior knots; g(mid knot) = 0 fixes the constant.
     interior = np.arange(1, k - 1)
     wk = smoothness * weight_values(knots[interior], levels, weight)
-    rows_s = m + np.arange(interior.size)
-    r = np.concatenate([r, rows_s, rows_s, rows_s])
-    c = np.concatenate([c, interior - 1, interior, interior + 1])
-    v = np.concatenate([v, wk, -2.0 * wk, wk])
-    # g(mid knot) = 0 fixes the free additive constant.
-    row_c = m + interior.size
-    r = np.concatenate([r, [row_c]])
-    c = np.concatenate([c, [k // 2]])
-    v = np.concatenate([v, [1.0]])
-    nrows = row_c + 1
-    a = sp.csr_matrix((v, (r, c)), shape=(nrows, k + n))
-    b = np.zeros(nrows)
-    b[:m] = b_data
-    # Normal equations [[G, B], [B^T, D]] [g; lnE] = [u; e]. Each ln E_i appears only in
-    # its own sample's rows, so D is diagonal and the ln E block is eliminated exactly
-    # (Schur complement), leaving a small dense levels x levels system for g:
-    # (G - B D^-1 B^T) g = u - B D^-1 e. Same solution as solving the whole system.
-    ata = (a.T @ a).tocsc()
-    atb = a.T @ b
-    d = ata.diagonal()[k:].copy()
-    empty = d <= 0  # a sample with no usable measurement: its ln E is free; pin it to 0
-    d[empty] = 1.0
-    gb = ata[:k, k:]
-    dinv = sp.diags(1.0 / d)
-    schur = ata[:k, :k].toarray() - (gb @ dinv @ gb.T).toarray()
-    rhs = atb[:k] - gb @ (atb[k:] / d)
+    schur, rhs = _curve_normal_equations(seg, w * (1.0 - frac), w * frac, w, w * lt, k, interior, wk)
     try:
         g = small_solve(schur, rhs)
     except np.linalg.LinAlgError:
