@@ -73,6 +73,8 @@ def _chain_args(d):
 
 
 def test_batch_of_fisheye_sets_equals_the_steps_one_by_one(fisheye_shoot, cl_device):
+    from hdrcl.core.glare import glare_of_file
+
     d = fisheye_shoot
     out = d / "out"
     res = CliRunner().invoke(main, ["batch", str(d / "shoot"), "-o", str(out), "--format", "hdr", "--no-preview",
@@ -100,6 +102,12 @@ def test_batch_of_fisheye_sets_equals_the_steps_one_by_one(fisheye_shoot, cl_dev
         head = open(entry["output"], "rb").read(4096).split(b"\n\n")[0].decode()
         assert "VIEW= -vta -vh 180 -vv 180" in head and "VERTICAL_ILLUMINANCE=" in head
         assert "EXPOSURE=" not in head
+        # the glare figures per set are `hdrcl glare`'s on the written map (issue 28)
+        g = glare_of_file(entry["output"])
+        assert entry["glare"]["dgp"] == pytest.approx(g.dgp, abs=1e-5)
+        assert entry["glare"]["ugr"] == pytest.approx(g.ugr, abs=1e-4)
+        assert entry["glare"]["sources"] == len(g.sources)
+        assert entry["glare"]["vertical_illuminance"] == pytest.approx(entry["vertical_illuminance"], rel=5e-3)
     # A rerun finds both maps up to date (the input hash is in the .hdr header) ...
     again = CliRunner().invoke(main, ["batch", str(d / "shoot"), "-o", str(out), "--format", "hdr",
                                       "--no-preview", *_chain_args(d)])

@@ -246,6 +246,7 @@ class SetResult:
     storage: Optional[str] = None  # how the EXR was stored when half could not hold it (a decision)
     alignment: Optional[list] = None  # with --align: per frame model, matrix, shift, residual (hdrcl.core.handheld)
     vertical_illuminance: Optional[float] = None  # lux at the lens, with a fisheye luminance map (-vta view)
+    glare: Optional[dict] = None  # DGP, DGI, UGR, sources of that map (hdrcl.core.glare, as `hdrcl glare`)
 
     def to_dict(self) -> dict:
         from hdrcl.report.sheet import status_label
@@ -268,6 +269,7 @@ class SetResult:
             "storage": self.storage,
             **({"alignment": self.alignment} if self.alignment is not None else {}),
             **({"vertical_illuminance": self.vertical_illuminance} if self.vertical_illuminance is not None else {}),
+            **({"glare": self.glare} if self.glare is not None else {}),
         }
 
 

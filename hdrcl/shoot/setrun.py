@@ -344,9 +344,26 @@ class SetMerge(MergeJob):
                         storage=res.storage_note)
         if res.alignment is not None:
             out.alignment = res.alignment  # per frame: hdrcl.core.handheld.describe
-        if res.vertical_illuminance is not None:
+        if res.vertical_illuminance is not None:  # a fisheye luminance map with a -vta/-vth view
             out.vertical_illuminance = res.vertical_illuminance
+            out.glare = _glare_figures(job.output, notes)
         return out
+
+
+def _glare_figures(path: str, notes: list) -> Optional[dict]:
+    """What ``hdrcl glare`` says of the written map (the same file, the same figures): its
+    vertical illuminance, DGP, DGI, UGR and the number of glare sources; None, with a note,
+    where the map cannot be rated."""
+    from hdrcl.core.glare import glare_of_file
+
+    try:
+        g = glare_of_file(path)
+    except HdrclError as exc:
+        notes.append(f"glare metrics: {exc}")
+        return None
+    return {"vertical_illuminance": round(g.vertical_illuminance, 4), "dgp": round(g.dgp, 5),
+            "dgi": round(g.dgi, 4), "ugr": round(g.ugr, 4), "sources": len(g.sources),
+            "threshold": g.threshold}
 
 
 def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context, radiance=None) -> None:
