@@ -320,9 +320,13 @@ def test_batch_corrects_wrong_labels_with_the_pooled_response(tmp_path, field, c
         frames = s.bracket(rad * (1.0 + 0.3 * k), truth, CAM, noise=0.5, seed=20 + k)
         sub = tmp_path / "shoot" / f"set{k}"
         sub.mkdir(parents=True)
+        # the last set at f/4: a quarter of the time gives the same exposure; its times are
+        # equivalents on the shoot's f/8 in the batch, its messages quote what was recorded
+        fnumber = 4.0 if k == 2 else 8.0
         for j, (f, t) in enumerate(zip(frames, labelled)):
             write_photo(str(sub / f"IMG_{k}{j}.jpg"), f,
-                        {"ExposureTime": float(t), "FNumber": 8.0, "Exif:PhotographicSensitivity": 100,
+                        {"ExposureTime": float(t) * (fnumber / 8.0) ** 2, "FNumber": fnumber,
+                         "Exif:PhotographicSensitivity": 100,
                          "Make": "Canon", "Model": "EOS R6", "Exif:ExposureMode": 1,
                          "Exif:DateTimeOriginal": when.strftime("%Y:%m:%d %H:%M:%S")})
             when += dt.timedelta(seconds=2)
@@ -334,6 +338,10 @@ def test_batch_corrects_wrong_labels_with_the_pooled_response(tmp_path, field, c
     sets = sorted(rep["sets"], key=lambda e: e["index"])
     assert not any("the pixels say" in w for e in sets[:2] for w in e["warnings"])
     assert any("IMG_22.jpg" in w and "the pixels say" in w for w in sets[2]["warnings"])
+    from hdrcl.io.metadata import format_time
+
+    said = f"metadata says {format_time(float(labelled[2]) / 4)} f/4 ISO 100 but the pixels say"
+    assert any(said in w for w in sets[2]["warnings"]), sets[2]["warnings"]
     from hdrcl.io.radiance import read_metadata
 
     meta = read_metadata(sets[2]["output"])

@@ -62,6 +62,17 @@ class Inputs:
     timestamp: Optional[str] = None
     times_from: Optional[str] = None  # where the times came from, when not the frames' EXIF (a list, --times)
 
+    def labels(self) -> Optional[List[str]]:
+        """Each frame's settings as its camera recorded them (``1/4000 s f/1.4 ISO 1600``),
+        for messages, where ``times`` are equivalents on another reference (a batch's
+        shoot-wide f-number and ISO); None where the times are the frames' own."""
+        from hdrcl.io.metadata import format_time
+
+        if self.reference is None or not all(i.exposure_time for i in self.infos):
+            return None
+        return [" ".join([format_time(float(i.exposure_time))] + ([f"f/{float(i.fnumber):g}"] if i.fnumber else [])
+                         + ([f"ISO {float(i.iso):g}"] if i.iso else [])) for i in self.infos]
+
     @classmethod
     def open(cls, paths, times=None, times_file=None) -> "Inputs":
         """Headers and exposures of ``paths`` (EXIF, ``times`` or a times file)."""
@@ -301,7 +312,8 @@ class MergeJob(Timed):
 
             used, notes = exposures_for_merge(self.grid.frames, self.times, self.response, mode=o.fit_exposures,
                                               valid=self.grid.valid, weight=o.weight,
-                                              tolerance_stops=o.exposure_tolerance, names=self.inputs.paths)
+                                              tolerance_stops=o.exposure_tolerance, names=self.inputs.paths,
+                                              labels=self.inputs.labels())
             for note in notes:
                 logger.warning("%s", note)
             self.times = np.asarray(used, np.float64)
