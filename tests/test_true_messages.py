@@ -80,3 +80,25 @@ def test_standard_attributes_describe_the_capture_not_the_shoot_reference():
     attrs = dict(standard_attributes(".exr", camera_from_infos(infos, exposure_time=0.5)))
     assert "isoSpeed" not in attrs and "ExposureTime" not in attrs and attrs["FNumber"] == 1.4
     assert attrs["hdrcl:referenceISO"] == 1600.0
+
+
+def test_merge_summary_quotes_the_recorded_shutter_times(tmp_path, cl_device):
+    """Issue 29: merge printed '(1/60 s .. 0.9097 s)' for frames shot 1/60 .. 1/4 s: the
+    merge's own exposures are equivalents at the first frame's ISO (and refined); the
+    summary quotes what the camera recorded."""
+    from click.testing import CliRunner
+
+    from hdrcl.cli import main
+    from hdrcl.io.writers import write_photo
+
+    rad = s.radiance_field(48, 64, decades=2.5, seed=3)
+    c = 1.0 / float(np.median(rad))
+    shots = [(1 / 60, 100), (1 / 15, 100), (1 / 4, 400)]  # the last at ISO 400: 1 s at ISO 100
+    frames = s.bracket(rad, [c * t * iso / 100 for t, iso in shots], CAM, noise=0.3, seed=4)
+    paths = []
+    for k, (f, (t, iso)) in enumerate(zip(frames, shots)):
+        paths.append(str(tmp_path / f"f{k}.png"))
+        write_photo(paths[-1], f, {"ExposureTime": t, "FNumber": 8.0, "Exif:PhotographicSensitivity": iso})
+    res = CliRunner().invoke(main, ["merge", *paths, "-o", str(tmp_path / "o.exr")])
+    assert res.exit_code == 0, res.output
+    assert "3 frames (1/60 s .. 1/4 s)" in res.output, res.output

@@ -207,9 +207,13 @@ def merge(images, output, response, save_response, response_cache, times, times_
     if chain is not None:  # the file holds the calibrated N x N map
         h = w_ = chain.size
     total = sum(res.seconds.values())
+    # The shutter times as recorded where every frame has one (the merge's own exposures are
+    # relative to the first frame's f-number and ISO, and may be refined from the pixels).
+    shown = res.recorded if res.recorded and all(res.recorded) and times is None and times_file is None \
+        else list(res.times)
     say(f"wrote {output}: {w_}x{h}, {c} channel(s), {len(res.paths)} frames "
-               f"({format_time(min(res.times))} .. {format_time(max(res.times))}), "
-               f"{'OpenCL' if res.backend == 'opencl' else 'NumPy'}, {total:.2f} s")
+        f"({format_time(min(shown))} .. {format_time(max(shown))}), "
+        f"{'OpenCL' if res.backend == 'opencl' else 'NumPy'}, {total:.2f} s")
     cnt = res.counts
     if response is None:
         say(f"  response: spans {res.response.span_decades():.2f} decades between codes 10 and 245")

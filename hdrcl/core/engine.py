@@ -395,7 +395,8 @@ class MergeJob(Timed):
                                   paths=self.inputs.paths, backend="numpy" if self.processor is None else "opencl",
                                   shape=(h, w, nch), warnings=list(self.response.warnings) + self.notes,
                                   output=self.output, shifts=self.shifts, nominal=self.nominal, crop=self.crop_box,
-                                  alignment=self.alignment)
+                                  alignment=self.alignment,
+                                  recorded=[getattr(i, "exposure_time", None) for i in self.inputs.infos])
         self.unit = self.units.get("units", "relative")
         given_ref = self.inputs.reference_exposure if self.inputs.reference_exposure is not None \
             else o.reference_exposure

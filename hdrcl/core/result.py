@@ -34,6 +34,7 @@ class MergeResult:
     kept: Optional[tuple] = None  # (frames, valid, is_grid) with keep_frames: for the quality report
     stages: dict = field(default_factory=dict)  # seconds per stage (decode, solve, fuse, encode, write); overlapping
     vertical_illuminance: Optional[float] = None  # lux at the lens, with a fisheye luminance chain (-vta view)
+    recorded: Optional[list] = None  # per frame, the shutter time its header records (None where it has none)
 
     def __post_init__(self):
         if not self.shape and self.radiance is not None:
