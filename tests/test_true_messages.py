@@ -102,3 +102,6 @@ def test_merge_summary_quotes_the_recorded_shutter_times(tmp_path, cl_device):
     res = CliRunner().invoke(main, ["merge", *paths, "-o", str(tmp_path / "o.exr")])
     assert res.exit_code == 0, res.output
     assert "3 frames (1/60 s .. 1/4 s)" in res.output, res.output
+    from hdrcl.io.radiance import read_metadata
+
+    assert read_metadata(str(tmp_path / "o.exr"))["exposureText"] == "1/60 s, 1/15 s, 1/4 s"

@@ -50,7 +50,10 @@ def provenance(result: MergeResult, response_source: str) -> dict:
         "sources": [os.path.basename(p) for p in result.paths],
         "exposures": [float(t) for t in result.times],
         "exposuresNominal": [float(t) for t in (result.nominal if result.nominal is not None else result.times)],
-        "exposureText": ", ".join(format_time(t) for t in result.times),
+        # the shutter times as the frames record them; "exposures" are the merge's own (relative
+        # to the reference f-number and ISO, refined where the pixels said so)
+        "exposureText": ", ".join(format_time(t) for t in (
+            result.recorded if result.recorded and all(result.recorded) else result.times)),
         "response": response_source,
         "responseSmoothness": float(r.smoothness),
         "responseSamples": int(r.samples),
