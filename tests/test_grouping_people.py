@@ -265,9 +265,7 @@ def test_folder_per_set_views_batch_two_outputs(tmp_path):
 
 @pytest.mark.parametrize("times", [
     pytest.param(LADDER[:6], id="same-ladder"),
-    pytest.param([LADDER[:4], LADDER[4:]], id="ladder-going-on", marks=pytest.mark.xfail(
-        strict=True, reason="batch gives each folder of frames without a camera its own reference exposure "
-                            "(4 stops apart here); requested in /work/notes/requests.md")),
+    pytest.param([LADDER[:4], LADDER[4:]], id="ladder-going-on"),
 ])
 def test_folder_per_set_views_batch_on_one_scale(tmp_path, times):
     """The two views' outputs agree where they overlap (within 0.05 stops)."""
@@ -277,7 +275,15 @@ def test_folder_per_set_views_batch_on_one_scale(tmp_path, times):
     a, b = (oiio.ImageBuf(s["output"]).get_pixels(oiio.FLOAT)[:, :, :3].mean(axis=2) for s in report["sets"])
     s = truth["shift"]
     d = np.log2(b[:, :a.shape[1] - s]) - np.log2(a[:, s:])
-    assert abs(float(np.median(d))) <= 0.05 and float(np.sqrt(np.mean(d ** 2))) <= 0.05
+    # Where both views measured the pixel: some frame of each holds it in the curve's body
+    # (a pixel clipped in every frame of one view has only a bound there, not a value).
+    def measured(files):
+        codes = [oiio.ImageBuf(str(tmp_path / "shoot" / f)).get_pixels(oiio.FLOAT)[:, :, :3] * 255 for f in files]
+        return np.any([((c > 25) & (c < 230)).all(axis=2) for c in codes], axis=0)
+
+    both = measured(truth["sets"][1])[:, :a.shape[1] - s] & measured(truth["sets"][0])[:, s:]
+    assert both.mean() > 0.2
+    assert abs(float(np.median(d[both]))) <= 0.05 and float(np.sqrt(np.mean(d[both] ** 2))) <= 0.05
 
 
 def test_frames_without_a_camera_never_join_across_folders():

@@ -391,16 +391,16 @@ def _camera_references(sets, firsts, groups, reference, given=None) -> Dict[str,
     """One reference exposure per camera (response group) for the whole shoot, so that
     every set of a camera comes out on one radiometric scale (:mod:`hdrcl.core.encode`):
     ``given``, else the power of two nearest the median of the camera's exposures across
-    its sets, on the shoot's scale (f-number and ISO of ``reference``)."""
+    its sets, on the shoot's scale (f-number and ISO of ``reference``). Groups whose
+    frames name no camera (converted frames, grouped by folder: one folder per set of a
+    scene, say) share one reference, taken over all of them: nothing tells their
+    cameras apart, and a scene shot as two folders must come out on one scale."""
     from hdrcl.core.encode import default_reference
 
     by_index = {s.index: s for s in sets}
     ref_n, ref_iso = reference
-    out = {}
-    for group, indices in groups.items():
-        if given is not None:
-            out[group] = float(given)
-            continue
+
+    def times_of(indices) -> list:
         times = []
         for i in indices:
             info = firsts.get(i)
@@ -412,6 +412,16 @@ def _camera_references(sets, firsts, groups, reference, given=None) -> Dict[str,
             exposures = list(by_index[i].exposures) or (
                 [info.exposure_time] if info is not None and info.exposure_time else [])
             times += [float(t) * k for t in exposures if t and t > 0]
+        return times
+
+    if given is not None:
+        return {group: float(given) for group in groups}
+    anonymous = [g for g, indices in groups.items()
+                 if not any(firsts.get(i) is not None and (firsts[i].make or firsts[i].model) for i in indices)]
+    shared = times_of([i for g in anonymous for i in groups[g]])
+    out = {}
+    for group, indices in groups.items():
+        times = shared if group in anonymous else times_of(indices)
         if times:
             out[group] = default_reference(times)
     return out
