@@ -214,3 +214,23 @@ def test_merge_takes_a_projection_cal_file_on_the_command_line(fisheye_shoot, cl
     b, _ = read_radiance(str(user))
     inside = a > 0
     assert np.median(np.abs(b[inside] / a[inside] - 1)) < 0.01
+
+
+@pytest.mark.parametrize("cmd", ["merge", "batch"])
+def test_calibration_factor_checked_against_the_output_format_before_decoding(fisheye_shoot, cmd):
+    """1e-30 cd/m2 per unit fits a float EXR but not RGBE once divided by 179 (issue 29:
+    every calibration input range-checked for what the output format holds): exit 2, one
+    line naming the option, nothing written."""
+    d = fisheye_shoot
+    args = _chain_args(d)
+    args[args.index("--calibration-factor") + 1] = "1e-30"
+    if cmd == "merge":
+        frames = sorted(str(p) for p in (d / "shoot" / "dome1").glob("*.jpg"))
+        res = CliRunner().invoke(main, ["merge", *frames, "-o", str(d / "k.hdr"), *args])
+    else:
+        res = CliRunner().invoke(main, ["batch", str(d / "shoot"), "-o", str(d / "kout"), "--format", "hdr",
+                                        "--no-preview", *args])
+    assert res.exit_code == 2, res.output
+    assert res.stderr.strip().count("\n") == 0 and "--calibration-factor" in res.stderr, res.stderr
+    assert not (d / "k.hdr").exists()
+    assert not (d / "kout").exists() or not list((d / "kout").glob("*.hdr"))

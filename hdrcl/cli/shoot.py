@@ -259,7 +259,8 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
     luminance = dict(lens_circle=lens_circle, resize=resize, projection=fisheye_projection,
                      vignetting=_cal(vignetting), nd_filter=_cal(nd_filter), calibration_factor=_cal(calibration_factor),
                      view=view)
-    if chain_or_none(**luminance) is None:  # every option checked here, before any set
+    # every option checked here, before any set; the factors against what the outputs' format holds
+    if chain_or_none(**luminance, output=f".{output_format}") is None:
         luminance = None
     quiet = is_quiet()
     recursive = _descend(source, recursive, exclude=(out_dir, report_dir))
