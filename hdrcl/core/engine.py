@@ -114,9 +114,11 @@ def check_brightness_order(grid, times, inputs: "Inputs") -> None:
         if v is not None:
             ok = v.copy() if ok is None else ok & v
     means = []
+    use = ok is not None and bool(ok.any())
     for f in grid.frames:
-        z = f.reshape(-1, f.shape[-1]).astype(np.float64).sum(axis=1)
-        means.append(float(z[ok.ravel()].mean()) if ok is not None and ok.any() else float(z.mean()))
+        # Exact integer sums (no float64 copy of the frame): the mean over pixels of the channels' sum.
+        z = f[ok] if use else f.reshape(-1, f.shape[-1])
+        means.append(float(z.sum(dtype=np.uint64 if z.dtype.kind in "ub" else np.float64)) / max(z.shape[0], 1))
     order = np.argsort(times, kind="stable")
     if np.all(np.diff(np.asarray(means)[order]) < 0):
         where = inputs.times_from

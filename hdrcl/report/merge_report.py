@@ -11,7 +11,6 @@ import numpy as np
 
 from hdrcl.core.bracket import (
     Bracket,
-    memory_budget,
     parse_ignore_color,
     read_infos,
     with_ignore,
@@ -40,7 +39,7 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
     from hdrcl.io.reader import BracketReader
     from hdrcl.report.inputs import shot_settings
     from hdrcl.report.pages import load_report_folder, write_contact_sheet, write_set_report
-    from hdrcl.report.quality import measure
+    from hdrcl.report.quality import measure, report_stride
 
     folder = os.fspath(folder)
     os.makedirs(folder, exist_ok=True)
@@ -48,27 +47,36 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
     infos = read_infos(paths)
     rgb = parse_ignore_color(ignore_color)
     h, w, c = result.shape
+    k = report_stride(h, w)  # the grid every figure but the dynamic range is measured on
+    stride = 1  # of the frames in hand
     kept = getattr(result, "kept", None)
     if kept is not None:  # the merge's own decode (merge_files(keep_frames=True)): none again
-        frames, valid, _grid = kept
+        frames, valid, is_grid = kept
         frames, valid = list(frames), list(valid)
+        stride = grid_stride(h, w) if is_grid else 1
     else:
         with BracketReader(paths, infos) as reader:
-            if result.shifts is not None or len(paths) * h * w * c * reader.dtype.itemsize <= memory_budget():
+            if result.shifts is not None or k == 1:  # aligned: warped below, whole
                 frames, valid = reader.read_all()
-            else:
-                frames, valid = reader.read_grid(grid_stride(h, w))
+            else:  # at most half a megapixel a frame: no memory budget to mind
+                stride = k
+                frames, valid = reader.read_grid(stride)
     valid = with_ignore(frames, valid, rgb)
     if getattr(result, "alignment", None) and kept is None:  # what was merged: the warped (and cropped) frames
         from hdrcl.core.handheld import apply_alignment
 
         frames, valid = apply_alignment(frames, valid, result.alignment, result.crop)
+    if stride == 1 and k > 1:  # whole frames in hand: measured on the report's grid all the same
+        frames = [np.ascontiguousarray(f[::k, ::k]) for f in frames]
+        valid = [None if v is None else np.ascontiguousarray(v[::k, ::k]) for v in valid]
+        stride = k
     nominal = result.nominal if result.nominal is not None else result.times
     if shot_settings(infos, nominal) is None:  # --times or a times file overrode EXIF: label what was given
         infos = [replace(i, exposure_time=None) for i in infos]
-    br = Bracket(frames=frames, times=np.asarray(nominal), valid=valid, paths=paths, infos=infos)
+    br = Bracket(frames=frames, times=np.asarray(nominal), valid=valid, paths=paths, infos=infos, grid=stride > 1)
     preview = result.thumbnail if result.thumbnail is not None else result.radiance
-    fig = measure(br, result.response, preview, weight=weight, times=result.times, device=device, loo=loo)
+    fig = measure(br, result.response, preview, weight=weight, times=result.times, device=device, loo=loo,
+                  stride=stride)
     stem = name or os.path.splitext(os.path.basename(result.output or paths[0]))[0]
     entry = write_set_report(folder, stem, fig, result.response, preview, fig.coverage, warnings=result.warnings,
                              bracket=br, alignment=getattr(result, "alignment", None))

@@ -21,7 +21,7 @@ import numpy as np
 from hdrcl.core.bracket import Bracket
 from hdrcl.core.calibrate import calibrate, exposures_used
 from hdrcl.core.exposure import render
-from hdrcl.core.merge import merge_bracket
+from hdrcl.core.fusion import fuse_frames
 from hdrcl.core.response import Response
 from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.errors import UsageError
@@ -61,15 +61,27 @@ def leave_one_out(
     16-bit data) and the pixel is valid in that frame.
     """
     keep = [k for k in range(len(bracket.frames)) if k != index]
-    sub = Bracket(frames=[bracket.frames[k] for k in keep], times=bracket.times[keep],
+    times = np.asarray(bracket.times, np.float64)
+    sub = Bracket(frames=[bracket.frames[k] for k in keep], times=times[keep],
                   valid=[bracket.valid[k] for k in keep])
     # warn=False: the re-solves' curves are a measuring device, not the user's response.
-    resp = calibrate(sub, smoothness=smoothness, samples=samples, weight=weight, fit_exposures=fit_exposures,
-                     warn=False)
-    res = merge_bracket(sub, resp, weight=weight, device=device)
+    if fit_exposures == "off":
+        # What calibrate() does with fit_exposures="off", less its checks for the user's
+        # frames (nothing measurable, identical exposures): the same curve.
+        from hdrcl.core.solve import recover_response
+
+        resp = recover_response(sub.frames, sub.times, valid=sub.valid_all, samples=samples, smoothness=smoothness,
+                                weight=weight, warn=False)
+    else:
+        resp = calibrate(sub, smoothness=smoothness, samples=samples, weight=weight, fit_exposures=fit_exposures,
+                         warn=False)
+    times_used = exposures_used(resp, sub.times)
+    # The others fused at the exposures the curve used (the merge's own when not refitted),
+    # straight through the fusion (no second exposure measurement, as a merge of them would).
+    rad = fuse_frames(sub.frames, times_used, resp, weight=weight, valid=sub.valid, device=device).radiance
     real = bracket.frames[index]
     scale = 1.0 if real.dtype == np.uint8 else 257.0
-    rendered = render(res.radiance, resp, float(bracket.times[index]), device=device)
+    rendered = render(rad, resp, float(bracket.times[index]), device=device)
     r = real.astype(np.float64) / scale
     v = rendered.astype(np.float64) / scale
     mask = (r >= low) & (r <= high)
@@ -102,14 +114,21 @@ LOO_MAX_PIXELS = 500_000
 NO_DATA = 255
 
 
+def report_stride(height: int, width: int, max_pixels: int = LOO_MAX_PIXELS) -> int:
+    """k = ceil(sqrt(pixels / max_pixels)): every k-th row and column of a
+    ``height`` x ``width`` frame is about ``max_pixels`` pixels at most. The quality
+    report measures every figure but the dynamic range on that grid (see :func:`measure`)."""
+    return max(1, int(math.ceil(math.sqrt(int(height) * int(width) / max(int(max_pixels), 1)))))
+
+
 def decimate(bracket: Bracket, max_pixels: int = LOO_MAX_PIXELS) -> Tuple[Bracket, int]:
-    """Every k-th row and column of ``bracket``, k = ceil(sqrt(pixels / max_pixels)):
-    about ``max_pixels`` pixels at most.
+    """Every k-th row and column of ``bracket``, k = :func:`report_stride`: about
+    ``max_pixels`` pixels at most.
 
     Returns the decimated bracket (the original when k = 1) and k.
     """
     h, w = bracket.frames[0].shape[:2]
-    k = max(1, int(math.ceil(math.sqrt(h * w / max(int(max_pixels), 1)))))
+    k = report_stride(h, w, max_pixels)
     if k == 1:
         return bracket, 1
     frames = [np.ascontiguousarray(f[::k, ::k]) for f in bracket.frames]
@@ -138,7 +157,11 @@ class QualityFigures:
     loo : list of LeaveOneOut
         The per-frame errors behind ``loo_rmse``.
     loo_stride : int
-        Leave-one-out ran on every ``loo_stride``-th row and column (1: every pixel).
+        Leave-one-out ran on every ``loo_stride``-th row and column of the frames merged
+        (1: every pixel).
+    grid_stride : int
+        The clipping and coverage figures were measured on every ``grid_stride``-th row
+        and column of the frames merged (1: every pixel; see :func:`measure`).
     dynamic_range_stops : float or None
         ``log2(P99.9 / P0.1)`` of the positive luminance of the radiance map.
     dynamic_range_is_lower_bound : bool
@@ -185,6 +208,7 @@ class QualityFigures:
     coverage_histogram: list
     dynamic_range_percentiles: tuple = DR_PERCENTILES
     working_range: tuple = (WORKING_LOW, WORKING_HIGH)
+    grid_stride: int = 1
     coverage: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict:
@@ -203,6 +227,7 @@ class QualityFigures:
             "looFrames": [{"index": r.index, "time": r.time, "rmse": num(r.rmse), "pixels": r.pixels}
                           for r in self.loo],
             "looStride": int(self.loo_stride),
+            "gridStride": int(self.grid_stride),
             "dynamicRangeStops": num(self.dynamic_range_stops),
             "dynamicRangePercentiles": list(self.dynamic_range_percentiles),
             "dynamicRangeIsLowerBound": bool(self.dynamic_range_is_lower_bound),
@@ -230,7 +255,7 @@ class QualityFigures:
             loo_rmse=None if d.get("looRmse") is None else float(d["looRmse"]),
             loo=[LeaveOneOut(int(r["index"]), float(r["time"]), num(r["rmse"]), int(r["pixels"]))
                  for r in d.get("looFrames", [])],
-            loo_stride=int(d.get("looStride", 1)),
+            loo_stride=int(d.get("looStride", 1)), grid_stride=int(d.get("gridStride", 1)),
             dynamic_range_stops=None if d.get("dynamicRangeStops") is None else float(d["dynamicRangeStops"]),
             dynamic_range_is_lower_bound=bool(d.get("dynamicRangeIsLowerBound", False)),
             clipped_high_fraction=float(d["clippedHighFraction"]), clipped_low_fraction=float(d["clippedLowFraction"]),
@@ -272,14 +297,16 @@ def measure(
     loo: bool = True,
     loo_max_pixels: int = LOO_MAX_PIXELS,
     device: Optional[str] = None,
+    stride: int = 1,
 ) -> QualityFigures:
     """The quality report's figures for a merge of ``bracket`` through ``response``.
 
     Parameters
     ----------
     bracket : Bracket
-        The frames that were merged (or a decimated copy: then every figure but the
-        dynamic range is on that grid).
+        The frames that were merged, or every ``stride``-th row and column of them (the
+        grid of :func:`report_stride`, as ``hdrcl merge --report`` and ``hdrcl batch
+        --report`` measure): then every figure but the dynamic range is on that grid.
     response : Response
         The curve the merge used.
     radiance : ndarray or None
@@ -294,6 +321,10 @@ def measure(
         interior frame).
     loo_max_pixels : int
         Leave-one-out runs on every k-th row and column, at most this many pixels.
+    stride : int
+        ``bracket`` holds every ``stride``-th row and column of the frames merged
+        (recorded as :attr:`QualityFigures.grid_stride`; ``loo_stride`` counts in the
+        frames merged).
 
     Notes
     -----
@@ -356,7 +387,7 @@ def measure(
     frac_high = n_high / n_valid if n_valid else 0.0
     frac_low = n_low / n_valid if n_valid else 0.0
 
-    loo_rows, stride, loo_rmse = _loo(bracket, used, response, weight, device, loo_max_pixels) if loo \
+    loo_rows, loo_stride, loo_rmse = _loo(bracket, used, response, weight, device, loo_max_pixels) if loo \
         else ([], 1, None)
 
     fitted = _fitted_for(response, nominal)
@@ -366,12 +397,12 @@ def measure(
         e["file"] = os.path.basename(p)
     return QualityFigures(
         shape=(h, w, c), frames=len(frames), bits=response.bits, weight=weight, exposures=exposures,
-        loo_rmse=loo_rmse, loo=loo_rows, loo_stride=stride, dynamic_range_stops=dr,
+        loo_rmse=loo_rmse, loo=loo_rows, loo_stride=loo_stride * max(1, int(stride)), dynamic_range_stops=dr,
         dynamic_range_is_lower_bound=bool(frac_high > tail or frac_low > tail),
         clipped_high_fraction=float(frac_high), clipped_low_fraction=float(frac_low),
         clipped_high_pixels=n_high, clipped_low_pixels=n_low, valid_pixels=n_valid,
         extra_ev_high=min(extra_high, 0.0), extra_ev_low=max(extra_low, 0.0),
-        coverage_histogram=[int(v) for v in hist], coverage=coverage)
+        coverage_histogram=[int(v) for v in hist], grid_stride=max(1, int(stride)), coverage=coverage)
 
 
 def _clipping(bracket: Bracket, used, response: Response, weight: str):
@@ -456,6 +487,7 @@ def _evidence_counts(frames, valid, order, levels: int, weight: str):
     h, w, c = frames[0].shape
     zlo, zhi = clip_levels(levels)
     evidence = (evidence_weights(levels, weight_table(levels, weight)) > 0).astype(np.uint8)  # by code
+    span = _code_interval(evidence)
     count = np.zeros((h, w, c), np.uint8)
     done = np.zeros((h, w, c), bool)  # clipped in a shorter frame: no longer evidence
     first_j = np.full((h, w), -1, np.int16)  # rank (exposure order) of the shortest valid frame
@@ -464,7 +496,11 @@ def _evidence_counts(frames, valid, order, levels: int, weight: str):
     last_z = np.zeros((h, w, c), frames[0].dtype)
     for rank, j in enumerate(order):
         z, ok = frames[j], valid[j]
-        m = np.take(evidence, z)
+        if span is None:
+            m = np.take(evidence, z)
+        else:  # the usual table, one run of codes: two comparisons, not a gather through intp indices
+            m = (z >= span[0]).view(np.uint8)
+            m &= (z <= span[1]).view(np.uint8)
         m[done] = 0
         black = z <= zlo
         if ok is None:
@@ -481,6 +517,14 @@ def _evidence_counts(frames, valid, order, levels: int, weight: str):
         last_j[ok] = rank
         np.copyto(last_z, z, where=ok[..., None])
     return count, first_j, last_j, first_z, last_z, first_j >= 0
+
+
+def _code_interval(table: np.ndarray) -> Optional[Tuple[int, int]]:
+    """``(first, last)`` when the codes where ``table`` is non-zero are one run, else None."""
+    nz = np.flatnonzero(table)
+    if nz.size == 0 or nz[-1] - nz[0] + 1 != nz.size:
+        return None
+    return int(nz[0]), int(nz[-1])
 
 
 def _fitted_for(response: Response, nominal: np.ndarray) -> Optional[np.ndarray]:

@@ -67,6 +67,29 @@ def _ladder_span(f: QualityFigures) -> str:
     return f", ladder spans {np.log2(max(used) / min(used)):.1f} EV"
 
 
+def _ordinal(n: int) -> str:
+    n = int(n)
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
+
+
+def fraction_precision(fraction: float, pixels: int) -> float:
+    """Sampling precision (95 %, as for independent samples) of a pixel fraction measured
+    on ``pixels`` grid pixels: ``2 sqrt(p (1 - p) / n)``, with p at least ``1 / n`` so
+    that a fraction of 0 on the grid reads as "below about 2 / n"."""
+    n = max(int(pixels), 1)
+    p = min(max(float(fraction), 1.0 / n), 1.0)
+    return 2.0 * float(np.sqrt(p * (1.0 - p) / n))
+
+
+def _precision(f: QualityFigures, fraction: float) -> str:
+    """``" (± 0.01, every 3rd row and column)"`` when the figure was measured on a grid."""
+    if int(getattr(f, "grid_stride", 1)) <= 1:
+        return ""
+    return (f" (± {100 * fraction_precision(fraction, f.valid_pixels):.2f}, measured on every "
+            f"{_ordinal(f.grid_stride)} row and column)")
+
+
 def format_figures(figures: QualityFigures) -> List[tuple]:
     """``(label, text)`` rows of a set's figures, as the contact sheet shows them."""
     f = figures
@@ -74,7 +97,7 @@ def format_figures(figures: QualityFigures) -> List[tuple]:
         loo = "not measured" if f.frames >= 3 else "not measured (fewer than 3 frames)"
     else:
         per = ", ".join("–" if not np.isfinite(r.rmse) else f"{r.rmse:.2f}" for r in f.loo)
-        grid = "every pixel" if f.loo_stride == 1 else f"every {f.loo_stride}th pixel"
+        grid = "every pixel" if f.loo_stride == 1 else f"every {_ordinal(f.loo_stride)} row and column"
         n = len(f.loo)
         which = "the one interior frame" if n == 1 else f"median over {n} interior frames: {per}"
         loo = f"{f.loo_rmse:.2f} levels ({which}; {grid})"
@@ -89,8 +112,8 @@ def format_figures(figures: QualityFigures) -> List[tuple]:
     return [
         ("Leave-one-out RMSE", loo),
         ("Dynamic range", dr),
-        ("Clipped high", f"{100 * f.clipped_high_fraction:.2f} % of pixels"),
-        ("Clipped low", f"{100 * f.clipped_low_fraction:.2f} % of pixels"),
+        ("Clipped high", f"{100 * f.clipped_high_fraction:.2f} % of pixels" + _precision(f, f.clipped_high_fraction)),
+        ("Clipped low", f"{100 * f.clipped_low_fraction:.2f} % of pixels" + _precision(f, f.clipped_low_fraction)),
         ("Thin coverage", "–" if thin is None else
          f"{thin:.2f} % of pixels measured by at most one frame ({none:.2f} % by none)"),
         ("Extra exposure for highlights", format_ev(f.extra_ev_high, "high")),

@@ -31,12 +31,13 @@ REPORT_IMAGE_SIZE = 512
 
 
 def _quality_stride(n: int, h: int, w: int, nch: int, dtype) -> int:
-    """1 (whole frames) when the set's frames fit :func:`hdrcl.core.bracket.memory_budget`, else
-    the stride of the sampling grid, as for ``hdrcl merge --report``."""
-    from hdrcl.core.bracket import memory_budget
-    from hdrcl.core.sampling import grid_stride
+    """The stride of the grid the set's quality figures are measured on
+    (:func:`hdrcl.report.quality.report_stride`: at most half a megapixel a frame, as for
+    ``hdrcl merge --report``): the frames are kept at that grid as they stream past, a few
+    megabytes a set whatever the frame size, never whole."""
+    from hdrcl.report.quality import report_stride
 
-    return 1 if n * h * w * nch * np.dtype(dtype).itemsize <= memory_budget() else grid_stride(h, w)
+    return report_stride(h, w)
 
 
 class _KeptFrames:
@@ -84,16 +85,23 @@ def _report_stem(job: SetJob) -> str:
 def _quality_for(res: SetResult, job: SetJob, bracket, resp: Response, times, radiance, opts: BatchOptions) -> None:
     """Measure the set, write its report files and put the figures into ``res``.
 
+    ``bracket`` is the frames merged or (``bracket.grid``) every k-th row and column of
+    them, k found from the frames' width (:func:`_stride_of`).
+
     The figures' JSON is stamped with the set's digest, so that a later run that skips
     the set knows whether they describe its current output. A failure here is a
     warning: the merge itself succeeded.
     """
     from hdrcl.report.pages import file_stem, write_set_report
-    from hdrcl.report.quality import measure
+    from hdrcl.report.quality import decimate, measure
 
     try:
+        stride = _stride_of(bracket)
+        if stride == 1:  # whole frames (an aligned set's, as merged): measured on the report's grid all the same
+            bracket, stride = decimate(bracket)
         with _FUSE_LOCK:  # leave-one-out fuses on the process's OpenCL device
-            fig = measure(bracket, resp, radiance, weight=opts.weight, times=times, device=opts.device)
+            fig = measure(bracket, resp, radiance, weight=opts.weight, times=times, device=opts.device,
+                          stride=stride)
         stem = _report_stem(job)
         entry = write_set_report(opts.report_dir, stem, fig, resp, radiance, fig.coverage, warnings=res.warnings,
                                  bracket=bracket)
@@ -106,6 +114,30 @@ def _quality_for(res: SetResult, job: SetJob, bracket, resp: Response, times, ra
             logger.debug("set %d: quality report failed", job.index, exc_info=exc)
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         res.warnings.append(f"quality report not written: {first}")
+
+
+def _stride_of(bracket) -> int:
+    """Every how many rows and columns of the frames merged ``bracket`` holds: 1 for whole
+    frames, else from the frames' width in their headers and the grid's (``range(0, W, k)``
+    has ``ceil(W / k)`` columns)."""
+    if not getattr(bracket, "grid", False):
+        return 1
+    infos = getattr(bracket, "infos", None) or []
+    width = getattr(infos[0], "width", None) if infos else None
+    height = getattr(infos[0], "height", None) if infos else None
+    gw = bracket.frames[0].shape[1]
+    if not width or gw <= 0:
+        return 1
+    if height:
+        from hdrcl.report.quality import report_stride
+
+        k = report_stride(height, width)
+        if -(-width // k) == gw:
+            return k
+    for k in range(max(1, width // gw - 1), width // gw + 2):
+        if k >= 1 and -(-width // k) == gw:
+            return k
+    return max(1, round(width / gw))
 
 
 def _current_quality(folder: str, job: SetJob, digest: Optional[str]) -> Optional[dict]:
