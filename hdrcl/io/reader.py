@@ -44,6 +44,10 @@ class BracketReader:
     paths : sequence of path
     infos : sequence of FrameInfo, optional
         Headers already read (skips a second header read).
+    ahead : bool
+        Take the frames a batch decoded ahead for this set (:mod:`hdrcl.io.ahead`), if
+        any: they become a complete in-memory :attr:`cache` (frames the helper did not
+        reach are decoded now), so the grid and the strips are read from there.
 
     Raises
     ------
@@ -51,7 +55,7 @@ class BracketReader:
         A file cannot be opened, or the frames are incompatible.
     """
 
-    def __init__(self, paths: Sequence, infos: Optional[Sequence[FrameInfo]] = None):
+    def __init__(self, paths: Sequence, infos: Optional[Sequence[FrameInfo]] = None, ahead: bool = True):
         self.paths = [_name(p) for p in paths]
         raws = [is_raw(p) for p in self.paths]
         if any(raws) and not all(raws):
@@ -80,6 +84,39 @@ class BracketReader:
         self._pool = concurrent.futures.ThreadPoolExecutor(
             max_workers=max(1, min(len(self.paths), (os.cpu_count() or 1) + 1)),
             thread_name_prefix="hdrcl-decode")
+        if ahead:
+            self._adopt_ahead()
+
+    def _adopt_ahead(self) -> None:
+        """Make the frames decoded ahead for this set (if any) the complete cache."""
+        from hdrcl.io import ahead
+        from hdrcl.io.framecache import FrameCache
+
+        got = ahead.take(self.paths)
+        if got is None:
+            return
+        missing = [k for k, f in enumerate(got.frames) if f is None]
+        futs = {k: self._pool.submit(self._read, k, 0, self.height) for k in missing}
+        try:
+            for k, fut in futs.items():
+                got.frames[k], got.valid[k] = fut.result()
+        except BaseException:
+            self._pool.shutdown(wait=True)
+            raise
+        cache = FrameCache(len(self.paths), self.height, self.width, self.nch, self.dtype, in_memory=True)
+        try:
+            for k, (f, v) in enumerate(zip(got.frames, got.valid)):
+                cache.adopt(k, f, v)
+        except ValueError:  # not the frames this reader would decode: decode them itself
+            cache.close()
+            return
+        cache.finish()
+        self.cache = cache
+        self.decode_seconds += got.seconds
+
+    def decode_frame(self, k: int):
+        """Frame ``k`` whole, decoded on the calling thread: ``(codes, alpha mask or None)``."""
+        return self._read(k, 0, self.height)
 
     @property
     def nch(self) -> int:
@@ -215,8 +252,13 @@ class BracketReader:
         """Every frame whole: ``(frames, valid)``; memory grows with the image.
 
         Each frame is decoded in one call on its own thread, straight into the array
-        returned (no strip copies).
+        returned (no strip copies). Frames decoded ahead (:attr:`cache` complete, in
+        memory) are handed over as they are, and the cache let go.
         """
+        if self.cache is not None and self.cache.complete and self.cache.in_memory:
+            frames, valid = self.cache.rows(0, self.height)
+            self.cache = None  # the caller owns the arrays now (aligning warps them in place)
+            return frames, valid
         futs = [self._pool.submit(self._read, k, 0, self.height) for k in range(len(self.paths))]
         got = [f.result() for f in futs]
         return [g[0] for g in got], [g[1] for g in got]
@@ -239,6 +281,12 @@ class BracketReader:
         stride = max(1, int(stride))
         if self._grid is not None and self._grid[0] == stride:  # read already (calibration)
             return list(self._grid[1]), list(self._grid[2])
+        if self.cache is not None and self.cache.complete and self.cache.in_memory:  # decoded ahead
+            whole, whole_valid = self.cache.rows(0, self.height)
+            frames = [np.ascontiguousarray(f[::stride, ::stride]) for f in whole]
+            valid = [None if v is None else np.ascontiguousarray(v[::stride, ::stride]) for v in whole_valid]
+            self._grid = (stride, frames, valid)
+            return list(frames), list(valid)
         if self._first is not None:  # a strip decoding ahead would share the open files
             self._first[1].wait()
             self._first = None

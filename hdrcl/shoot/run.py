@@ -110,23 +110,31 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
     The merge itself overlaps decoding, fusion (on this thread, which owns the
     OpenCL queue) and encoding strip by strip; the read-ahead thread meanwhile hashes
     the next set's files, checks whether its outputs are current and reads its
-    headers, so consecutive sets follow each other without a gap.
+    headers, so consecutive sets follow each other without a gap; and a set that needs
+    merging has its frames decoded ahead on a low-priority thread, within the memory
+    budget (:mod:`hdrcl.io.ahead`), in the cycles the current set leaves.
     """
     if not jobs:
         return
     started: Dict[int, float] = {}
 
-    def read(job):
+    def read(job, ahead: bool):
         started[job.index] = _time.perf_counter()
-        return _read_stage(job, ctx)
+        step = _read_stage(job, ctx)
+        if ahead and isinstance(step, _Opening):
+            # Decode its frames too, at low priority, while the current set fuses and encodes.
+            decode_ahead(job.files, step.opened.infos)
+        return step
+
+    from hdrcl.io.ahead import cancel_all, decode_ahead
 
     reader = ThreadPoolExecutor(1, thread_name_prefix="hdrcl-readahead")
     try:
-        ahead = reader.submit(read, jobs[0])
+        ahead = reader.submit(read, jobs[0], False)
         for i in range(len(jobs)):
             step = ahead.result()
             if i + 1 < len(jobs):
-                ahead = reader.submit(read, jobs[i + 1])
+                ahead = reader.submit(read, jobs[i + 1], True)
             if isinstance(step, _Opening):
                 step = _merge_stage(step, ctx)
             step.seconds["total"] = _time.perf_counter() - started[step.index]
@@ -134,6 +142,7 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
     finally:
         # Cancelled: do not wait for the read-ahead of a set that will not be merged.
         reader.shutdown(wait=False, cancel_futures=True)
+        cancel_all()  # frames decoded ahead for a set that will not be merged: dropped
 
 
 # --------------------------------------------------------------------------- run

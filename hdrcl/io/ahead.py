@@ -1,0 +1,144 @@
+"""Decoding the next bracket set while the current one fuses and encodes.
+
+A batch merges its sets one after another; within a set, decoding, fusion and encoding
+overlap strip by strip, but the set's own phases leave a core idle now and then (the
+response solve is one thread, the tail of the encode another). :func:`decode_ahead`
+starts decoding the *next* set's frames whole, one frame after another, on one helper
+thread whose scheduling priority is lowered (:data:`AHEAD_NICE`, Linux threads are
+scheduled on their own): it takes the cycles the current set leaves, not the ones it
+uses. When the next set's merge opens its frames (:class:`hdrcl.io.reader.BracketReader`),
+:func:`take` hands the frames decoded so far over as a complete in-memory
+:class:`~hdrcl.io.framecache.FrameCache`, after decoding the rest at normal priority on
+the reader's own threads; the merge then reads its sampling grid and its strips from
+there, each frame still decoded once.
+
+Within the memory budget: a set is decoded ahead only when its codes fit the in-memory
+share of :func:`hdrcl.io.framecache.memory_budget_bytes` (the same rule that keeps a
+set's own decoded frames in memory), and at most one set is ahead at a time; nothing is
+ever written to disk. A frame that fails to decode ahead is simply left to the merge,
+which meets the same error and fails that set alone with its reason. :func:`cancel_all`
+stops the helper (it finishes the frame in hand) and drops what it held; the helper is a
+daemon thread holding no file beyond its own decoder. ``HDRCL_DECODE_AHEAD=0`` turns
+decoding ahead off (for measuring what it gains).
+"""
+from __future__ import annotations
+
+import logging
+import os
+import threading
+from typing import Dict, List, Optional, Sequence, Tuple
+
+logger = logging.getLogger(__name__)
+
+#: Niceness of the decode-ahead thread (0 turns the lowering off): the current set's
+#: decoding, fusion and encoding run first, the next set's decoding in what they leave.
+AHEAD_NICE = 10
+
+_lock = threading.Lock()
+_pending: Dict[Tuple[str, ...], "_Ahead"] = {}
+
+
+def _key(paths: Sequence) -> Tuple[str, ...]:
+    return tuple(os.path.realpath(os.fspath(p)) for p in paths)
+
+
+def _stamp(paths: Sequence[str]):
+    """(size, mtime_ns, inode) of each file: a file changed since it was decoded ahead is
+    decoded again by the merge."""
+    out = []
+    for p in paths:
+        st = os.stat(p)
+        out.append((st.st_size, st.st_mtime_ns, st.st_ino))
+    return out
+
+
+class _Ahead:
+    """One set's frames being decoded on a helper thread."""
+
+    def __init__(self, paths: List[str], infos):
+        self.paths, self.infos = paths, infos
+        self.stop = threading.Event()
+        self.frames: List = [None] * len(paths)
+        self.valid: List = [None] * len(paths)
+        self.seconds = 0.0
+        self.stamp = None
+        self.thread = threading.Thread(target=self._run, name="hdrcl-decode-ahead", daemon=True)
+
+    def _run(self) -> None:
+        from hdrcl.io.reader import BracketReader
+
+        if AHEAD_NICE:
+            try:
+                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), AHEAD_NICE)
+            except (AttributeError, OSError):  # not Linux, or not allowed: run as is
+                pass
+        try:
+            self.stamp = _stamp(self.paths)
+            reader = BracketReader(self.paths, self.infos, ahead=False)
+            try:
+                for k in range(len(self.paths)):
+                    if self.stop.is_set():
+                        return
+                    self.frames[k], self.valid[k] = reader.decode_frame(k)
+                self.seconds = reader.decode_seconds
+            finally:
+                reader.close()
+        except Exception as exc:  # the merge decodes the frame again and reports it
+            logger.debug("decode ahead of %s stopped: %s", self.paths[0], exc)
+
+
+def decode_ahead(paths: Sequence, infos=None) -> bool:
+    """Start decoding the set ``paths`` (headers ``infos``) on the helper thread, when its
+    codes fit the in-memory share of the budget and no other set is ahead. True when
+    started."""
+    from hdrcl.io.framecache import MEMORY_SHARE_DIVISOR, memory_budget_bytes
+
+    if infos is None or not paths or os.environ.get("HDRCL_DECODE_AHEAD", "").strip() == "0":
+        return False
+    first = infos[0]
+    nch = 3 if first.nchannels >= 3 else 1
+    size = first.width * first.height * nch * (1 if first.bits == 8 else 2) * len(paths)
+    if size > memory_budget_bytes() // MEMORY_SHARE_DIVISOR:
+        return False
+    key = _key(paths)
+    with _lock:
+        if _pending:
+            return False
+        job = _pending[key] = _Ahead(list(key), list(infos))
+    job.thread.start()
+    return True
+
+
+def take(paths: Sequence) -> Optional[_Ahead]:
+    """The set ``paths`` decoded ahead, removed from the registry (the helper stopped
+    after the frame in hand), or None. Frames it did not reach are None."""
+    key = _key(paths)
+    with _lock:
+        job = _pending.pop(key, None)
+    if job is None:
+        return None
+    job.stop.set()
+    job.thread.join()
+    try:
+        if job.stamp is None or _stamp(job.paths) != job.stamp:
+            return None
+    except OSError:
+        return None
+    return job
+
+
+def cancel_all() -> None:
+    """Stop every decode ahead and drop its frames (a batch ending or cancelled)."""
+    with _lock:
+        jobs = list(_pending.values())
+        _pending.clear()
+    for job in jobs:
+        job.stop.set()
+    for job in jobs:  # the frame in hand finishes (its decoder closes itself); not waited past that
+        job.thread.join(timeout=2.0)
+
+
+def pending() -> int:
+    """Sets decoded ahead and not yet taken (tests)."""
+    with _lock:
+        return len(_pending)
