@@ -15,6 +15,8 @@ from hdrcl.io import ahead
 from hdrcl.io.frames import read_info
 from hdrcl.io.reader import BracketReader
 
+OPEN = lambda paths, infos: BracketReader(paths, infos, ahead=False)  # noqa: E731
+
 try:
     from test_batch import make_clean_shoot, report_of, run, same_bytes
 except ImportError:  # tests/ made a package
@@ -37,7 +39,7 @@ def test_frames_decoded_ahead_are_the_frames_a_reader_decodes(one_set):
     with BracketReader(paths, infos, ahead=False) as fresh:
         want_grid = fresh.read_grid(2)
         want_strips = [(y0, y1, [f.copy() for f in fr]) for y0, y1, fr, _ in fresh.strips(16)]
-    assert ahead.decode_ahead(paths, infos)
+    assert ahead.decode_ahead(paths, infos, OPEN)
     with BracketReader(paths, infos) as reader:
         assert ahead.pending() == 0 and reader.cache is not None and reader.cache.complete
         grid = reader.read_grid(2, keep=True)
@@ -52,7 +54,7 @@ def test_frames_decoded_ahead_are_the_frames_a_reader_decodes(one_set):
 
 def test_a_file_changed_after_it_was_decoded_ahead_is_decoded_again(one_set):
     paths, infos = one_set
-    assert ahead.decode_ahead(paths, infos)
+    assert ahead.decode_ahead(paths, infos, OPEN)
     ahead._pending[ahead._key(paths)].thread.join()
     os.utime(paths[1], ns=(1, 1))  # another mtime: the frames decoded ahead are not used
     with BracketReader(paths, infos) as reader:
@@ -62,15 +64,15 @@ def test_a_file_changed_after_it_was_decoded_ahead_is_decoded_again(one_set):
 
 def test_only_one_set_ahead_and_cancel_leaves_nothing(one_set, monkeypatch):
     paths, infos = one_set
-    assert ahead.decode_ahead(paths, infos)
-    assert not ahead.decode_ahead(list(reversed(paths)), infos)  # one set at a time
+    assert ahead.decode_ahead(paths, infos, OPEN)
+    assert not ahead.decode_ahead(list(reversed(paths)), infos, OPEN)  # one set at a time
     ahead.cancel_all()
     assert ahead.pending() == 0 and not _helpers()
     monkeypatch.setenv("HDRCL_MEMORY_MB", "0.01")  # does not fit the budget: not decoded ahead
-    assert not ahead.decode_ahead(paths, infos)
+    assert not ahead.decode_ahead(paths, infos, OPEN)
     monkeypatch.delenv("HDRCL_MEMORY_MB")
     monkeypatch.setenv("HDRCL_DECODE_AHEAD", "0")
-    assert not ahead.decode_ahead(paths, infos)
+    assert not ahead.decode_ahead(paths, infos, OPEN)
 
 
 def test_batch_outputs_are_the_same_bytes_with_and_without_decoding_ahead(tmp_path, monkeypatch):

@@ -26,7 +26,7 @@ from __future__ import annotations
 import logging
 import os
 import threading
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 logger = logging.getLogger(__name__)
 
@@ -55,8 +55,8 @@ def _stamp(paths: Sequence[str]):
 class _Ahead:
     """One set's frames being decoded on a helper thread."""
 
-    def __init__(self, paths: List[str], infos):
-        self.paths, self.infos = paths, infos
+    def __init__(self, paths: List[str], infos, open_reader: Callable):
+        self.paths, self.infos, self.open_reader = paths, infos, open_reader
         self.stop = threading.Event()
         self.frames: List = [None] * len(paths)
         self.valid: List = [None] * len(paths)
@@ -65,8 +65,6 @@ class _Ahead:
         self.thread = threading.Thread(target=self._run, name="hdrcl-decode-ahead", daemon=True)
 
     def _run(self) -> None:
-        from hdrcl.io.reader import BracketReader
-
         if AHEAD_NICE:
             try:
                 os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), AHEAD_NICE)
@@ -74,7 +72,7 @@ class _Ahead:
                 pass
         try:
             self.stamp = _stamp(self.paths)
-            reader = BracketReader(self.paths, self.infos, ahead=False)
+            reader = self.open_reader(self.paths, self.infos)
             try:
                 for k in range(len(self.paths)):
                     if self.stop.is_set():
@@ -87,10 +85,12 @@ class _Ahead:
             logger.debug("decode ahead of %s stopped: %s", self.paths[0], exc)
 
 
-def decode_ahead(paths: Sequence, infos=None) -> bool:
+def decode_ahead(paths: Sequence, infos, open_reader: Callable) -> bool:
     """Start decoding the set ``paths`` (headers ``infos``) on the helper thread, when its
     codes fit the in-memory share of the budget and no other set is ahead. True when
-    started."""
+    started. ``open_reader(paths, infos)`` gives the decoder (a
+    :class:`hdrcl.io.reader.BracketReader` that takes nothing decoded ahead itself):
+    its ``decode_frame(k)``, ``decode_seconds`` and ``close()`` are used."""
     from hdrcl.io.framecache import MEMORY_SHARE_DIVISOR, memory_budget_bytes
 
     if infos is None or not paths or os.environ.get("HDRCL_DECODE_AHEAD", "").strip() == "0":
@@ -104,7 +104,7 @@ def decode_ahead(paths: Sequence, infos=None) -> bool:
     with _lock:
         if _pending:
             return False
-        job = _pending[key] = _Ahead(list(key), list(infos))
+        job = _pending[key] = _Ahead(list(key), list(infos), open_reader)
     job.thread.start()
     return True
 

@@ -123,10 +123,15 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
         step = _read_stage(job, ctx)
         if ahead and isinstance(step, _Opening):
             # Decode its frames too, at low priority, while the current set fuses and encodes.
-            decode_ahead(job.files, step.opened.infos)
+            decode_ahead(job.files, step.opened.infos, open_reader)
         return step
 
+    from functools import partial
+
     from hdrcl.io.ahead import cancel_all, decode_ahead
+    from hdrcl.io.reader import BracketReader
+
+    open_reader = partial(BracketReader, ahead=False)
 
     reader = ThreadPoolExecutor(1, thread_name_prefix="hdrcl-readahead")
     try:
