@@ -30,7 +30,7 @@ merge`` on the same frames (``merge`` = ``batch * 2**evOffset``), and
 ``hdrcl:exposureRef``, the reference (``"f/8 ISO 100"``).
 
 **Idempotent and crash-safe.** Each set has an identity: SHA-256 over the contents of
-its frames, the manifest's exposures, the shoot's reference, the response curve, the
+its frames (every byte of each file, hashed with XXH3-128 where ``xxhash`` is installed), the manifest's exposures, the shoot's reference, the response curve, the
 merge and output parameters and the hdrcl version (:func:`set_digest`). It is stored
 in the EXR as ``hdrcl:inputHash``. An output whose header carries the same digest is
 skipped (header only, no pixels decoded); ``force`` rebuilds. Both files are written

@@ -37,8 +37,27 @@ STALE_TEMP_SECONDS = 3600.0
 
 
 # --------------------------------------------------------------------- hashing
+#: Bytes read per call while hashing a frame (one buffer, reused).
+HASH_BLOCK = 4 << 20
+
+
+def _content_hasher():
+    """``(hasher, name)`` for frame contents: XXH3-128 when the ``xxhash`` package is
+    installed (about 6 GB/s a core here, against 0.4-0.5 GB/s for SHA-256, which made
+    hashing a shoot cost a tenth of its decoding), else SHA-256. The name is part of
+    every file digest, so the two never pass for each other: a shoot hashed one way and
+    rerun the other way is merged again once, never skipped on a wrong match. The digest
+    guards against changed files, not against an adversary: a 128-bit hash is plenty."""
+    try:
+        import xxhash
+    except ImportError:
+        return hashlib.sha256(), "sha256"
+    return xxhash.xxh3_128(), "xxh3-128"
+
+
 def _file_digest(path: str) -> str:
-    h = hashlib.sha256()
+    """``"<hash name>:<hex>"`` over every byte of the file at ``path``."""
+    h, name = _content_hasher()
     check_regular(path)
     try:
         # O_NONBLOCK: a file swapped for a FIFO after the check still cannot block.
@@ -47,16 +66,21 @@ def _file_digest(path: str) -> str:
             os.close(fd)
             check_regular(path)
             raise InputError(f"{path}: not a regular file")
-        with os.fdopen(fd, "rb") as fh:
-            for block in iter(lambda: fh.read(1 << 20), b""):
-                h.update(block)
+        buf = bytearray(HASH_BLOCK)
+        view = memoryview(buf)
+        with os.fdopen(fd, "rb", buffering=0) as fh:
+            while True:
+                n = fh.readinto(buf)
+                if not n:
+                    break
+                h.update(view[:n])
     except FileNotFoundError:
         raise InputError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise InputError(f"{path}: is a folder, not an image") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    return h.hexdigest()
+    return f"{name}:{h.hexdigest()}"
 
 
 def _json_digest(obj) -> str:
@@ -71,7 +95,8 @@ def response_digest(payload: dict) -> str:
 def set_digest(job: SetJob, options: BatchOptions, response_hash: str) -> str:
     """The identity of a set's output.
 
-    SHA-256 over the frames' contents (with their base names and order), the
+    SHA-256 over the frames' contents (every byte of each file, hashed with
+    :func:`_content_hasher`: XXH3-128 where installed), their base names and order, the
     manifest's exposure times, the shoot's reference f-number and ISO, the response
     curve's digest, :meth:`BatchOptions.output_params`, the digest recipe and the hdrcl
     version. Moving the shoot to another folder keeps it; touching a file without
