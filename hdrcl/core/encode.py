@@ -90,23 +90,29 @@ class RangeMeter:
         self.sink, self.scale, self.check = sink, np.float32(scale), check
         self.lo, self.hi = math.inf, 0.0
         self.overflow = False
+        self._one = halfrange.OnePass()
 
     def write_rows(self, y0: int, y1: int, data: np.ndarray) -> None:
-        values = data * self.scale if self.scale != 1 else data
-        if values.size:
-            lo, hi = float(values.min()), float(values.max())
-            if not (math.isfinite(lo) and math.isfinite(hi)):  # never expected; never hidden
-                finite = values[np.isfinite(values)]
-                lo = float(finite.min()) if finite.size else math.inf
-                hi = math.inf  # NaN or Inf cannot be written as half: float keeps what there is
-            if lo <= 0:  # pixels without data are 0; ignore them
-                pos = values[values > 0]
-                lo = float(pos.min()) if pos.size else math.inf
-            self.lo, self.hi = min(self.lo, lo), max(self.hi, hi)
+        """Measure ``data x scale`` (pixels without data are 0 and are not counted; NaN
+        or Inf make ``hi`` infinite: half cannot hold them, float keeps what there is)
+        and, until a strip does not fit, write it: in one pass with the writer's
+        ``write_scaled`` (:class:`hdrcl.io.halfrange.OnePass`), which returns the range.
+        A strip that does not fit may already be in the writer; the writer is dropped."""
+        if self.overflow:
+            self._take(self._one.measure(data, float(self.scale)))
+        elif hasattr(self.sink, "write_scaled"):
+            self._take(self.sink.write_scaled(y0, y1, data, float(self.scale)))
+        else:
+            values = data * self.scale if self.scale != 1 else data
+            if not self._take(self._one.measure(values, 1.0)):
+                self.sink.write_rows(y0, y1, values)
+
+    def _take(self, found: halfrange.StripRange) -> bool:
+        """Count a strip's range in; whether the file must be written again."""
+        self.lo, self.hi = min(self.lo, found.lo), max(self.hi, found.hi)
         if self.check and not self.overflow and (self.hi > halfrange.HALF_MAX or self.lo < halfrange.HALF_FLOOR):
             self.overflow = True
-        if not self.overflow:
-            self.sink.write_rows(y0, y1, values)
+        return self.overflow
 
 
 @dataclass

@@ -104,18 +104,29 @@ class _Buffers:
         return view
 
 
-def _fill_rgbe(rgb: np.ndarray, planes: Sequence[np.ndarray], buf: _Buffers) -> None:
-    """Write the R, G, B mantissas and the exponent of ``rgb`` (float32 ``(n, W, 3)``)
-    into the four uint8 ``(n, W)`` views ``planes``."""
+def _fill_rgbe(rgb: np.ndarray, planes: Sequence[np.ndarray], buf: _Buffers, scale: float = 1.0) -> None:
+    """Write the R, G, B mantissas and the exponent of ``rgb x scale`` (float32
+    ``(n, W, 3)``; the product rounded to float32) into the four uint8 ``(n, W)`` views
+    ``planes``."""
     n, w, _ = rgb.shape
+    s = np.float32(scale)
     lo, hi = rgb.min(), rgb.max()
-    # One transposing copy makes every later pass contiguous (3x faster than strided).
+    # One transposing copy (scaled on the way) makes every later pass contiguous (3x
+    # faster than strided).
     x = buf.get("x", (3, n, w), np.float32)
-    if lo >= 0 and hi <= _F32_MAX_RGBE:  # NaN fails both tests
-        np.copyto(x, rgb.transpose(2, 0, 1))
-    else:
-        np.fmax(rgb.transpose(2, 0, 1), np.float32(0), out=x)  # negatives and NaN -> 0
-        np.minimum(x, _F32_MAX_RGBE, out=x)  # inf and beyond -> RGBE_MAX
+    with np.errstate(over="ignore", invalid="ignore"):
+        if lo >= 0 and hi * s <= _F32_MAX_RGBE:  # NaN fails both tests
+            if s == 1:
+                np.copyto(x, rgb.transpose(2, 0, 1))
+            else:
+                np.multiply(rgb.transpose(2, 0, 1), s, out=x)
+        else:
+            if s == 1:
+                np.fmax(rgb.transpose(2, 0, 1), np.float32(0), out=x)  # negatives and NaN -> 0
+            else:
+                np.multiply(rgb.transpose(2, 0, 1), s, out=x)
+                np.fmax(x, np.float32(0), out=x)
+            np.minimum(x, _F32_MAX_RGBE, out=x)  # inf and beyond -> RGBE_MAX
     v = buf.get("v", (n, w), np.float32)
     np.maximum(x[0], x[1], out=v)
     np.maximum(v, x[2], out=v)
@@ -179,8 +190,9 @@ class RGBEEncoder:
         self.rle = bool(rle) and MIN_RLE_WIDTH <= self.width <= MAX_RLE_WIDTH
         self._buf = _Buffers()
 
-    def encode(self, rgb) -> bytes:
-        """The bytes of the scanlines of float32 ``(rows, width, 3)`` radiance."""
+    def encode(self, rgb, scale: float = 1.0) -> bytes:
+        """The bytes of the scanlines of float32 ``(rows, width, 3)`` radiance, multiplied
+        by ``scale`` on the way (as ``rgb * np.float32(scale)`` would)."""
         x = np.asarray(rgb, dtype=np.float32)
         if x.ndim != 3 or x.shape[1:] != (self.width, 3):
             raise ValueError(f"expected (rows, {self.width}, 3) pixels, got {x.shape}")
@@ -189,10 +201,10 @@ class RGBEEncoder:
             return b""
         if not self.rle:
             flat = self._buf.get("flat", (n, self.width, 4), np.uint8)
-            _fill_rgbe(x, [flat[..., c] for c in range(4)], self._buf)
+            _fill_rgbe(x, [flat[..., c] for c in range(4)], self._buf, scale)
             return flat.tobytes()
         planes = self._buf.get("planes", (n, 4, self.width), np.uint8)
-        _fill_rgbe(x, [planes[:, c, :] for c in range(4)], self._buf)
+        _fill_rgbe(x, [planes[:, c, :] for c in range(4)], self._buf, scale)
         return self._rle(planes)
 
     def _rle(self, planes: np.ndarray) -> bytes:
@@ -340,12 +352,12 @@ class RGBEFile:
         reason = "no space left on the device" if exc.errno == errno.ENOSPC else (exc.strerror or str(exc))
         return ProcessingError(f"{self.name}: cannot write{what} ({reason})")
 
-    def write(self, rgb) -> None:
-        """Append the scanlines of float ``(rows, width, 3)`` radiance."""
+    def write(self, rgb, scale: float = 1.0) -> None:
+        """Append the scanlines of float ``(rows, width, 3)`` radiance x ``scale``."""
         rows = int(np.shape(rgb)[0])
         if self.rows_written + rows > self.height:
             raise ValueError(f"{self.rows_written + rows} rows written to a picture {self.height} high")
-        data = self._encoder.encode(rgb)
+        data = self._encoder.encode(rgb, scale)
         try:
             self._file.write(data)
         except OSError as exc:
@@ -458,13 +470,21 @@ class ExrBatch:
         self.failed = None
         self._pool = self._pending = None
 
-    def add(self, data: np.ndarray) -> bool:
-        """Append float32 ``(rows, width, nch)`` rows; send every batch that fills."""
+    def add(self, data: np.ndarray, fill=None) -> bool:
+        """Append float32 ``(rows, width, nch)`` rows; send every batch that fills.
+
+        ``fill(src, dst)``, when given, puts rows ``src`` of ``data`` into the batch's
+        rows ``dst`` (half or float32, C-contiguous) instead of a plain copy (for
+        :class:`hdrcl.io.halfrange.OnePass`: scaled, measured and converted at once).
+        """
         done, total = 0, data.shape[0]
         while done < total:
             rows = self._rows[self._cur]
             take = min(total - done, rows.shape[0] - self.n)
-            rows[self.n:self.n + take] = data[done:done + take]
+            if fill is None:
+                rows[self.n:self.n + take] = data[done:done + take]
+            else:
+                fill(data[done:done + take], rows[self.n:self.n + take])
             self.n += take
             done += take
             if self.n == rows.shape[0] and not self._send():

@@ -26,7 +26,6 @@ Only this module and :mod:`hdrcl.io.frames` import OpenImageIO, lazily.
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 from typing import Mapping, Optional
@@ -36,6 +35,8 @@ import numpy as np
 from hdrcl.errors import ProcessingError, UsageError
 from hdrcl.io import halfrange
 from hdrcl.io.atomic import atomic_output
+from hdrcl.io.attributes import METADATA_PREFIX
+from hdrcl.io.attributes import description as _description, metadata_attributes as _metadata_attributes
 from hdrcl.io.frames import _clean_error
 from hdrcl.io.encoders import ExrBatch, RGBEFile, exr_batch_rows, exr_threads, write_rgbe
 
@@ -71,13 +72,6 @@ LINEAR_COLORSPACE = "lin_rec709_scene"
 REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
 
 
-METADATA_PREFIX = "hdrcl:"
-
-
-# OpenEXR before 2.0 (and some tools still) limit attribute names to 31 characters.
-MAX_ATTRIBUTE_NAME = 31
-
-
 JPEG_QUALITY = 95
 
 
@@ -89,38 +83,6 @@ def _oiio():
 
 def _ext(path: str) -> str:
     return os.path.splitext(path)[1].lower()
-
-
-def _metadata_attributes(metadata: Optional[Mapping]) -> list:
-    """``(name, value)`` pairs with the ``hdrcl:`` prefix and OIIO-friendly types."""
-    out = []
-    for key, value in (metadata or {}).items():
-        name = METADATA_PREFIX + str(key)
-        if len(name) > MAX_ATTRIBUTE_NAME:
-            raise ValueError(
-                f"metadata key '{key}' is too long: '{name}' has {len(name)} characters, "
-                f"at most {MAX_ATTRIBUTE_NAME}"
-            )
-        if isinstance(value, np.generic):
-            value = value.item()
-        if isinstance(value, bool):
-            value = int(value)
-        if isinstance(value, int) and not -(2**31) <= value < 2**31:
-            value = str(value)  # OIIO ints are 32-bit
-        elif isinstance(value, (int, float, str)):
-            pass
-        else:
-            value = json.dumps(value, default=str)
-        out.append((name, value))
-    return out
-
-
-def _description(metadata: Optional[Mapping]) -> Optional[str]:
-    """Metadata as JSON for formats that keep ImageDescription but not custom attributes."""
-    if not metadata:
-        return None
-    plain = {str(k): (v.item() if isinstance(v, np.generic) else v) for k, v in metadata.items()}
-    return json.dumps({"hdrcl": plain}, default=str, sort_keys=True)
 
 
 def _write(path: str, pixels: np.ndarray, fmt: str, attributes: list, channelnames=None):
@@ -457,6 +419,7 @@ class RadianceWriter:
         self._attrs, self._fmt, self._channelnames = attrs, fmt, channelnames
         self._whole = np.empty((height, width, nch), np.float32) if ext == ".pfm" else None
         self._rgbe = self._batch = None
+        self._one = halfrange.OnePass()
         self._ctx = atomic_output(target)
         self._tmp = self._ctx.__enter__()
         self._out = None
@@ -516,8 +479,38 @@ class RadianceWriter:
 
     def write_rows(self, y0: int, y1: int, data: np.ndarray) -> None:
         """Write rows ``y0 .. y1`` (in order) from a float32 ``(rows, W, C)`` array."""
+        self.write_scaled(y0, y1, data, 1.0)
+
+    def write_scaled(self, y0: int, y1: int, data: np.ndarray, scale: float) -> halfrange.StripRange:
+        """Write rows ``y0 .. y1`` (in order) of ``data x scale`` (float32 ``(rows, W, C)``,
+        left as it is; the file as from ``data * np.float32(scale)``) and return their
+        range before any clamping. Batched EXR, PFM and ``.hdr`` in Rec.709 take one pass
+        over the strip (:class:`hdrcl.io.halfrange.OnePass`)."""
         if y0 != self._next_row:
             raise ValueError(f"rows must be written in order: expected {self._next_row}, got {y0}")
+        data, one = np.ascontiguousarray(data, dtype=np.float32), self._one
+        plain = self.colorspace != "rec709" or (self._out is not None and self._batch is None)
+        if plain:  # TIFF, EXR on one thread, other colour spaces
+            data = data * np.float32(scale) if scale != 1 else data
+            found = one.measure(data, 1.0)
+            self._write_plain(y0, y1, data)
+        elif self._rgbe is not None:
+            found = one.measure(data, scale)
+            self._guarded(lambda: self._rgbe.write(np.broadcast_to(data, (y1 - y0, self.width, 3)), scale=scale))
+        elif self._whole is not None:
+            found = one.to_float(data, scale, self._whole[y0:y1])
+        else:
+            found, convert = halfrange.StripRange(), one.to_half if self._fmt == "half" else one.to_float
+            if not self._batch.add(data, lambda src, dst: found.add(convert(src, scale, dst))):
+                raise self._fail(*self._batch.failed)
+        if not plain:
+            self._nonfinite += found.nonfinite
+            self._over_half += found.clamped
+            self._negative += found.negative if self.ext == ".hdr" else 0
+        self._next_row = y1
+        return found
+
+    def _write_plain(self, y0: int, y1: int, data: np.ndarray) -> None:
         if self.colorspace != "rec709":
             from hdrcl.io.colorspace import convert
 
@@ -532,7 +525,6 @@ class RadianceWriter:
                 raise self._fail(*self._batch.failed)
         elif not self._out.write_scanlines(y0, y1, 0, data):
             raise self._fail(y0, y1)
-        self._next_row = y1
 
     def close(self) -> list:
         """Finish the file and move it into place; returns the warnings."""
