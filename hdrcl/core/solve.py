@@ -23,15 +23,31 @@ from hdrcl.errors import InputError, ProcessingError, UsageError
 logger = logging.getLogger(__name__)
 
 
+_blas = []  # the threadpoolctl controller of NumPy's BLAS, found once per process
+
+
+def _one_blas_thread():
+    """A context that runs NumPy's BLAS on one thread. The controller is made once:
+    ``threadpool_limits(1)`` scans every loaded library again on each call."""
+    if not _blas:
+        try:
+            from threadpoolctl import ThreadpoolController
+        except ImportError:  # pragma: no cover - a declared dependency
+            _blas.append(None)
+        else:
+            _blas.append(ThreadpoolController())
+    if _blas[0] is None:  # pragma: no cover
+        import contextlib
+
+        return contextlib.nullcontext()
+    return _blas[0].limit(limits=1, user_api="blas")
+
+
 def small_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``np.linalg.solve`` on one BLAS thread: a levels x levels system solves in a few
     milliseconds alone, but several times slower on OpenBLAS's thread pool, more so on a
     machine whose cores are busy decoding and fusing (measured 4.5 ms vs 41 ms, 256 x 256)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - a declared dependency
-        return np.linalg.solve(a, b)
-    with threadpool_limits(1):
+    with _one_blas_thread():
         return np.linalg.solve(a, b)
 
 
