@@ -161,7 +161,12 @@ class RunSettings:
     jobs : int
         Worker processes; 1 runs the pipeline in this process. The workers are
         started with ``spawn``, so a script calling this with ``jobs > 1`` needs the
-        ``if __name__ == "__main__":`` guard.
+        ``if __name__ == "__main__":`` guard. 1 is the default because it measured
+        fastest on a 2-core machine (``scripts/batch_pipeline_bench.py SHOOT`` and
+        ``scripts/shoot_bench.py``: ``--jobs 2`` took 8-50 % longer, the workers'
+        decoders, OpenCL pools and encoders fighting for the same two cores, each
+        worker with half the memory budget); one process already overlaps decoding,
+        fusion and encoding, and decodes the next set ahead.
     scheduler : str or distributed.Client, optional
         Run the sets on this Dask cluster (``tcp://host:8786``).
     retries : int
