@@ -90,8 +90,10 @@ def test_a_wrong_fit_on_few_pixels_is_not_accepted(cl_device, memorial, monkeypa
     from hdrcl.core import handheld as HH
     from hdrcl.core import warp as W
 
+    from hdrcl.core import handheld_trust as HT
+
     moved, mats, valid, times = _moved(memorial, (0, 0, 0))
-    real = HH._fit_models
+    real = HT._fit_models
     pushed = []
 
     def off(reg, anchor, j, m0, model, richest="homography"):
@@ -101,7 +103,7 @@ def test_a_wrong_fit_on_few_pixels_is_not_accepted(cl_device, memorial, monkeypa
             f.matrix = W.translation(6.0, 0.0) @ f.matrix
         return kind, f, r
 
-    monkeypatch.setattr(HH, "_fit_models", off)
+    monkeypatch.setattr(HT, "_fit_models", off)
     res = HH.align_bracket(moved, valid, times)
     assert pushed
     a = res.alignment[0]
