@@ -13,7 +13,8 @@ from hdrcl.io import halfrange as hr
 oiio = pytest.importorskip("OpenImageIO")
 
 from hdrcl.core.encode import RangeMeter, fuse_to_file, radiance_opener  # noqa: E402
-from hdrcl.io import writers  # noqa: E402
+from hdrcl.io import encoders, writers  # noqa: E402
+from hdrcl.io.radiance import read_radiance  # noqa: E402
 from hdrcl.io.writers import RadianceWriter  # noqa: E402
 
 SCALES = (1.0, 0.25, 2.0 ** -6, 2.0 ** 10, 1 / 60, 1 / 179)
@@ -123,6 +124,13 @@ def test_write_scaled_is_write_rows_of_the_product(tmp_path, monkeypatch, ext, d
             lo, hi, _, _ = _want_range(v)
             assert (found.lo, found.hi) == (lo, hi)
     assert a.read_bytes() == b.read_bytes()
+    v = img * np.float32(scale)
+    if ext == ".hdr":  # the scanlines of the encoder fed the scaled map (no scale, no known range)
+        want = encoders.RGBEEncoder(w).encode(v)
+        assert a.read_bytes().split(b"\n-Y ", 1)[1].split(b"\n", 1)[1] == want
+    else:  # what OpenImageIO reads back is the scaled map, rounded to half for half
+        got = read_radiance(str(a))[0].reshape(v.shape)
+        assert np.array_equal(got, v.astype(np.float16).astype(np.float32) if dtype == "half" else v)
 
 
 def test_range_meter_decides_as_before(tmp_path):

@@ -335,3 +335,14 @@ def test_buffers_follow_the_strip_height():
     with pytest.raises(ValueError, match="expected"):
         enc.encode(np.zeros((2, 41, 3), np.float32))
     assert encoders.to_rgbe(np.zeros((2, 2, 3))).shape == (2, 2, 4)
+
+
+def test_run_length_packets_are_the_expected_ones():
+    """The packets themselves (not only what they decode to): a run of 5, two single
+    bytes, a run of 130 (127 + 3) and a plane of 137 equal bytes (127 + 10)."""
+    row = np.array([7] * 5 + [1, 2] + [9] * 130, np.uint8)
+    planes = np.zeros((2, 4, row.size), np.uint8)
+    planes[:, 0] = row
+    got = RGBEEncoder(row.size)._rle(planes)
+    line = bytes([2, 2, 0, 137, 133, 7, 2, 1, 2, 255, 9, 131, 9]) + bytes([255, 0, 138, 0]) * 3
+    assert got == line * 2

@@ -104,13 +104,15 @@ class _Buffers:
         return view
 
 
-def _fill_rgbe(rgb: np.ndarray, planes: Sequence[np.ndarray], buf: _Buffers, scale: float = 1.0) -> None:
+def _fill_rgbe(rgb: np.ndarray, planes: Sequence[np.ndarray], buf: _Buffers, scale: float = 1.0,
+               clean: Optional[bool] = None) -> None:
     """Write the R, G, B mantissas and the exponent of ``rgb x scale`` (float32
     ``(n, W, 3)``; the product rounded to float32) into the four uint8 ``(n, W)`` views
-    ``planes``."""
+    ``planes``. ``clean``: whether the caller knows ``rgb x scale`` to lie within
+    0 .. RGBE_MAX (None: look)."""
     n, w, _ = rgb.shape
     s = np.float32(scale)
-    lo, hi = rgb.min(), rgb.max()
+    lo, hi = (0, 0) if clean else (-1, 0) if clean is not None else (rgb.min(), rgb.max())
     # One transposing copy (scaled on the way) makes every later pass contiguous (3x
     # faster than strided).
     x = buf.get("x", (3, n, w), np.float32)
@@ -190,9 +192,10 @@ class RGBEEncoder:
         self.rle = bool(rle) and MIN_RLE_WIDTH <= self.width <= MAX_RLE_WIDTH
         self._buf = _Buffers()
 
-    def encode(self, rgb, scale: float = 1.0) -> bytes:
+    def encode(self, rgb, scale: float = 1.0, clean: Optional[bool] = None) -> bytes:
         """The bytes of the scanlines of float32 ``(rows, width, 3)`` radiance, multiplied
-        by ``scale`` on the way (as ``rgb * np.float32(scale)`` would)."""
+        by ``scale`` on the way (as ``rgb * np.float32(scale)`` would). ``clean``: the
+        caller has measured the values (True: all within 0 .. RGBE_MAX)."""
         x = np.asarray(rgb, dtype=np.float32)
         if x.ndim != 3 or x.shape[1:] != (self.width, 3):
             raise ValueError(f"expected (rows, {self.width}, 3) pixels, got {x.shape}")
@@ -201,10 +204,10 @@ class RGBEEncoder:
             return b""
         if not self.rle:
             flat = self._buf.get("flat", (n, self.width, 4), np.uint8)
-            _fill_rgbe(x, [flat[..., c] for c in range(4)], self._buf, scale)
+            _fill_rgbe(x, [flat[..., c] for c in range(4)], self._buf, scale, clean)
             return flat.tobytes()
         planes = self._buf.get("planes", (n, 4, self.width), np.uint8)
-        _fill_rgbe(x, [planes[:, c, :] for c in range(4)], self._buf, scale)
+        _fill_rgbe(x, [planes[:, c, :] for c in range(4)], self._buf, scale, clean)
         return self._rle(planes)
 
     def _rle(self, planes: np.ndarray) -> bytes:
@@ -260,17 +263,6 @@ def _literal_rows(rows: np.ndarray, w: int, buf: _Buffers) -> np.ndarray:
     return out
 
 
-def _chunks(first: np.ndarray, length: np.ndarray, limit: int):
-    """Cut regions ``[first, first + length)`` into pieces of at most ``limit``: their
-    starts and lengths, in order."""
-    count = (length + (limit - 1)) // limit
-    if count.size == 0 or count.max() <= 1:
-        return first, length
-    seq = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
-    start = np.repeat(first, count) + seq * limit
-    return start, np.minimum(np.repeat(first + length, count) - start, limit)
-
-
 def _rle_rows(rows: np.ndarray, eq: np.ndarray, buf: _Buffers):
     """Run-length encode each row of uint8 ``rows`` ``(k, W)`` separately.
 
@@ -289,34 +281,45 @@ def _rle_rows(rows: np.ndarray, eq: np.ndarray, buf: _Buffers):
     # A packet region is a long run, or the short runs between long runs in one row.
     region = long.copy()
     region[1:] |= long[:-1]
-    region[0] = True
-    region |= start % w == 0
+    row_first = np.searchsorted(start, np.arange(k) * w)  # every row's first run
+    region[row_first] = True
     head = np.flatnonzero(region)
-    first = start[head]
-    size = np.diff(first, append=flat.size)
-    is_run = long[head]
-    rs, rl = _chunks(first[is_run], size[is_run], _RUN_MAX)
-    ls, ll = _chunks(first[~is_run], size[~is_run], _LIT_MAX)
-    # Packets in file order: merge the two sorted lists of starts.
-    pstart = np.concatenate((rs, ls))
-    order = np.argsort(pstart, kind="stable")
-    pstart = pstart[order]
-    plen = np.concatenate((rl, ll))[order]
-    run = np.zeros(pstart.size, bool)
-    run[:rs.size] = True
-    run = run[order]
+    pstart = start[head]
+    plen = np.diff(pstart, append=flat.size)
+    run = long[head]
+    if plen.size and plen.max() > _RUN_MAX:  # cut long regions into packets, in order
+        limit = np.where(run, _RUN_MAX, _LIT_MAX)
+        count = (plen + (limit - 1)) // limit
+        seq = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+        end = np.repeat(pstart + plen, count)
+        pstart = np.repeat(pstart, count) + seq * np.repeat(limit, count)
+        plen = np.minimum(end - pstart, np.repeat(limit, count))
+        run = np.repeat(run, count)
     psize = np.where(run, 2, plen + 1)
-    offset = np.cumsum(psize) - psize
-    out = np.empty(int(offset[-1] + psize[-1]), np.uint8)
+    offset = np.cumsum(psize) - psize  # where each packet's count byte goes
+    total = int(offset[-1] + psize[-1])
+    # The file holds every byte of the rows but the repeats inside run packets, in order,
+    # with a count byte before each packet: bytes are moved by masks, not by index. A
+    # byte is in a run of 4 or more when a window of 4 equal bytes holds it.
+    win = buf.get("win4", (k, w - 3), bool)
+    np.logical_and(eq[:, :-2], eq[:, 1:-1], out=win)
+    np.logical_and(win, eq[:, 2:], out=win)
+    keep = buf.get("keep", (k, w), bool)
+    keep[:, :3] = False
+    keep[:, 3:] = win
+    for d in range(3):
+        keep[:, d:d + w - 3] |= win
+    keep = keep.reshape(-1)
+    keep[pstart] = False  # packet starts stay; every other byte of a long run goes
+    np.logical_not(keep, out=keep)
+    head = buf.get("head", (total,), bool)
+    head[...] = False
+    head[offset] = True
+    out = np.empty(total, np.uint8)
     out[offset] = np.where(run, 128 + plen, plen)
-    out[offset[run] + 1] = flat[pstart[run]]
-    lit_at, lit_len, lit_from = offset[~run] + 1, plen[~run], pstart[~run]
-    if lit_len.size:
-        before = np.cumsum(lit_len) - lit_len
-        seq = np.arange(int(lit_len.sum()))
-        out[np.repeat(lit_at - before, lit_len) + seq] = flat[np.repeat(lit_from - before, lit_len) + seq]
-    row_size = np.bincount(pstart // w, weights=psize, minlength=k).astype(np.int64)
-    bounds = np.concatenate(([0], np.cumsum(row_size)))
+    np.logical_not(head, out=head)
+    out[head] = flat[keep]
+    bounds = np.append(offset[np.searchsorted(pstart, np.arange(k) * w)], total)
     return out, bounds
 
 
@@ -352,12 +355,13 @@ class RGBEFile:
         reason = "no space left on the device" if exc.errno == errno.ENOSPC else (exc.strerror or str(exc))
         return ProcessingError(f"{self.name}: cannot write{what} ({reason})")
 
-    def write(self, rgb, scale: float = 1.0) -> None:
-        """Append the scanlines of float ``(rows, width, 3)`` radiance x ``scale``."""
+    def write(self, rgb, scale: float = 1.0, clean: Optional[bool] = None) -> None:
+        """Append the scanlines of float ``(rows, width, 3)`` radiance x ``scale``
+        (``clean``: see :meth:`RGBEEncoder.encode`)."""
         rows = int(np.shape(rgb)[0])
         if self.rows_written + rows > self.height:
             raise ValueError(f"{self.rows_written + rows} rows written to a picture {self.height} high")
-        data = self._encoder.encode(rgb, scale)
+        data = self._encoder.encode(rgb, scale, clean)
         try:
             self._file.write(data)
         except OSError as exc:

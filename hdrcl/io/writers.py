@@ -38,7 +38,7 @@ from hdrcl.io.atomic import atomic_output
 from hdrcl.io.attributes import METADATA_PREFIX
 from hdrcl.io.attributes import description as _description, metadata_attributes as _metadata_attributes
 from hdrcl.io.frames import _clean_error
-from hdrcl.io.encoders import ExrBatch, RGBEFile, exr_batch_rows, exr_threads, write_rgbe
+from hdrcl.io.encoders import RGBE_MAX, ExrBatch, RGBEFile, exr_batch_rows, exr_threads, write_rgbe
 
 logger = logging.getLogger(__name__)
 
@@ -496,7 +496,8 @@ class RadianceWriter:
             self._write_plain(y0, y1, data)
         elif self._rgbe is not None:
             found = one.measure(data, scale)
-            self._guarded(lambda: self._rgbe.write(np.broadcast_to(data, (y1 - y0, self.width, 3)), scale=scale))
+            clean = not (found.nonfinite or found.negative) and found.hi <= RGBE_MAX
+            self._guarded(lambda: self._rgbe.write(np.broadcast_to(data, (y1 - y0, self.width, 3)), scale, clean))
         elif self._whole is not None:
             found = one.to_float(data, scale, self._whole[y0:y1])
         else:
