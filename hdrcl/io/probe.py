@@ -20,10 +20,11 @@ def reduced_pixels(path, min_size: Tuple[int, int] = (24, 32)) -> Optional[np.nd
     columns) where the image is that large), decoded as cheaply as possible, or None.
 
     In order: the embedded EXIF thumbnail (cameras write 160x120); a JPEG decoded at
-    1/2, 1/4 or 1/8 scale by libjpeg's DCT scaling (when OpenCV is installed); the
-    smallest MIP level of a tiled file that is large enough; a full decode. Camera RAW
-    files give None (their previews are not read here). The values are the file's own
-    (uint8, uint16 or float); the caller reduces them further.
+    1/2, 1/4 or 1/8 scale by libjpeg's DCT scaling, in grey (OpenCV or Pillow, when one
+    is installed); the smallest MIP level of a tiled file that is large enough; a full
+    decode in the file's own sample type (a 4 MP JPEG: 0.05 s as uint8, 0.38 s as
+    float). Camera RAW files give None (their previews are not read here). The values
+    are the file's own (uint8, uint16 or float); the caller reduces them further.
     """
     import OpenImageIO as oiio
 
@@ -60,24 +61,41 @@ def reduced_pixels(path, min_size: Tuple[int, int] = (24, 32)) -> Optional[np.nd
             n += 1
             level, spec = n, s
         inp.geterror()  # the failed seek past the last level
-        a = inp.read_image(0, level, 0, min(spec.nchannels, 3), oiio.FLOAT)
+        own = {oiio.UINT8: oiio.UINT8, oiio.UINT16: oiio.UINT16}.get(spec.format.basetype, oiio.FLOAT)
+        a = inp.read_image(0, level, 0, min(spec.nchannels, 3), own)
         return None if a is None else np.asarray(a)
     finally:
         inp.close()
 
 
 def _jpeg_reduced(path: str, width: int, cols: int) -> Optional[np.ndarray]:
+    """A grey JPEG decoded at 1/8, 1/4 or 1/2 scale (at least ``2 cols`` wide), or None."""
+    scale = 8 if width >= 16 * cols else 4 if width >= 8 * cols else 2
     try:
         import cv2
     except ImportError:
-        return None
-    if width >= 16 * cols:
-        flag = cv2.IMREAD_REDUCED_GRAYSCALE_8
-    elif width >= 8 * cols:
-        flag = cv2.IMREAD_REDUCED_GRAYSCALE_4
-    else:
-        flag = cv2.IMREAD_REDUCED_GRAYSCALE_2
+        return _pillow_reduced(path, scale)
+    flag = {8: cv2.IMREAD_REDUCED_GRAYSCALE_8, 4: cv2.IMREAD_REDUCED_GRAYSCALE_4,
+            2: cv2.IMREAD_REDUCED_GRAYSCALE_2}[scale]
     return cv2.imread(path, flag | cv2.IMREAD_IGNORE_ORIENTATION)
+
+
+def _pillow_reduced(path: str, scale: int) -> Optional[np.ndarray]:
+    """The same through Pillow's ``draft`` (libjpeg's DCT scaling, grey), or None."""
+    try:
+        from PIL import Image
+    except ImportError:
+        return None
+    try:
+        with Image.open(path) as im:
+            if im.format != "JPEG":
+                return None
+            w, h = im.size
+            im.draft("L", (-(-w // scale), -(-h // scale)))
+            return np.asarray(im.convert("L"))
+    except Exception as exc:  # damaged: the caller's full decode says what it can
+        logger.debug("%s: no reduced decode: %s", path, exc)
+        return None
 
 
 def pixels_readable(path, rows: int = 256) -> bool:
