@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from dataclasses import dataclass, field
 from typing import List, Optional, Tuple
 
@@ -76,27 +77,65 @@ def leave_one_out(
         resp = calibrate(sub, smoothness=smoothness, samples=samples, weight=weight, fit_exposures=fit_exposures,
                          warn=False)
     times_used = exposures_used(resp, sub.times)
+    real = bracket.frames[index]
     # The others fused at the exposures the curve used (the merge's own when not refitted),
     # straight through the fusion (no second exposure measurement, as a merge of them would).
-    rad = fuse_frames(sub.frames, times_used, resp, weight=weight, valid=sub.valid, device=device).radiance
-    real = bracket.frames[index]
-    scale = 1.0 if real.dtype == np.uint8 else 257.0
-    rendered = render(rad, resp, float(bracket.times[index]), device=device)
-    r = real.astype(np.float64) / scale
-    v = rendered.astype(np.float64) / scale
-    mask = (r >= low) & (r <= high)
-    if bracket.valid[index] is not None:
-        mask &= bracket.valid[index][..., None]
-    d = (v - r)[mask]
-    rmse = float(np.sqrt(np.mean(d * d))) if d.size else float("nan")
-    return LeaveOneOut(index=index, time=float(bracket.times[index]), rmse=rmse, pixels=int(d.size))
+    with _DEVICE_LOCK:  # the curves solve on several threads; the OpenCL kernels' arguments are shared
+        rad = fuse_frames(sub.frames, times_used, resp, weight=weight, valid=sub.valid, device=device).radiance
+        rendered = render(rad, resp, float(bracket.times[index]), device=device)
+    del rad
+    rmse, n = _rmse_levels(real, rendered, bracket.valid[index], low, high)
+    return LeaveOneOut(index=index, time=float(bracket.times[index]), rmse=rmse, pixels=n)
+
+
+#: Serialises the leave-one-out fusions and renderings on the OpenCL device.
+_DEVICE_LOCK = threading.Lock()
+
+
+def _rmse_levels(real: np.ndarray, rendered: np.ndarray, valid, low: int, high: int) -> Tuple[float, int]:
+    """RMSE in 8-bit levels of ``rendered`` against ``real`` over the pixel-channels the
+    real frame reads within ``[low, high]`` (8-bit units) where ``valid``; exact integer
+    differences (16-bit codes scaled by 1/257 after)."""
+    scale = 1 if real.dtype == np.uint8 else 257
+    mask = (real >= low * scale) & (real <= high * scale)
+    if valid is not None:
+        mask &= valid[..., None]
+    n = int(np.count_nonzero(mask))
+    if not n:
+        return float("nan"), 0
+    # Whole arrays, no gathers: float64 holds the integer differences and their sum of
+    # squares exactly (below 2^53 for any frame the report measures).
+    d = rendered.astype(np.float64).ravel()
+    d -= real.ravel()
+    d *= mask.ravel()
+    return float(np.sqrt(np.dot(d, d) / n)) / scale, n
+
+
+def _loo_threads() -> int:
+    try:
+        n = int(os.environ.get("HDRCL_REPORT_THREADS", "0"))
+    except ValueError:
+        n = 0
+    return n if n > 0 else max(1, min(4, os.cpu_count() or 1))
+
+
+#: Threads that solve the leave-one-out curves at once (the fusions take turns):
+#: ``HDRCL_REPORT_THREADS``, else the cores, at most 4.
+LOO_THREADS = _loo_threads()
 
 
 def leave_one_out_all(bracket: Bracket, interior_only: bool = True, **kw) -> List[LeaveOneOut]:
-    """:func:`leave_one_out` for every frame (by default not the shortest and longest)."""
+    """:func:`leave_one_out` for every frame (by default not the shortest and longest),
+    the curves solved on up to :data:`LOO_THREADS` threads."""
     order = np.argsort(bracket.times)
-    idx = order[1:-1] if interior_only else order
-    return [leave_one_out(bracket, int(k), **kw) for k in idx]
+    idx = [int(k) for k in (order[1:-1] if interior_only else order)]
+    threads = min(LOO_THREADS, len(idx))
+    if threads <= 1:
+        return [leave_one_out(bracket, k, **kw) for k in idx]
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(threads, thread_name_prefix="hdrcl-loo") as pool:
+        return list(pool.map(lambda k: leave_one_out(bracket, k, **kw), idx))
 
 
 # --------------------------------------------------------------------------- report figures
@@ -380,6 +419,7 @@ def measure(
         raise UsageError(f"the response describes {response.bits}-bit images but the frames are "
                          f"{8 * frames[0].dtype.itemsize}-bit")
     h, w, c = frames[0].shape
+    release_free_memory()
     coverage, hist, n_high, n_low, n_valid, extra_high, extra_low = _clipping(bracket, used, response, weight)
 
     dr = dynamic_range_stops(radiance) if radiance is not None else None
@@ -390,6 +430,7 @@ def measure(
     loo_rows, loo_stride, loo_rmse = _loo(bracket, used, response, weight, device, loo_max_pixels) if loo \
         else ([], 1, None)
 
+    release_free_memory()
     fitted = _fitted_for(response, nominal)
     exposures = [{"nominal": float(n), "used": float(u), "fitted": None if fitted is None else float(f)}
                  for n, u, f in zip(nominal, used, fitted if fitted is not None else nominal)]
@@ -525,6 +566,27 @@ def _code_interval(table: np.ndarray) -> Optional[Tuple[int, int]]:
     if nz.size == 0 or nz[-1] - nz[0] + 1 != nz.size:
         return None
     return int(nz[0]), int(nz[-1])
+
+
+def release_free_memory() -> None:
+    """Hand the C heap's free pages back to the system (glibc ``malloc_trim``; nothing
+    elsewhere). The report runs after a merge has freed its strips and before the next
+    set's: without it, what the merge freed stays resident beside what the report
+    allocates (on other threads' heaps too), and the report would raise the peak."""
+    global _TRIM
+    if _TRIM is None:
+        try:
+            import ctypes
+            import ctypes.util
+
+            _TRIM = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+        except (OSError, AttributeError):
+            _TRIM = False
+    if _TRIM:
+        _TRIM(0)
+
+
+_TRIM = None
 
 
 def _fitted_for(response: Response, nominal: np.ndarray) -> Optional[np.ndarray]:
