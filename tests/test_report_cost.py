@@ -136,3 +136,23 @@ def test_batch_keeps_only_the_report_grid():
         assert np.array_equal(got, full[::k, ::k])
     br = kept.bracket(["a", "b"], [Info(), Info()], [1.0, 4.0], None)
     assert br.grid and _stride_of(br) == k
+
+
+def test_grid_figures_keep_the_frames_shape(merged):
+    """Measured on a grid, the figures still name the frames merged (not the grid), and a
+    grid with every pixel valid shows no 'no data' in the legend."""
+    from hdrcl.report.pages import ReportEntry
+    from hdrcl.report.sheet import format_figures
+
+    br, res = merged
+    h, w, c = br.frames[0].shape
+    grid = Bracket(frames=[f[::3, ::3] for f in br.frames], times=br.times, valid=[None] * len(br.frames),
+                   grid=True)
+    fig = measure(grid, res.response, res.radiance, stride=3, shape=(h, w, c), loo=False)
+    assert fig.shape == (h, w, c)
+    assert f"× {w}×{h}," in dict(format_figures(fig))["Frames"]
+    assert fig.valid_pixels == len(range(0, h, 3)) * len(range(0, w, 3))
+    entry = ReportEntry("s", "done", figures=fig, files={"coverage": "s-coverage.png"})
+    from hdrcl.report.sheet import _card
+
+    assert "no data" not in _card(entry, 0)

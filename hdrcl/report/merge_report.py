@@ -76,7 +76,7 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
     br = Bracket(frames=frames, times=np.asarray(nominal), valid=valid, paths=paths, infos=infos, grid=stride > 1)
     preview = result.thumbnail if result.thumbnail is not None else result.radiance
     fig = measure(br, result.response, preview, weight=weight, times=result.times, device=device, loo=loo,
-                  stride=stride)
+                  stride=stride, shape=(h, w, c))
     stem = name or os.path.splitext(os.path.basename(result.output or paths[0]))[0]
     entry = write_set_report(folder, stem, fig, result.response, preview, fig.coverage, warnings=result.warnings,
                              bracket=br, alignment=getattr(result, "alignment", None))

@@ -337,6 +337,7 @@ def measure(
     loo_max_pixels: int = LOO_MAX_PIXELS,
     device: Optional[str] = None,
     stride: int = 1,
+    shape: Optional[tuple] = None,
 ) -> QualityFigures:
     """The quality report's figures for a merge of ``bracket`` through ``response``.
 
@@ -364,6 +365,9 @@ def measure(
         ``bracket`` holds every ``stride``-th row and column of the frames merged
         (recorded as :attr:`QualityFigures.grid_stride`; ``loo_stride`` counts in the
         frames merged).
+    shape : tuple, optional
+        ``(H, W, C)`` of the frames merged, recorded as :attr:`QualityFigures.shape`;
+        default the bracket's frames' (right unless ``stride > 1``).
 
     Notes
     -----
@@ -437,7 +441,7 @@ def measure(
     for e, p in zip(exposures, bracket.paths or []):
         e["file"] = os.path.basename(p)
     return QualityFigures(
-        shape=(h, w, c), frames=len(frames), bits=response.bits, weight=weight, exposures=exposures,
+        shape=tuple(int(v) for v in shape) if shape is not None else (h, w, c), frames=len(frames), bits=response.bits, weight=weight, exposures=exposures,
         loo_rmse=loo_rmse, loo=loo_rows, loo_stride=loo_stride * max(1, int(stride)), dynamic_range_stops=dr,
         dynamic_range_is_lower_bound=bool(frac_high > tail or frac_low > tail),
         clipped_high_fraction=float(frac_high), clipped_low_fraction=float(frac_low),

@@ -86,7 +86,7 @@ def _precision(f: QualityFigures, fraction: float) -> str:
     """``" (± 0.01, every 3rd row and column)"`` when the figure was measured on a grid."""
     if int(getattr(f, "grid_stride", 1)) <= 1:
         return ""
-    return (f" (± {100 * fraction_precision(fraction, f.valid_pixels):.2f}, measured on every "
+    return (f" (± {100 * fraction_precision(fraction, f.valid_pixels):.2g}, measured on every "
             f"{_ordinal(f.grid_stride)} row and column)")
 
 
@@ -263,7 +263,8 @@ def _plots(entry) -> List[str]:
                      "</figcaption></figure>")
     if "coverage" in files:
         frames = f.frames if f is not None else 0
-        no_data = f is not None and f.valid_pixels < f.shape[0] * f.shape[1]
+        k = max(1, int(getattr(f, "grid_stride", 1))) if f is not None else 1
+        no_data = f is not None and f.valid_pixels < -(-f.shape[0] // k) * -(-f.shape[1] // k)
         legend = "".join(f'<span style="--c:{c}">{_e(label)}</span>'
                          for label, c in coverage_legend(frames, no_data=no_data))
         plots.append(f'<figure>{_img(files["coverage"], entry.name + ": coverage map", "map")}'

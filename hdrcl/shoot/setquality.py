@@ -98,10 +98,14 @@ def _quality_for(res: SetResult, job: SetJob, bracket, resp: Response, times, ra
     try:
         stride = _stride_of(bracket)
         if stride == 1:  # whole frames (an aligned set's, as merged): measured on the report's grid all the same
+            shape = bracket.frames[0].shape
             bracket, stride = decimate(bracket)
+        else:
+            info = bracket.infos[0]
+            shape = (info.height, info.width, bracket.frames[0].shape[2])
         with _FUSE_LOCK:  # leave-one-out fuses on the process's OpenCL device
             fig = measure(bracket, resp, radiance, weight=opts.weight, times=times, device=opts.device,
-                          stride=stride)
+                          stride=stride, shape=shape)
         stem = _report_stem(job)
         entry = write_set_report(opts.report_dir, stem, fig, resp, radiance, fig.coverage, warnings=res.warnings,
                                  bracket=bracket)
