@@ -119,3 +119,15 @@ def test_a_damaged_frame_is_judged_the_same_with_and_without_decoding_ahead(tmp_
         assert ahead.pending() == 0 and not _helpers()
     assert seen["1"] == seen["0"]
     assert sum(1 for _, status, _ in seen["1"][1] if status == "done") >= 2
+
+
+def test_a_set_merged_elsewhere_does_not_hold_its_frames_or_block_the_next(one_set, tmp_path):
+    """A set decoded ahead whose merge never opens it (another process merged it) is
+    dropped, and the next set can be decoded ahead."""
+    paths, infos = one_set
+    assert ahead.decode_ahead(paths, infos, OPEN)
+    ahead.discard(paths)
+    assert ahead.pending() == 0 and not _helpers()
+    assert ahead.decode_ahead(list(reversed(paths)), infos, OPEN)
+    ahead.cancel_all()
+    assert ahead.pending() == 0

@@ -127,6 +127,17 @@ def take(paths: Sequence) -> Optional[_Ahead]:
     return job
 
 
+def discard(paths: Sequence) -> None:
+    """Drop the set ``paths`` if it is still ahead (its merge did not open it: another
+    process merged it, or it failed first), so the next set can be decoded ahead."""
+    key = _key(paths)
+    with _lock:
+        job = _pending.pop(key, None)
+    if job is not None:
+        job.stop.set()
+        job.thread.join(timeout=2.0)
+
+
 def cancel_all() -> None:
     """Stop every decode ahead and drop its frames (a batch ending or cancelled)."""
     with _lock:

@@ -128,7 +128,7 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
 
     from functools import partial
 
-    from hdrcl.io.ahead import cancel_all, decode_ahead
+    from hdrcl.io.ahead import cancel_all, decode_ahead, discard
     from hdrcl.io.reader import BracketReader
 
     open_reader = partial(BracketReader, ahead=False)
@@ -142,6 +142,7 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
                 ahead = reader.submit(read, jobs[i + 1], True)
             if isinstance(step, _Opening):
                 step = _merge_stage(step, ctx)
+                discard(jobs[i].files)  # decoded ahead but never opened (merged elsewhere, failed early)
             step.seconds["total"] = _time.perf_counter() - started[step.index]
             emit(step)
     finally:
