@@ -546,7 +546,7 @@ def _evidence_counts(frames, valid, order, levels: int, weight: str):
         else:  # the usual table, one run of codes: two comparisons, not a gather through intp indices
             m = (z >= span[0]).view(np.uint8)
             m &= (z <= span[1]).view(np.uint8)
-        m[done] = 0
+        m &= ~done  # (not m[done] = 0: no boolean-index pass)
         black = z <= zlo
         if ok is None:
             ok = np.ones((h, w), bool)
@@ -554,7 +554,7 @@ def _evidence_counts(frames, valid, order, levels: int, weight: str):
             m &= ok[..., None]
             black &= ok[..., None]
         count += m
-        count[black] = 0  # at the noise floor: this frame and every shorter one are no evidence
+        count *= ~black  # = 0 at the noise floor: this frame and every shorter one are no evidence
         done |= (z >= zhi) & ok[..., None]
         newly = ok & (first_j < 0)
         first_j[newly] = rank
