@@ -28,6 +28,12 @@ positive value below 2^-16), it measures the rest and fuses again into float (``
 and always for absolute units) or into half rescaled by a recorded power of two
 (``--dtype half``: ``hdrcl:halfScale``). A calibrating merge reads the second pass from
 its decoded-frame cache, so nothing is decoded twice.
+
+**One pass.** Each strip is scaled by the reference exposure, measured and converted to
+the file's type in one walk over cache-sized blocks, straight into the EXR encoder's
+batch (:meth:`hdrcl.io.writers.RadianceWriter.write_scaled`,
+:class:`hdrcl.io.halfrange.OnePass`): the strip the fusion hands over is read once and
+never copied or changed; the file is the one ``strip * scale`` would give, bit for bit.
 """
 from __future__ import annotations
 
