@@ -50,6 +50,8 @@ MIN_ZNCC = 0.3
 #: ... scale outside this range, rotation beyond this (degrees).
 SCALE_RANGE = (0.8, 1.25)
 MAX_ROTATION = 20.0
+#: The fitted models (what ``auto`` chooses among).
+MODEL_KINDS = ("shift", "similarity", "homography")
 
 
 def _degenerate(m: np.ndarray, h: int, w: int) -> Optional[str]:
@@ -176,10 +178,12 @@ def motion_px(m: np.ndarray, h: int, w: int, valid: Optional[np.ndarray] = None)
 
 def register_chained(reg, out, links, mats, j: int, ref: int, model: str, names):
     """``(anchor, model, fit, residual, why)`` of frame ``j`` (:func:`register`) against
-    its nearest measured neighbour toward the reference; and against that neighbour's
-    own nearest measured neighbour when that one is fewer fits from the reference: when
-    the two put the frame more than :data:`SKIP_PX` apart (median over the frame), the
-    neighbour is the odd one and the shorter chain is taken, so that one frame's own
+    its nearest measured neighbour toward the reference; and (with the model that fit
+    chose) against that neighbour's own nearest measured neighbour when that one is
+    fewer fits from the reference: when
+    the two put the frame more than :data:`SKIP_PX` apart (median over the frame) and
+    the shorter chain's fit has the lower residual, the neighbour is the odd one and the
+    shorter chain is taken, so that one frame's own
     misregistration does not carry into every frame beyond it (Memorial's tripod 0067
     sits 0.77 px off 0068 and 0.51 px off 0066, while 0066 sits 0.15 px off 0068)."""
     step = 1 if j < ref else -1
@@ -197,14 +201,17 @@ def register_chained(reg, out, links, mats, j: int, ref: int, model: str, names)
     if links[far] >= links[near]:
         return got
     try:
-        alt = (far,) + register(reg, far, j, model, names)
+        alt = (far,) + register(reg, far, j, got[1] if model == "auto" and got[1] in MODEL_KINDS else model, names)
     except InputError:
         return got
     if alt[4] is not None:
         return got
     h, w = reg.shape
     apart = motion_px(np.linalg.inv(got[2].matrix @ mats[near]) @ (alt[2].matrix @ mats[far]), h, w)
-    return alt if apart > SKIP_PX else got
+    def res(x):
+        return x[3] if np.isfinite(x[3]) else np.inf
+
+    return alt if apart > SKIP_PX and res(alt) < res(got) else got
 
 
 def register(reg, anchor: int, j: int, model: str, names):

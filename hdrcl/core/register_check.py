@@ -16,7 +16,8 @@ peak's neighbours on each axis). A tile whose peak correlates at least
 :data:`MIN_NCC` and stands clear of the best shift :data:`UNIQUE_PX` or more away
 counts.
 
-**Model.** A similarity (two tiles determine one) by RANSAC over all pairs of tiles,
+**Model.** A similarity (two tiles determine one) by RANSAC over all pairs of tiles (a
+fixed sample of :data:`MAX_PAIRS` of them where there are more),
 inliers within :data:`INLIER_PX`, refitted by least squares on the inliers; with fewer
 than three tiles agreeing, no estimate. Nothing here shares code or samples with the
 Gauss-Newton fit it checks: it is the check the fit's own small residual cannot be
@@ -42,6 +43,8 @@ UNIQUE_GAP = 0.05
 #: RANSAC: inlier distance (level pixels), and the tiles that must agree.
 INLIER_PX = 1.0
 MIN_TILES = 3
+#: Pairs of tiles tried at most (all of them below that: a dark frame's few).
+MAX_PAIRS = 300
 
 
 @dataclass
@@ -172,15 +175,18 @@ def robust_similarity(p: np.ndarray, q: np.ndarray):
     n = len(p)
     if n < MIN_TILES:
         return None
+    ii, jj = np.triu_indices(n, 1)
+    far = np.hypot(*(p[ii] - p[jj]).T) >= TILE
+    ii, jj = ii[far], jj[far]
+    if ii.size > MAX_PAIRS:  # a bright frame's hundreds of tiles: a fixed sample of the pairs
+        pick = np.random.default_rng(0).choice(ii.size, MAX_PAIRS, replace=False)
+        ii, jj = ii[pick], jj[pick]
     best = None
-    for i in range(n):
-        for j in range(i + 1, n):
-            if np.hypot(*(p[i] - p[j])) < TILE:
-                continue
-            m = fit_similarity(p[[i, j]], q[[i, j]])
-            inl = np.hypot(*(apply(m, p) - q).T) <= INLIER_PX
-            if best is None or inl.sum() > best.sum():
-                best = inl
+    for i, j in zip(ii, jj):
+        m = fit_similarity(p[[i, j]], q[[i, j]])
+        inl = np.hypot(*(apply(m, p) - q).T) <= INLIER_PX
+        if best is None or inl.sum() > best.sum():
+            best = inl
     if best is None or best.sum() < MIN_TILES:
         return None
     for _ in range(3):
