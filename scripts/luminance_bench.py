@@ -51,7 +51,7 @@ def srgb_g() -> np.ndarray:
 def write_set(folder: str, mp: float, frames: int, seed: int = 1):
     """The bracket's JPEG files, the lens circle and the times."""
     from hdrcl.core.radiometry import METER_K
-    from hdrcl.io.writers import write_photo
+    from hdrcl.io.ldr import write_photo
 
     h = int(round(math.sqrt(mp * 1e6 / 1.5)))
     w = int(round(h * 1.5))

@@ -20,7 +20,7 @@ import numpy as np
 import hdrcl
 from hdrcl.core import synthetic as s
 from hdrcl.core.radiometry import motion_blur
-from hdrcl.io.writers import write_ldr
+from hdrcl.io.ldr import write_ldr
 
 
 def main(argv=None):

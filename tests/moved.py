@@ -165,7 +165,7 @@ def moved_merge(folder, out_dir, seed, max_rot, fill, tripod, **kw):
     import os
 
     import hdrcl
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     names, _, moved, times, mats = memorial_moved(folder, seed, max_rot=max_rot, fill=fill)
     paths = []

@@ -131,7 +131,7 @@ def test_tiny_frames_merge_untouched(tmp_path, caplog):
     levels are too many'): merged as they are, with a warning."""
     import hdrcl
     from hdrcl.core.response import Response
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     knots = np.arange(256, dtype=np.float64)
     g = np.log(np.maximum(knots, 0.5) / 128.0)

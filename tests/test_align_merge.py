@@ -17,7 +17,7 @@ def handheld(tmp_path):
         textured_radiance,  # texture at several scales: something to align on
     )
 
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
     big = textured_radiance(300, 400, seed=21)
@@ -78,7 +78,7 @@ def test_align_masks_decide_the_clipping_rule(tmp_path, monkeypatch, cl_device):
     from test_align import textured_radiance
 
     import hdrcl
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
     big = textured_radiance(200, 260, seed=4)
@@ -124,7 +124,7 @@ def memorial_handheld_files(memorial, tmp_path_factory):
 
     from moved import handheld_set
 
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     d = tmp_path_factory.mktemp("handheld")
     base = iio.imread(memorial / "memorial0066.png")[..., :3]
@@ -198,7 +198,7 @@ def test_unalignable_frame_is_refused_by_name(memorial_handheld_files, memorial,
 
     import hdrcl
     from hdrcl.errors import InputError
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     files, times, mats, d = memorial_handheld_files
     paths = list(files["moved"])

@@ -25,7 +25,7 @@ import hdrcl
 from hdrcl.cli import main
 from hdrcl.errors import UsageError
 from hdrcl.io.radiance import read_metadata, read_radiance
-from hdrcl.io.writers import write_photo
+from hdrcl.io.ldr import write_photo
 from hdrcl.shoot.jobs import BatchOptions, SetResult
 from hdrcl.shoot.manifest import BracketSet, Manifest
 from hdrcl.shoot.plan import output_stems, parse_sets, select_sets

@@ -11,7 +11,7 @@ from hdrcl.core import synthetic as s
 
 @pytest.fixture()
 def bracket_files(tmp_path):
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
     rad = s.radiance_field(37, 53, decades=4.0, seed=5)
@@ -82,7 +82,7 @@ def test_single_frame_is_an_input_error(bracket_files):
 
 
 def test_size_mismatch(bracket_files, tmp_path):
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     odd = tmp_path / "odd.png"
     write_ldr(str(odd), np.zeros((10, 10, 3), np.uint8))

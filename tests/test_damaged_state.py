@@ -58,7 +58,7 @@ def test_damaged_batch_state_is_rebuilt(shoot, tmp_path, damage):
 @pytest.mark.parametrize("damage", sorted(DAMAGE))
 def test_merge_report_skips_a_damaged_entry(tmp_path, damage):
     from hdrcl.core import synthetic as s
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     times = (1 / 60, 1 / 15, 1 / 4)
     rad = s.radiance_field(24, 32, decades=2.0, seed=3)

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from hdrcl.core import synthetic as s
 from hdrcl.core.encode import RangeMeter, default_reference, fuse_to_file, reference_for
 from hdrcl.io.framecache import FrameCache
-from hdrcl.io.writers import write_ldr, write_photo
+from hdrcl.io.ldr import write_ldr, write_photo
 
 CAM = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
 

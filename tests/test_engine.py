@@ -11,7 +11,7 @@ import pytest
 
 def _bracket(folder, name, h, w, seed=0):
     """PNG frames of one smooth scene at 1/4, 1 and 4 s, with their times list."""
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     rng = np.random.default_rng(seed)
     yy, xx = np.mgrid[0:h, 0:w]
@@ -104,7 +104,7 @@ def test_batch_checks_exposures_with_a_given_response_as_merge_does(tmp_path, cl
     """A frame labelled 1 s that was taken at 2 s: with a given response and
     --fit-exposures off, merge and batch say the same thing about it, and both take
     --exposure-tolerance (issue 25)."""
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     shoot = tmp_path / "shoot"
     paths, times = _bracket(str(shoot), "f", 120, 160)
@@ -200,7 +200,7 @@ def test_scan_and_batch_agree_on_two_frames_of_one_exposure(tmp_path, cl_device)
     import datetime as dt
 
     from hdrcl.core import synthetic
-    from hdrcl.io.writers import write_photo
+    from hdrcl.io.ldr import write_photo
 
     shoot = tmp_path / "shoot"
     shoot.mkdir()
@@ -352,7 +352,7 @@ def test_sigterm_after_the_work_is_committed_is_not_a_silent_143(tmp_path):
 
 def test_calibrate_16_bit_frames_to_rsp_is_refused_from_the_headers(tmp_path):
     """Issue 29: one line, exit 2, before any solve (no warnings of the solve first)."""
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     paths = []
     for k, t in enumerate((0.25, 1.0, 4.0)):

@@ -35,7 +35,8 @@ LINE = re.compile(r"^hdrcl: error: \S.*$")
 def fx(tmp_path_factory):
     """Small files for every case: brackets, responses, a radiance map, a shoot."""
     from hdrcl.core.response import Response, knot_positions
-    from hdrcl.io.writers import write_ldr, write_radiance
+    from hdrcl.io.writers import write_radiance
+    from hdrcl.io.ldr import write_ldr
     from hdrcl.shoot.manifest import save_manifest
     from hdrcl.shoot.plan import load_source
     from hdrcl.shoot.sample import write_sample_shoot
@@ -304,7 +305,7 @@ def test_flat_curve_warning_reads_sensibly(fx, tmp_path):
 
 def test_output_equal_to_an_input_is_refused_before_it_is_destroyed(fx, tmp_path):
     """The audit's data loss: ``-o`` naming an input TIFF replaced the photograph."""
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     paths = []
     for k in range(3):
@@ -550,7 +551,7 @@ def test_merge_has_the_options_of_merge_files(fx, tmp_path, cl_device):
 @pytest.fixture(scope="module")
 def big_bracket(tmp_path_factory):
     """Three 2400x3600 frames (a small synthetic bracket tiled): a merge takes seconds."""
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     d = tmp_path_factory.mktemp("big")
     rad = s.radiance_field(200, 300, decades=3.0, seed=3)

@@ -36,7 +36,8 @@ def fx(tmp_path_factory):
     """Small files: an 8-bit bracket (32x24) and its response, a one-channel radiance
     map, black / white / transparent brackets, folders a batch finds nothing in."""
     from hdrcl.core.response import Response, knot_positions
-    from hdrcl.io.writers import write_ldr, write_photo, write_radiance
+    from hdrcl.io.writers import write_radiance
+    from hdrcl.io.ldr import write_ldr, write_photo
 
     d = tmp_path_factory.mktemp("contract2")
     rad = s.radiance_field(24, 32, decades=3.0, seed=3)
@@ -439,7 +440,7 @@ def test_bgr_arrays_with_channel_order(fx):
 
 def test_orientation_that_differs_between_frames_is_said(fx, tmp_path):
     """EXIF Orientation is never applied; frames whose tags differ get one warning."""
-    from hdrcl.io.writers import write_photo
+    from hdrcl.io.ldr import write_photo
 
     paths = []
     for k, frame in enumerate(fx["frames"]):

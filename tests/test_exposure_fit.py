@@ -78,7 +78,7 @@ def test_memorial_times_stay_untouched(memorial_bracket, cl_device):
 
 def test_file_merge_records_nominal_and_used_times(bracket, tmp_path, cl_device):
     from hdrcl.io.radiance import read_metadata
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     frames, times = bracket
     paths = []

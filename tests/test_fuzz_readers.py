@@ -29,7 +29,7 @@ TIMES = (1 / 60, 1 / 15, 1 / 4)
 @pytest.fixture(scope="module")
 def base(tmp_path_factory):
     from hdrcl.core.response import Response, knot_positions
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     d = tmp_path_factory.mktemp("fuzz")
     rad = s.radiance_field(12, 16, decades=2.0, seed=7)

@@ -267,7 +267,7 @@ def test_untrusted_metadata_names_the_frames(field):
 
 
 def _write(folder, frames):
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     folder.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -308,7 +308,7 @@ def test_batch_corrects_wrong_labels_with_the_pooled_response(tmp_path, field, c
     from click.testing import CliRunner
 
     from hdrcl.cli import main
-    from hdrcl.io.writers import write_photo
+    from hdrcl.io.ldr import write_photo
 
     rad, c = field
     when = dt.datetime(2024, 6, 1, 9, 0, 0)

@@ -11,7 +11,7 @@ from hdrcl.core import synthetic as s
 
 @pytest.fixture()
 def bracket(tmp_path, monkeypatch):
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     monkeypatch.setenv("HDRCL_MAX_PIXELS", "")  # restored after the test (--max-pixels sets it)
     rad = s.radiance_field(20, 30, decades=3.0, seed=2)

@@ -14,7 +14,7 @@ from hdrcl.cli import main
 from hdrcl.core import fisheye_math as fm
 from hdrcl.io.radiance import read_metadata, read_radiance
 from hdrcl.io.rsp import write_rsp
-from hdrcl.io.writers import write_photo
+from hdrcl.io.ldr import write_photo
 
 from test_fisheye import _one_by_one
 

@@ -146,7 +146,7 @@ def test_inapplicable_options_warn(tmp_path, scene):
 
     from hdrcl.cli import main
     from hdrcl.io.outmeta import inapplicable_options
-    from hdrcl.io.writers import write_photo
+    from hdrcl.io.ldr import write_photo
 
     assert inapplicable_options("a.exr", dtype="float", compression="piz") == []
     assert inapplicable_options("a.hdr") == []  # nothing given, nothing said

@@ -10,7 +10,7 @@ from hdrcl.io.writers import RadianceWriter
 
 @pytest.fixture()
 def files(tmp_path):
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
     rad = s.radiance_field(131, 97, decades=4.0, seed=8)

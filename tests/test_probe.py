@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hdrcl.io import probe
-from hdrcl.io.writers import write_photo
+from hdrcl.io.ldr import write_photo
 
 
 @pytest.fixture

@@ -11,7 +11,7 @@ from hdrcl.errors import UsageError
 
 @pytest.fixture()
 def files(tmp_path):
-    from hdrcl.io.writers import write_photo
+    from hdrcl.io.ldr import write_photo
 
     cam = s.Camera(a=1.1, x0=(1.0, 1.0, 1.0))
     rad = s.radiance_field(40, 60, decades=2.0, seed=4)

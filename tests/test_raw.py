@@ -312,7 +312,7 @@ def test_mixing_raw_and_jpeg_is_an_error(bracket, tmp_path):
     from hdrcl.io.reader import BracketReader
 
     jpg = tmp_path / "x.jpg"
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     f = hr.read_raw(bracket["paths"][0]).pixels
     write_ldr(str(jpg), (f >> 8).astype(np.uint8))

@@ -48,7 +48,7 @@ def _images(entries, unmerged_readable=0):
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
-    from hdrcl.io.writers import write_photo
+    from hdrcl.io.ldr import write_photo
 
     folder = tmp_path_factory.mktemp("report")
     cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
@@ -262,7 +262,7 @@ def test_report_folder_accumulates(tmp_path):
     from click.testing import CliRunner
 
     from hdrcl.cli import main
-    from hdrcl.io.writers import write_photo
+    from hdrcl.io.ldr import write_photo
 
     cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
     folder = tmp_path / "rep"

@@ -15,7 +15,7 @@ from click.testing import CliRunner
 
 from hdrcl.cli import main
 from hdrcl.core import synthetic
-from hdrcl.io.writers import write_ldr, write_photo
+from hdrcl.io.ldr import write_ldr, write_photo
 
 MEMORIAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "memorial"
 TIMES = [1 / 1000, 1 / 250, 1 / 60, 1 / 15]

@@ -89,7 +89,7 @@ def test_merge_summary_quotes_the_recorded_shutter_times(tmp_path, cl_device):
     from click.testing import CliRunner
 
     from hdrcl.cli import main
-    from hdrcl.io.writers import write_photo
+    from hdrcl.io.ldr import write_photo
 
     rad = s.radiance_field(48, 64, decades=2.5, seed=3)
     c = 1.0 / float(np.median(rad))

@@ -180,7 +180,7 @@ def test_deghost_reference_choice_and_no_double_image(cl_device):
 
 
 def _write_set(tmp_path, frames, names=None):
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     paths = []
     for k, f in enumerate(frames):

@@ -9,7 +9,8 @@ from hdrcl.io import writers  # noqa: E402
 from hdrcl.io.atomic import atomic_output
 from hdrcl.io.frames import read_image  # noqa: E402
 from hdrcl.io.radiance import read_radiance
-from hdrcl.io.writers import write_ldr, write_radiance
+from hdrcl.io.writers import write_radiance
+from hdrcl.io.ldr import write_ldr
 
 
 def _radiance(channels=3, seed=0, sigma=2.0):
@@ -183,7 +184,9 @@ def test_writer_failure_keeps_previous_file(tmp_path, monkeypatch):
         def __getattr__(self, name):
             return FakeImageOutput if name == "ImageOutput" else getattr(oiio, name)
 
-    monkeypatch.setattr(writers, "_oiio", lambda: FakeOiio())
+    from hdrcl.io import attributes
+
+    monkeypatch.setattr(attributes, "_oiio", lambda: FakeOiio())  # the whole-image write
     with pytest.raises(RuntimeError, match="mid-way"):
         write_radiance(target, _radiance(seed=2))
     assert target.read_bytes() == before

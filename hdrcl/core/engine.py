@@ -457,11 +457,11 @@ class MergeJob(Timed):
             res.warnings.append(f"{self.output}: {self.stored.note}")
             res.storage_note = self.stored.note
         if self.mask is not None:
-            from hdrcl.io.writers import write_ldr
+            from hdrcl.io.ldr import write_ldr
 
             write_ldr(x.ghost_mask, (self.mask.astype(np.uint8) * 255)[..., None])
         if self.clips is not None:
-            from hdrcl.io.writers import write_ldr
+            from hdrcl.io.ldr import write_ldr
 
             img = np.where(self.clips & 1, 255, np.where(self.clips & 2, 128, 0)).astype(np.uint8)
             write_ldr(x.clip_mask, img[..., None])

@@ -96,7 +96,7 @@ def expose_file(
     :data:`MAX_MOTION_BLUR` pixels long (UsageError otherwise).
     """
     from hdrcl.io.radiance import read_radiance
-    from hdrcl.io.writers import LDR_EXTENSIONS, write_ldr
+    from hdrcl.io.ldr import LDR_EXTENSIONS, write_ldr
 
     from hdrcl.io.atomic import check_output
 

@@ -1,11 +1,17 @@
-"""hdrcl's own metadata as file attributes: ``hdrcl:*`` header attributes (EXR) or JSON
-in ImageDescription (TIFF), for :mod:`hdrcl.io.writers`."""
+"""Image files as OpenImageIO writes them, for the radiance writers (:mod:`hdrcl.io.writers`)
+and the LDR ones (:mod:`hdrcl.io.ldr`): hdrcl's own metadata as file attributes
+(``hdrcl:*`` header attributes, or JSON in ImageDescription for formats without custom
+attributes), and one atomic whole-image write (:func:`write_image`)."""
 from __future__ import annotations
 
 import json
 from typing import Mapping, Optional
 
 import numpy as np
+
+from hdrcl.errors import ProcessingError, UsageError
+from hdrcl.io.atomic import atomic_output
+from hdrcl.io.frames import _clean_error
 
 METADATA_PREFIX = "hdrcl:"
 
@@ -44,3 +50,33 @@ def description(metadata: Optional[Mapping]) -> Optional[str]:
         return None
     plain = {str(k): (v.item() if isinstance(v, np.generic) else v) for k, v in metadata.items()}
     return json.dumps({"hdrcl": plain}, default=str, sort_keys=True)
+
+
+def _oiio():
+    import OpenImageIO as oiio  # lazy: keeps ``import hdrcl`` free of the OIIO load
+
+    return oiio
+
+
+def write_image(path: str, pixels: np.ndarray, fmt: str, attributes: list, channelnames=None):
+    """Write ``pixels`` (H, W, C) to ``path`` atomically with OIIO in the given format."""
+    oiio = _oiio()
+    h, w, c = pixels.shape
+    spec = oiio.ImageSpec(w, h, c, fmt)
+    if channelnames is not None:
+        spec.channelnames = tuple(channelnames)
+    if c in (2, 4):
+        spec.alpha_channel = c - 1
+    for attr in attributes:
+        spec.attribute(*attr)
+    with atomic_output(path) as tmp:
+        out = oiio.ImageOutput.create(tmp)
+        if out is None:
+            raise UsageError(f"{path}: no writer for this format ({oiio.geterror()})")
+        try:
+            ok = out.open(tmp, spec) and out.write_image(pixels)
+        finally:
+            closed = out.close()
+        if not (ok and closed) or out.has_error:
+            detail = _clean_error(out.geterror() or oiio.geterror(), tmp)
+            raise ProcessingError(f"{path}: cannot write ({detail or 'unknown error'})")

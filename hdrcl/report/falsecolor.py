@@ -308,7 +308,7 @@ def falsecolor_file(path, output, *, scale: str = "linear", lo: Optional[float] 
                     label: str = "cd/m2") -> Tuple[float, float]:
     """Read ``path``, write its false-colour picture to ``output`` (8-bit PNG, JPEG or
     TIFF, atomically); returns the legend's ``(min, max)``."""
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     if not (multiplier > 0 and math.isfinite(multiplier)):
         raise UsageError(f"--multiplier: expected a positive factor, not {multiplier:g}")

@@ -131,7 +131,7 @@ def write_inputs(folder: str, stem: str, bracket, size: int = THUMB_SIZE) -> Lis
     and ``thumb``. The caller leaves out of the infos the times the merge did not use
     (:func:`shot_settings` with the times given)."""
     from hdrcl.io.metadata import format_time
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     rows = []
     infos = list(getattr(bracket, "infos", None) or [])
@@ -159,7 +159,7 @@ def write_unmerged(folder: str, unmerged: Sequence[dict], size: int = THUMB_SIZE
     returns per group ``{"reason", "files": [{"file", "thumb" or None, "problem"}]}``.
     """
     from hdrcl.io.frames import read_image
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
     groups = []
     for u in unmerged or []:
         files = []

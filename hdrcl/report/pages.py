@@ -169,7 +169,7 @@ def write_set_report(
         ``MergeResult.alignment`` of an aligned merge: each frame's motion model and
         residual misalignment go under its thumbnail.
     """
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
     from hdrcl.report.inputs import camera_summary, write_inputs
 
     folder = os.fspath(folder)

@@ -317,7 +317,7 @@ def tonemap_file(radiance_path, output, operator: str = "reinhard", *, exposure:
 
     from hdrcl.errors import UsageError
     from hdrcl.io.radiance import read_radiance_colorspace
-    from hdrcl.io.writers import LDR_EXTENSIONS, write_ldr
+    from hdrcl.io.ldr import LDR_EXTENSIONS, write_ldr
 
     output, radiance_path = os.fsdecode(os.fspath(output)), os.fsdecode(os.fspath(radiance_path))
     ext = os.path.splitext(output)[1].lower()

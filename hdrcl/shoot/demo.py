@@ -47,7 +47,7 @@ def run_demo(folder, *, width: int = 768, height: int = 512, frames: int = 7, st
     """
     from hdrcl.core.exposure import expose_file
     from hdrcl.core.merge import merge_files
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
 
     if frames < 2:
         raise UsageError("--frames must be at least 2")

@@ -51,7 +51,7 @@ def write_sample_shoot(folder, *, width: int = 192, height: int = 128, seed: int
     list of str
         The paths written, in capture order.
     """
-    from hdrcl.io.writers import write_photo
+    from hdrcl.io.ldr import write_photo
 
     if width < 32 or height < 32:
         raise UsageError("sample shoot: frames must be at least 32x32")

@@ -74,7 +74,7 @@ def _failed(job: SetJob, exc: BaseException, seconds=None, digest=None) -> SetRe
 def _rebuild_preview(job: SetJob, digest: str, options: BatchOptions) -> None:
     """A lost or stale preview, made again from its (current) EXR."""
     from hdrcl.io.radiance import read_metadata, read_radiance
-    from hdrcl.io.writers import write_ldr
+    from hdrcl.io.ldr import write_ldr
     from hdrcl.report.preview import downscale, encode
 
     rad, _ = read_radiance(job.output)
@@ -310,7 +310,7 @@ class SetMerge(MergeJob):
     def before_commit(self, counts: dict) -> None:
         # Preview first: the EXR, moved into place last, marks the set complete.
         if self.small is not None:
-            from hdrcl.io.writers import write_ldr
+            from hdrcl.io.ldr import write_ldr
             from hdrcl.report.preview import encode
 
             with self.timed("preview"):
