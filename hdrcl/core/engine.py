@@ -19,7 +19,7 @@ import contextlib
 import logging
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import List, Optional
 
 import numpy as np
@@ -426,7 +426,7 @@ class MergeJob(Timed):
             src = self.tap(self.source) if first_pass else self.source
             if not first_pass and hasattr(src, "rewind"):
                 src.rewind()
-            run_spec = spec if first_pass else _second_pass(spec)
+            run_spec = spec if first_pass else replace(spec)
             run_spec.exposure_check = check if first_pass else None
             run_spec.thumbnail = self.thumb if first_pass else None
             counts, backend = stream_merge(src, self.times, self.response, sink, run_spec)
@@ -526,12 +526,6 @@ class MergeJob(Timed):
         res.seconds = {"open": s.get("open", 0.0), "calibrate": s.get("calibrate", 0.0),
                        "fuse_and_write": time.perf_counter() - t2}
         return res
-
-
-def _second_pass(spec):
-    from dataclasses import replace
-
-    return replace(spec)
 
 
 def _usage(msg: str):

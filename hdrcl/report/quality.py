@@ -111,17 +111,11 @@ def _rmse_levels(real: np.ndarray, rendered: np.ndarray, valid, low: int, high: 
     return float(np.sqrt(np.dot(d, d) / n)) / scale, n
 
 
-def _loo_threads() -> int:
-    try:
-        n = int(os.environ.get("HDRCL_REPORT_THREADS", "0"))
-    except ValueError:
-        n = 0
-    return n if n > 0 else max(1, min(4, os.cpu_count() or 1))
-
-
 #: Threads that solve the leave-one-out curves at once (the fusions take turns):
-#: ``HDRCL_REPORT_THREADS``, else the cores, at most 4.
-LOO_THREADS = _loo_threads()
+#: ``HDRCL_REPORT_THREADS`` (a positive integer), else the cores, at most 4.
+_ENV_THREADS = os.environ.get("HDRCL_REPORT_THREADS", "")
+LOO_THREADS = int(_ENV_THREADS) if _ENV_THREADS.isdigit() and int(_ENV_THREADS) > 0 else \
+    max(1, min(4, os.cpu_count() or 1))
 
 
 def leave_one_out_all(bracket: Bracket, interior_only: bool = True, **kw) -> List[LeaveOneOut]:
@@ -441,7 +435,8 @@ def measure(
     for e, p in zip(exposures, bracket.paths or []):
         e["file"] = os.path.basename(p)
     return QualityFigures(
-        shape=tuple(int(v) for v in shape) if shape is not None else (h, w, c), frames=len(frames), bits=response.bits, weight=weight, exposures=exposures,
+        shape=tuple(int(v) for v in shape) if shape is not None else (h, w, c), frames=len(frames),
+        bits=response.bits, weight=weight, exposures=exposures,
         loo_rmse=loo_rmse, loo=loo_rows, loo_stride=loo_stride * max(1, int(stride)), dynamic_range_stops=dr,
         dynamic_range_is_lower_bound=bool(frac_high > tail or frac_low > tail),
         clipped_high_fraction=float(frac_high), clipped_low_fraction=float(frac_low),
