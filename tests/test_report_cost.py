@@ -156,3 +156,18 @@ def test_grid_figures_keep_the_frames_shape(merged):
     from hdrcl.report.sheet import _card
 
     assert "no data" not in _card(entry, 0)
+
+
+def test_leave_one_out_curves_from_the_shared_grid(scene):
+    """The curves solved from one contiguous sampling grid shared by every leave-out give
+    the figures of each solve decimating the frames itself (frames big enough for a grid)."""
+    br = load_bracket(scene["frames"], scene["times"])
+    big = Bracket(frames=[np.ascontiguousarray(np.tile(f, (4, 6, 1))) for f in br.frames], times=br.times,
+                  valid=[None] * len(br.frames))  # 480 x 960: sampling grid stride 2
+    from hdrcl.core.sampling import grid_stride
+
+    assert grid_stride(*big.frames[0].shape[:2]) == 2
+    kw = dict(weight="gaussian", fit_exposures="off")
+    shared = leave_one_out_all(big, **kw)
+    own = leave_one_out_all(big, grid=None, **kw)
+    assert [(r.index, r.rmse, r.pixels) for r in shared] == [(r.index, r.rmse, r.pixels) for r in own]

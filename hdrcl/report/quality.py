@@ -26,6 +26,7 @@ from hdrcl.core.fusion import fuse_frames
 from hdrcl.core.response import Response
 from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.errors import UsageError
+from hdrcl.report.memory import release_free_memory
 from hdrcl.report.preview import (
     _LUMA,  # Rec.709 luminance weights, as the preview's tone map
 )
@@ -52,6 +53,7 @@ def leave_one_out(
     weight: str = DEFAULT_WEIGHT,
     device: Optional[str] = None,
     fit_exposures: str = "auto",
+    grid: Optional[Bracket] = None,
 ) -> LeaveOneOut:
     """RMSE (8-bit levels) of frame ``index`` rendered from a merge of the others.
 
@@ -59,7 +61,9 @@ def leave_one_out(
     ``fit_exposures`` as :func:`hdrcl.core.calibrate.calibrate`) and renders the missing frame at
     ``bracket.times[index]``: pass refined times to measure a refined set. Pixel-channels
     count where the real frame reads within ``[low, high]`` (8-bit units; scaled for
-    16-bit data) and the pixel is valid in that frame.
+    16-bit data) and the pixel is valid in that frame. ``grid``, with ``fit_exposures="off"``:
+    the bracket's sampling grid (:func:`hdrcl.core.sampling.grid_stride`, contiguous), which
+    the curve's sample selection would decimate to: the same curve, no copy per solve.
     """
     keep = [k for k in range(len(bracket.frames)) if k != index]
     times = np.asarray(bracket.times, np.float64)
@@ -71,8 +75,10 @@ def leave_one_out(
         # frames (nothing measurable, identical exposures): the same curve.
         from hdrcl.core.solve import recover_response
 
-        resp = recover_response(sub.frames, sub.times, valid=sub.valid_all, samples=samples, smoothness=smoothness,
-                                weight=weight, warn=False)
+        cal = sub if grid is None else Bracket(frames=[grid.frames[k] for k in keep], times=sub.times,
+                                               valid=[grid.valid[k] for k in keep])
+        resp = recover_response(cal.frames, cal.times, valid=cal.valid_all, samples=samples, smoothness=smoothness,
+                                weight=weight, warn=False, decimate=grid is None)
     else:
         resp = calibrate(sub, smoothness=smoothness, samples=samples, weight=weight, fit_exposures=fit_exposures,
                          warn=False)
@@ -123,6 +129,12 @@ def leave_one_out_all(bracket: Bracket, interior_only: bool = True, **kw) -> Lis
     the curves solved on up to :data:`LOO_THREADS` threads."""
     order = np.argsort(bracket.times)
     idx = [int(k) for k in (order[1:-1] if interior_only else order)]
+    if kw.get("fit_exposures") == "off" and "grid" not in kw:
+        from hdrcl.core.sampling import grid_stride
+
+        s = grid_stride(*bracket.frames[0].shape[:2])
+        kw["grid"] = Bracket(frames=[np.ascontiguousarray(f[::s, ::s]) for f in bracket.frames], times=bracket.times,
+                             valid=[None if v is None else np.ascontiguousarray(v[::s, ::s]) for v in bracket.valid])
     threads = min(LOO_THREADS, len(idx))
     if threads <= 1:
         return [leave_one_out(bracket, k, **kw) for k in idx]
@@ -565,27 +577,6 @@ def _code_interval(table: np.ndarray) -> Optional[Tuple[int, int]]:
     if nz.size == 0 or nz[-1] - nz[0] + 1 != nz.size:
         return None
     return int(nz[0]), int(nz[-1])
-
-
-def release_free_memory() -> None:
-    """Hand the C heap's free pages back to the system (glibc ``malloc_trim``; nothing
-    elsewhere). The report runs after a merge has freed its strips and before the next
-    set's: without it, what the merge freed stays resident beside what the report
-    allocates (on other threads' heaps too), and the report would raise the peak."""
-    global _TRIM
-    if _TRIM is None:
-        try:
-            import ctypes
-            import ctypes.util
-
-            _TRIM = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
-        except (OSError, AttributeError):
-            _TRIM = False
-    if _TRIM:
-        _TRIM(0)
-
-
-_TRIM = None
 
 
 def _fitted_for(response: Response, nominal: np.ndarray) -> Optional[np.ndarray]:
