@@ -1,4 +1,5 @@
-"""Writing radiance maps and 8/16-bit images, atomically.
+"""Writing radiance maps (EXR, Radiance RGBE, float TIFF, PFM), whole or strip by strip,
+atomically (8- and 16-bit images: :mod:`hdrcl.io.ldr`).
 
 Every writer renders into a hidden temporary file beside the target and renames it onto
 the target only when the whole file has been written, so an interrupted run never
