@@ -128,7 +128,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1)
     a = ap.parse_args()
     sys.path.insert(0, ROOT)
-    from hdrcl.core.warp import corner_distance
+    from hdrcl.core.align.warp import corner_distance
 
     t = time.perf_counter()
     info = generate(os.path.join(a.work, f"{a.mp:g}mp-x{a.frames}"), a.mp, a.frames)

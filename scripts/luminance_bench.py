@@ -10,7 +10,7 @@ absolute scale from EXIF, :func:`hdrcl.core.encode.fuse_to_file`):
 * **plain**: the whole merged map in cd/m^2 written as EXR (PIZ), ``--dtype auto`` (the
   sun exceeds half floats: a second fusion pass into float, as ``merge`` does) and
   ``--dtype float`` (one pass);
-* **chain**: the same fusion streamed into :class:`hdrcl.core.fisheye.LuminanceChain`
+* **chain**: the same fusion streamed into :class:`hdrcl.core.luminance.fisheye.LuminanceChain`
   (lens circle, resize to 1000, projection, vignetting, ND, calibration factor, VIEW=,
   vertical illuminance) and the 1000 x 1000 map written as Radiance ``.hdr``.
 
@@ -143,7 +143,7 @@ def main(argv=None) -> int:
                          "and the whole chain (.hdr)")
     args = ap.parse_args(argv)
 
-    from hdrcl.core.fisheye import LuminanceChain
+    from hdrcl.core.luminance.fisheye import LuminanceChain
     from hdrcl.core.response import Response
     from hdrcl.cl.backend import device_name
 

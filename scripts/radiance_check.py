@@ -70,7 +70,7 @@ def main(argv=None) -> int:
     rb = os.path.join(os.path.dirname(pyradiance.__file__), "bin")
     from luminance_bench import srgb_g, write_set
 
-    from hdrcl.core.glare import glare_of_file, read_luminance_map
+    from hdrcl.core.luminance.glare import glare_of_file, read_luminance_map
     from hdrcl.core.response import Response
 
     d = args.work or tempfile.mkdtemp(prefix="hdrcl-radcheck-")
@@ -154,7 +154,7 @@ def scenes(rb: str, folder: str) -> None:
 
     from test_glare import SCENES, _evalglare, _scene, _write
 
-    from hdrcl.core.glare import glare_of_file
+    from hdrcl.core.luminance.glare import glare_of_file
 
     print(f"{'scene':38s} {'Ev hdrcl/evalglare':>22s} {'DGP':>18s} {'UGR':>18s} {'DGI':>18s}")
     for name in sorted(SCENES):

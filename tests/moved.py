@@ -182,8 +182,8 @@ def moved_merge(folder, out_dir, seed, max_rot, fill, tripod, **kw):
 def content_error(m_est, m_true, frame, lo=24, hi=246, step=8):
     """``(p99, median)`` distance (pixels) between where ``m_est`` and the truth put the
     frame's well-exposed pixels (codes in ``(lo, hi)``, fill and ignore colour left out)."""
-    from hdrcl.core.align import grey_image
-    from hdrcl.core.warp import apply
+    from hdrcl.core.align.mtb import grey_image
+    from hdrcl.core.align.warp import apply
 
     g = grey_image(frame)
     use = (g > lo) & (g < hi) & ~np.all(frame == np.asarray(IGNORE, frame.dtype), axis=2) & ~np.all(frame == 0, axis=2)

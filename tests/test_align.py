@@ -10,7 +10,7 @@ import logging
 import numpy as np
 import pytest
 
-from hdrcl.core import align as A
+from hdrcl.core.align import mtb as A
 from hdrcl.core import synthetic as s
 from hdrcl.errors import HdrclError
 
@@ -224,7 +224,7 @@ def test_apply_shifts_masks_exactly_the_uncovered_borders():
 def test_align_restores_the_reference_geometry(cl_device, caplog):
     shifts = random_shifts(5, seed=21)
     frames, truth = shifted_bracket(shifts, bits=16, seed=7)
-    with caplog.at_level(logging.INFO, logger="hdrcl.core.align"):
+    with caplog.at_level(logging.INFO, logger="hdrcl.core.align.mtb"):
         res = A.align(frames)
     assert isinstance(res, A.AlignResult) and res.reference == 2
     assert res.shifts == shifts  # texture this sharp: exact
@@ -284,8 +284,8 @@ def memorial_handheld(memorial):
 
 @pytest.mark.parametrize("model", ["auto", "similarity", "homography"])
 def test_handheld_motion_recovered_at_the_corners(cl_device, memorial_handheld, model):
-    from hdrcl.core import handheld as HH
-    from hdrcl.core import warp as W
+    from hdrcl.core.align import handheld as HH
+    from hdrcl.core.align import warp as W
 
     _, moved, mats, valid, times = memorial_handheld
     h, w = moved[0].shape[:2]
@@ -301,7 +301,7 @@ def test_handheld_motion_recovered_at_the_corners(cl_device, memorial_handheld, 
 
 
 def test_check_model():
-    from hdrcl.core.handheld import check_model
+    from hdrcl.core.align.handheld import check_model
     from hdrcl.errors import UsageError
 
     assert check_model("Similarity") == "similarity" and check_model(None) == "auto"
@@ -314,8 +314,8 @@ def test_real_tripod_sets_find_no_motion(cl_device, memorial, folder, pattern):
     """Real tripod brackets: auto finds no rotation or scale, no frame moved more than
     a fraction of a pixel, and a set that moved less than STATIC_PX stays untouched."""
     import hdrcl
-    from hdrcl.core import handheld as HH
-    from hdrcl.core import warp as W
+    from hdrcl.core.align import handheld as HH
+    from hdrcl.core.align import warp as W
 
     paths = sorted((memorial.parent / folder).glob(pattern))
     br = hdrcl.load_bracket(paths)
@@ -332,7 +332,7 @@ def test_real_tripod_sets_find_no_motion(cl_device, memorial, folder, pattern):
 def test_handheld_numpy_path_matches_opencl(cl_device, memorial_handheld, monkeypatch):
     """Without OpenCL the same matrices come out (the estimation runs on the host from
     grey pyramids the twins make equal) and the twin's warp agrees with the kernel's."""
-    from hdrcl.core import handheld as HH
+    from hdrcl.core.align import handheld as HH
 
     _, moved, _, valid, times = memorial_handheld
     a = HH.align_bracket(moved, valid, times, model="similarity")
@@ -358,14 +358,14 @@ def test_frame_with_nothing_to_measure_takes_its_neighbours_motion(cl_device, me
     window pixels replaced by the sensor's noise): nothing to register, so it is not
     refused but takes its neighbour's motion, with a warning. (The real 1/1024 s frame is
     measured: its windows, block-matched, confirm the fit.)"""
-    from hdrcl.core import handheld as HH
+    from hdrcl.core.align import handheld as HH
 
     br = memorial_bracket
     darkest = int(np.argmin(br.times))
     frames = list(br.frames)
     rng = np.random.default_rng(0)
     frames[darkest] = np.clip(np.round(15 + rng.normal(0, 1, frames[darkest].shape)), 0, 255).astype(np.uint8)
-    with caplog.at_level(logging.WARNING, logger="hdrcl.core.handheld"):
+    with caplog.at_level(logging.WARNING, logger="hdrcl.core.align.handheld"):
         res = HH.align_bracket(frames, br.valid, br.times, names=br.paths, model="similarity")
     rec = res.alignment[darkest]
     assert rec["model"] == "inherited" and rec["residual_px"] is None
@@ -378,7 +378,7 @@ def test_frame_with_nothing_to_measure_takes_its_neighbours_motion(cl_device, me
 def test_inplace_reuses_frames_and_changes_nothing(cl_device, memorial_handheld):
     """``inplace`` warps into the memory of frames already replaced (no fresh pages):
     the same frames and masks come out as without it, and the arrays given are reused."""
-    from hdrcl.core import handheld as HH
+    from hdrcl.core.align import handheld as HH
 
     _, moved, _, valid, times = memorial_handheld
     a = HH.align_bracket(moved, valid, times, model="similarity")

@@ -12,7 +12,7 @@ import logging
 import numpy as np
 import pytest
 
-from hdrcl.core import register as R
+from hdrcl.core.align import register as R
 
 # ------------------------------------------------------------------ the floor
 
@@ -64,10 +64,10 @@ def test_dark_frames_on_a_pedestal_with_filled_corners(cl_device, memorial, fill
     unknown residual; a frame not accepted takes its neighbour's motion with a warning."""
     from moved import content_error
 
-    from hdrcl.core import handheld as HH
+    from hdrcl.core.align import handheld as HH
 
     moved, mats, valid, times = _moved(memorial, fill)
-    with caplog.at_level(logging.WARNING, logger="hdrcl.core.handheld"):
+    with caplog.at_level(logging.WARNING, logger="hdrcl.core.align.handheld"):
         res = HH.align_bracket(moved, valid, times, names=[f"m{k}.png" for k in range(len(moved))])
     accepted = 0
     for a, m, f in zip(res.alignment, mats, moved):
@@ -87,10 +87,10 @@ def test_a_wrong_fit_on_few_pixels_is_not_accepted(cl_device, memorial, monkeypa
     """The check is real: a Gauss-Newton fit pushed 6 px off on a dark frame is caught
     by the block-matching estimate (retried from it, or the frame takes its neighbour's
     motion), never accepted as it is."""
-    from hdrcl.core import handheld as HH
-    from hdrcl.core import warp as W
+    from hdrcl.core.align import handheld as HH
+    from hdrcl.core.align import warp as W
 
-    from hdrcl.core import handheld_trust as HT
+    from hdrcl.core.align import trust as HT
 
     moved, mats, valid, times = _moved(memorial, (0, 0, 0))
     real = HT._fit_models
@@ -118,7 +118,7 @@ def test_a_wrong_fit_on_few_pixels_is_not_accepted(cl_device, memorial, monkeypa
 def test_tripod_memorial_is_static_and_merged_untouched(cl_device, memorial_bracket):
     """The real Memorial bracket on its tripod: no homography chained through it, no
     frame resampled (before: 0067 -> 0068 got a homography moving the centre 4.8 px)."""
-    from hdrcl.core import handheld as HH
+    from hdrcl.core.align import handheld as HH
 
     br = memorial_bracket
     res = HH.align_bracket(br.frames, br.valid, br.times, names=br.paths)

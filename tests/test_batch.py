@@ -26,9 +26,9 @@ from hdrcl.cli import main
 from hdrcl.errors import UsageError
 from hdrcl.io.radiance import read_metadata, read_radiance
 from hdrcl.io.ldr import write_photo
-from hdrcl.shoot.jobs import BatchOptions, SetResult
-from hdrcl.shoot.manifest import BracketSet, Manifest
-from hdrcl.shoot.plan import output_stems, parse_sets, select_sets
+from hdrcl.shoot.batch.jobs import BatchOptions, SetResult
+from hdrcl.shoot.batch.manifest import BracketSet, Manifest
+from hdrcl.shoot.batch.plan import output_stems, parse_sets, select_sets
 
 try:
     import shootgen
@@ -525,7 +525,7 @@ def test_exit_codes(clean, tmp_path, args, code):
 
 
 def test_library_entry_point(clean, tmp_path):
-    from hdrcl.shoot.run import run_batch
+    from hdrcl.shoot.batch.run import run_batch
 
     folder, groups = clean
     seen = []
@@ -565,7 +565,7 @@ def test_quality_report_in_chromium(tmp_path):
     from html.parser import HTMLParser
 
     from hdrcl.report.pages import format_figures, load_set_report
-    from hdrcl.shoot.plan import load_source
+    from hdrcl.shoot.batch.plan import load_source
 
     browser = _chromium()
     shoot_dir, out, rep_dir, plain = (tmp_path / n for n in ("shoot", "out", "rep", "plain"))

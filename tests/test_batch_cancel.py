@@ -355,7 +355,7 @@ def _dies_on_set_zero(job, ctx):
 def test_a_set_that_kills_its_worker_fails_alone():
     """Only the set that takes its worker down fails ("died twice"); the sets that were
     merely queued in the broken pool complete."""
-    from hdrcl.shoot.executors import run_processes
+    from hdrcl.shoot.batch.executors import run_processes
 
     results = []
     run_processes([_Job(i) for i in range(4)], None, results.append, task=_dies_on_set_zero,

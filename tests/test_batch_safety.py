@@ -89,8 +89,8 @@ def test_no_preview_into_the_source_folder_is_allowed(tmp_path):
 # ------------------------------------------------------------------ signals, API
 SCRIPT = textwrap.dedent("""
     import os, signal, sys, time
-    from hdrcl.shoot.run import run_batch
-    from hdrcl.shoot.jobs import BatchOptions
+    from hdrcl.shoot.batch.run import run_batch
+    from hdrcl.shoot.batch.jobs import BatchOptions
 
     def mine(signum, frame):
         print("caller-handler", signum, flush=True)
@@ -153,10 +153,10 @@ def test_ctrl_c_reaches_the_caller_as_keyboardinterrupt_after_cleanup(tmp_path, 
 
 # ------------------------------------------------------- rebuilds hold the claim
 def test_preview_and_quality_rebuilds_hold_the_sets_claim(tmp_path, monkeypatch):
-    from hdrcl.shoot import setrun
-    from hdrcl.shoot.claims import SetClaim
-    from hdrcl.shoot.jobs import BatchOptions
-    from hdrcl.shoot.run import run_batch
+    from hdrcl.shoot.batch import setrun
+    from hdrcl.shoot.batch.claims import SetClaim
+    from hdrcl.shoot.batch.jobs import BatchOptions
+    from hdrcl.shoot.batch.run import run_batch
 
     shoot, out, rdir = tmp_path / "S", tmp_path / "out", tmp_path / "report"
     make_clean_shoot(shoot, sets=1, frames=3)
@@ -188,8 +188,8 @@ def test_preview_and_quality_rebuilds_hold_the_sets_claim(tmp_path, monkeypatch)
 
 
 def test_stale_temp_cleanup_spares_a_set_another_process_holds(tmp_path):
-    from hdrcl.shoot.claims import SetClaim
-    from hdrcl.shoot.state import STALE_TEMP_SECONDS, _remove_stale_temps
+    from hdrcl.shoot.batch.claims import SetClaim
+    from hdrcl.shoot.batch.state import STALE_TEMP_SECONDS, _remove_stale_temps
 
     out = tmp_path / "out"
     out.mkdir()

@@ -161,7 +161,7 @@ def test_radcal_reports_the_language_error_with_file_line_and_token(tmp_path):
 def test_large_coefficients_are_one_error_without_numpy_warnings(tmp_path, recwarn):
     """A valid file whose polynomial overflows outside the circle: no RuntimeWarning leaks
     (issue 29); the chain's check names the flag when the factor is not finite inside."""
-    from hdrcl.core.fisheye import LuminanceChain
+    from hdrcl.core.luminance.fisheye import LuminanceChain
 
     text = LAB_VIG.replace("500", "32").replace("(-0.528613562104476)*(r^4)", "(1e-10)*(r^2500)")  # overflows outside
     path = _write(tmp_path, "big.cal", text)
@@ -177,7 +177,7 @@ def test_large_coefficients_are_one_error_without_numpy_warnings(tmp_path, recwa
 
 def test_vignetting_factors_the_output_cannot_hold_are_refused(tmp_path, recwarn):
     """1 / (1 + 1e300 r^8) is finite and positive but would underflow every value to 0."""
-    from hdrcl.core.fisheye import LuminanceChain
+    from hdrcl.core.luminance.fisheye import LuminanceChain
 
     path = _write(tmp_path, "tiny.cal", LAB_VIG.replace("500", "32").replace("(-0.528613562104476)*(r^4)",
                                                                             "(1e300)*(r^8)"))
@@ -187,7 +187,7 @@ def test_vignetting_factors_the_output_cannot_hold_are_refused(tmp_path, recwarn
 
 
 def test_a_file_made_for_another_size_is_warned_about(tmp_path, caplog):
-    from hdrcl.core.fisheye import LuminanceChain
+    from hdrcl.core.luminance.fisheye import LuminanceChain
 
     path = _write(tmp_path, "vignetting_f5d6.cal", LAB_VIG)
     with caplog.at_level("WARNING", logger="hdrcl"):
@@ -201,7 +201,7 @@ def test_a_file_made_for_another_size_is_warned_about(tmp_path, caplog):
 
 def test_chain_applies_the_lab_vignetting_file_as_pcomb(tmp_path):
     """The file's factors on the resized map, x = column and y = N-1-row."""
-    from hdrcl.core.fisheye import LuminanceChain
+    from hdrcl.core.luminance.fisheye import LuminanceChain
 
     n = 40
     text = LAB_VIG.replace("500", "20")
@@ -232,7 +232,7 @@ def test_factor_range_follows_the_output_format():
     assert radcal.check_factor_range(1.18, output="o.hdr") == 1.18
     with pytest.raises(UsageError, match=r"\.hdr"):
         radcal.check_factor_range(1e-30, output="o.hdr")  # 1e-36 / 179 is below RGBE's smallest
-    from hdrcl.core.fisheye import LuminanceChain
+    from hdrcl.core.luminance.fisheye import LuminanceChain
 
     with pytest.raises(UsageError, match="^--nd-filter with --calibration-factor: "):
         LuminanceChain.from_options(lens_circle="10,10,20", resize=20, nd_filter="1e20,1,1", calibration_factor="1e10")
@@ -246,7 +246,7 @@ def test_factor_range_follows_the_output_format():
                                   "-vtc -vh 360 -vv 180", "-vts -vh 360 -vv 100", "-vtv -vh 90 -vv 0",
                                   "-vta -vd 0 0 0", "-vta -vu 0 1 0", "-vta -vd 0 0 1"])
 def test_views_radiance_rejects_are_refused(view):
-    from hdrcl.core.fisheye import parse_view
+    from hdrcl.core.luminance.fisheye import parse_view
 
     with pytest.raises(UsageError, match="^--view: "):
         parse_view(view)
@@ -255,13 +255,13 @@ def test_views_radiance_rejects_are_refused(view):
 @pytest.mark.parametrize("view", ["-vtv -vh 179 -vv 179", "-vth -vh 180 -vv 180", "-vta -vh 360 -vv 360",
                                   "-vtc -vh 360 -vv 179.9", "-vts -vh 359 -vv 359", "-vta -vh 186 -vv 186"])
 def test_views_radiance_takes_are_taken(view):
-    from hdrcl.core.fisheye import parse_view
+    from hdrcl.core.luminance.fisheye import parse_view
 
     assert parse_view(view)[0] == view
 
 
 def test_huge_lens_circle_names_the_option():
-    from hdrcl.core.fisheye import LuminanceChain
+    from hdrcl.core.luminance.fisheye import LuminanceChain
 
     with pytest.raises(UsageError, match="^--lens-circle: "):
         LuminanceChain.from_options(lens_circle="100,66,1e9", resize=64)

@@ -14,10 +14,10 @@ from click.testing import CliRunner
 
 from hdrcl.cli import main
 from hdrcl.io.metadata import FrameInfo
-from hdrcl.shoot.grouping import group_frames
-from hdrcl.shoot.ladder import ladder_of
+from hdrcl.shoot.grouping.rules import group_frames
+from hdrcl.shoot.grouping.ladder import ladder_of
 from hdrcl.shoot.scan import scan_directory
-from hdrcl.shoot.scene import GRID, Thumb, compare
+from hdrcl.shoot.grouping.scene import GRID, Thumb, compare
 
 try:
     import cardgen

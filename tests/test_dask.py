@@ -13,7 +13,7 @@ from click.testing import CliRunner
 distributed = pytest.importorskip("distributed")
 
 from hdrcl.cli import main  # noqa: E402
-from hdrcl.shoot.setrun import process_set  # noqa: E402
+from hdrcl.shoot.batch.setrun import process_set  # noqa: E402
 
 try:
     import shootgen
@@ -77,16 +77,16 @@ def always_broken(job, ctx, strict):
 
 @pytest.mark.parametrize("task, retries, status", [(flaky_process_set, 1, "done"), (always_broken, 1, "failed")])
 def test_failed_tasks_are_retried(cluster, manifest, tmp_path, task, retries, status):
-    from hdrcl.shoot.executors import run_dask
-    from hdrcl.shoot.jobs import BatchOptions, _Context
-    from hdrcl.shoot.plan import _plan, load_source
-    from hdrcl.shoot.pooling import _prepare_responses
+    from hdrcl.shoot.batch.executors import run_dask
+    from hdrcl.shoot.batch.jobs import BatchOptions, _Context
+    from hdrcl.shoot.batch.plan import _plan, load_source
+    from hdrcl.shoot.batch.pooling import _prepare_responses
 
     out = str(tmp_path)
     plan = _plan(load_source(manifest), out, BatchOptions(), [(0, 1)])
     ctx = _Context(options=BatchOptions(), responses=_prepare_responses(plan, out, BatchOptions()))
     results = []
-    from hdrcl.shoot.setrun import _failed
+    from hdrcl.shoot.batch.setrun import _failed
 
     run_dask(plan.selected, ctx, cluster.scheduler_address, results.append, retries=retries, task=task,
              failed=_failed)

@@ -6,7 +6,7 @@ import hashlib
 
 import pytest
 
-from hdrcl.shoot import state
+from hdrcl.shoot.batch import state
 
 
 def test_every_byte_of_the_file_counts_and_the_hash_is_named(tmp_path):

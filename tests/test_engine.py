@@ -77,7 +77,7 @@ def test_merge_options_are_checked_once_and_say_what_they_ignore():
 
 def test_batch_options_wrap_merge_options():
     from hdrcl.errors import UsageError
-    from hdrcl.shoot.jobs import BatchOptions
+    from hdrcl.shoot.batch.jobs import BatchOptions
 
     assert BatchOptions(exposure_tolerance=2.0).merge.exposure_tolerance == 2.0
     from hdrcl.core.options import MergeOptions

@@ -37,8 +37,8 @@ def fx(tmp_path_factory):
     from hdrcl.core.response import Response, knot_positions
     from hdrcl.io.writers import write_radiance
     from hdrcl.io.ldr import write_ldr
-    from hdrcl.shoot.manifest import save_manifest
-    from hdrcl.shoot.plan import load_source
+    from hdrcl.shoot.batch.manifest import save_manifest
+    from hdrcl.shoot.batch.plan import load_source
     from hdrcl.shoot.sample import write_sample_shoot
 
     d = tmp_path_factory.mktemp("contract")

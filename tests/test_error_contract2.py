@@ -461,7 +461,7 @@ def test_quiet_batch_still_says_why_nothing_was_merged(fx, tmp_path):
 
 def test_api_run_batch_raises_for_nothing_to_merge(fx, tmp_path):
     from hdrcl.errors import ProcessingError
-    from hdrcl.shoot.run import run_batch
+    from hdrcl.shoot.batch.run import run_batch
 
     with pytest.raises(ProcessingError, match="no photographs to merge"):
         run_batch(str(fx["dir"] / "empty"), tmp_path / "out")

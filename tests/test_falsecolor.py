@@ -7,7 +7,7 @@ import pytest
 from click.testing import CliRunner
 
 from hdrcl.cli.group import main
-from hdrcl.core.fisheye_math import RADIANCE_LUMA
+from hdrcl.core.luminance.fisheye_math import RADIANCE_LUMA
 from hdrcl.io.writers import write_radiance
 from hdrcl.report import falsecolor as fc
 

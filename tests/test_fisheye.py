@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from hdrcl.core import fisheye_math as fm
+from hdrcl.core.luminance import fisheye_math as fm
 from hdrcl.core.encode import fuse_to_file
-from hdrcl.core.fisheye import LuminanceChain
+from hdrcl.core.luminance.fisheye import LuminanceChain
 from hdrcl.errors import UsageError
 
 RTOL32 = 2e-6  # float32 arithmetic over a few terms
@@ -313,7 +313,7 @@ def test_bracket_of_a_known_sky_through_fusion_and_chain(tmp_path, cl_device):
 
 
 def test_chain_or_none():
-    from hdrcl.core.fisheye import chain_or_none
+    from hdrcl.core.luminance.fisheye import chain_or_none
 
     assert chain_or_none() is None
     with pytest.raises(UsageError, match="^--vignetting: needs --lens-circle"):

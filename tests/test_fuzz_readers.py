@@ -208,7 +208,7 @@ def test_response_reader(base, tmp_path, edits, raw):
 @FUZZ
 @given(edits=_edits, raw=st.one_of(st.none(), _raw_text))
 def test_manifest_reader(base, tmp_path, edits, raw):
-    from hdrcl.shoot.manifest import load_manifest
+    from hdrcl.shoot.batch.manifest import load_manifest
 
     doc = {"root": ".", "sets": [{"index": 0, "files": ["f0.png", "f1.png", "f2.png"], "exposures": list(TIMES),
                                   "reason": "manifest", "camera": "X", "iso": [100, 100, 100], "width": 16}],

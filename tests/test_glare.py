@@ -1,4 +1,4 @@
-"""Glare metrics (hdrcl/core/glare.py, hdrcl glare) against Radiance's evalglare on the
+"""Glare metrics (hdrcl/core/luminance/glare.py, hdrcl glare) against Radiance's evalglare on the
 same files: within 0.005 DGP and 0.5 UGR (the issue's bar; measured: equal to evalglare's
 printed digits on these scenes)."""
 import json
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrcl.core import glare as g
+from hdrcl.core.luminance import glare as g
 from hdrcl.errors import UsageError
 
 
@@ -210,11 +210,11 @@ def test_noise_like_sources_are_joined_on_a_coarser_grid(monkeypatch, caplog):
     grid, with a warning, and the figures stay finite."""
     import logging
 
-    from hdrcl.core import glare as G
+    from hdrcl.core.luminance import glare as G
 
     monkeypatch.setattr(G, "MAX_EDGE_PIXELS", 2000)
     lum = np.random.default_rng(0).uniform(10, 5000, (200, 200)).astype(np.float32)
-    with caplog.at_level(logging.WARNING, logger="hdrcl.core.glare"):
+    with caplog.at_level(logging.WARNING, logger="hdrcl.core.luminance.glare"):
         g = G.glare_metrics(lum, G.parse_glare_view("-vta -vh 180 -vv 180"))
     assert any("source edge pixels" in r.getMessage() for r in caplog.records)
     assert np.isfinite([g.dgp, g.dgi, g.ugr, g.vertical_illuminance]).all() and g.sources

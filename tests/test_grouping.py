@@ -10,8 +10,8 @@ import pytest
 
 from hdrcl.errors import InputError, UsageError
 from hdrcl.io.metadata import FrameInfo
-from hdrcl.shoot.grouping import format_exposure, group_frames, unmergeable_reason
-from hdrcl.shoot.manifest import (
+from hdrcl.shoot.grouping.rules import format_exposure, group_frames, unmergeable_reason
+from hdrcl.shoot.batch.manifest import (
     BracketSet,
     Manifest,
     Unmerged,

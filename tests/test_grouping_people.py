@@ -21,11 +21,11 @@ from click.testing import CliRunner
 
 from hdrcl.cli import main
 from hdrcl.io.metadata import FrameInfo
-from hdrcl.shoot import scene as scene_mod
-from hdrcl.shoot.grouping import group_frames
-from hdrcl.shoot.ladder import MAX_STEP
+from hdrcl.shoot.grouping import scene as scene_mod
+from hdrcl.shoot.grouping.rules import group_frames
+from hdrcl.shoot.grouping.ladder import MAX_STEP
 from hdrcl.shoot.scan import scan_directory
-from hdrcl.shoot.scene import GRID, Thumb, Verdict, compare
+from hdrcl.shoot.grouping.scene import GRID, Thumb, Verdict, compare
 
 try:
     import cardgen
@@ -176,7 +176,7 @@ def fi(t, mode=1, bias=None, k=0):
 
 
 def test_distinct_of():
-    from hdrcl.shoot.ladder import distinct_of
+    from hdrcl.shoot.grouping.ladder import distinct_of
 
     lad = distinct_of([fi(1 / 1000 * 2 ** (k / 3), k=k) for k in range(6)])
     assert lad is not None and lad.order == "ascending" and lad.step == pytest.approx(0.33, abs=0.02)

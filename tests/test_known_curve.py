@@ -4,15 +4,15 @@ Real DSLR sets have frames labelled a stop apart that are not (some identical); 
 with a response calibrated on a correct set of the same camera they were about a stop
 RMS from the camera curve's map. With the curve known there is no exponential
 ambiguity: the pixels tell every exposure ratio, the metadata only the scale
-(:func:`hdrcl.core.exposure_known.estimate_exposures`).
+(:func:`hdrcl.core.exposure.known.estimate_exposures`).
 """
 import numpy as np
 import pytest
 
 import hdrcl
 from hdrcl.core import synthetic as s
-from hdrcl.core.exposure_fit import fit_exposures
-from hdrcl.core.exposure_known import KnownCurveFit, estimate_exposures, untrusted_metadata
+from hdrcl.core.exposure.fit import fit_exposures
+from hdrcl.core.exposure.known import KnownCurveFit, estimate_exposures, untrusted_metadata
 from hdrcl.core.fusion import fuse_frames
 from hdrcl.core.response import Response, knot_positions
 from hdrcl.errors import UsageError

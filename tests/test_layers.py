@@ -229,3 +229,18 @@ def test_the_import_checks_catch_what_they_should(tmp_path):
     assert len(private_imports(mods)) == 2  # shoot -> core twice; core -> core is fine
     bad = cli_imports(mods)
     assert len(bad) == 2 and "hdrcl.core.merge" in bad[0] and "hdrcl.io.frames" in bad[1]
+
+
+def test_the_documented_layout_names_every_module():
+    """docs/development.md's layout is the tree as it is: every module and folder of the
+    package named there (18 modules were missing from it once)."""
+    doc = ROOT.parent / "docs" / "development.md"
+    if not doc.exists():
+        pytest.skip("no docs/ beside the package (an sdist without it)")
+    text = doc.read_text(encoding="utf-8")
+    layout = text[text.index("## Layout"):]
+    missing = [str(p.relative_to(ROOT.parent)) for p in sorted(ROOT.rglob("*.py"))
+               if p.name != "__init__.py" and p.name not in layout]
+    folders = [str(p.relative_to(ROOT.parent)) for p in sorted(ROOT.rglob("*")) if p.is_dir()
+               and p.name != "__pycache__" and f"{p.name}/" not in layout]
+    assert not missing and not folders, f"not in docs/development.md's layout: {missing + folders}"

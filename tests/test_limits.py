@@ -104,7 +104,7 @@ def test_motion_blur_is_bounded(radiance, blur, words):
 def test_motion_blur_fixed_cap(tmp_path):
     """On an image larger than the cap, a blur within the image but over
     MAX_MOTION_BLUR pixels is refused before any blurring."""
-    from hdrcl.core.exposure import MAX_MOTION_BLUR, _check_blur_length
+    from hdrcl.core.exposure.virtual import MAX_MOTION_BLUR, _check_blur_length
     from hdrcl.errors import UsageError
 
     with pytest.raises(UsageError, match="at most 1000"):

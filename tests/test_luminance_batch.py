@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from hdrcl.cli import main
-from hdrcl.core import fisheye_math as fm
+from hdrcl.core.luminance import fisheye_math as fm
 from hdrcl.io.radiance import read_metadata, read_radiance
 from hdrcl.io.rsp import write_rsp
 from hdrcl.io.ldr import write_photo
@@ -73,7 +73,7 @@ def _chain_args(d):
 
 
 def test_batch_of_fisheye_sets_equals_the_steps_one_by_one(fisheye_shoot, cl_device):
-    from hdrcl.core.glare import glare_of_file
+    from hdrcl.core.luminance.glare import glare_of_file
 
     d = fisheye_shoot
     out = d / "out"

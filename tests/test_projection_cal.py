@@ -5,8 +5,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from hdrcl.core import fisheye_math as fm
-from hdrcl.core.fisheye import LuminanceChain
+from hdrcl.core.luminance import fisheye_math as fm
+from hdrcl.core.luminance.fisheye import LuminanceChain
 from hdrcl.errors import InputError, UsageError
 from hdrcl.io import calexpr, radcal
 

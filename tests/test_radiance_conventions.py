@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrcl.core.fisheye_math import radiance_luminance
+from hdrcl.core.luminance.fisheye_math import radiance_luminance
 from hdrcl.io.radiance import read_radiance
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "frobisher_001"

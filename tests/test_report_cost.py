@@ -108,7 +108,7 @@ def test_grid_figures_close_to_whole_frames(merged):
 def test_batch_keeps_only_the_report_grid():
     """The batch's tap keeps every k-th row and column (k = report_stride), never whole
     frames, and the stride is found again from the kept grid."""
-    from hdrcl.shoot.setquality import _KeptFrames, _quality_stride, _stride_of
+    from hdrcl.shoot.batch.setquality import _KeptFrames, _quality_stride, _stride_of
 
     h, w = 1100, 1700  # 1.87 MP -> every 2nd row and column
     k = _quality_stride(5, h, w, 3, np.uint8)

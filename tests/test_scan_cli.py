@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from hdrcl.cli import main
-from hdrcl.shoot.manifest import load_manifest
+from hdrcl.shoot.batch.manifest import load_manifest
 
 try:
     import shootgen

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from hdrcl.core import synthetic as s
-from hdrcl.core.exposure_fit import verify_exposures
-from hdrcl.core.exposure_known import estimate_exposures
+from hdrcl.core.exposure.fit import verify_exposures
+from hdrcl.core.exposure.known import estimate_exposures
 from hdrcl.core.response import Response, knot_positions
 
 CAM = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))

@@ -14,7 +14,7 @@ import pytest
 import hdrcl
 from hdrcl.core import synthetic as s
 from hdrcl.core.calibrate import exposures_used
-from hdrcl.core.exposure_fit import fit_exposures
+from hdrcl.core.exposure.fit import fit_exposures
 from hdrcl.core.fusion import fuse_frames
 from hdrcl.core.response import Response, knot_positions
 from hdrcl.errors import InputError, UsageError

@@ -3,7 +3,7 @@ known truth, and the crop box every warped frame covers."""
 import numpy as np
 import pytest
 
-from hdrcl.core import warp as W
+from hdrcl.core.align import warp as W
 
 from moved import similarity
 
@@ -108,7 +108,7 @@ def test_crop_box_is_covered_and_maximal(seed):
 
 
 def test_crop_box_of_whole_pixel_shifts_is_exact():
-    from hdrcl.core.align import crop_box as shift_box
+    from hdrcl.core.align.mtb import crop_box as shift_box
 
     shifts = [(3, -5), (0, 0), (-7, 2)]
     assert W.crop_box((31, 47), [W.translation(dy, dx) for dy, dx in shifts]) == shift_box((31, 47), shifts)
@@ -171,7 +171,7 @@ def test_black_fill_is_masked_not_blended(cl_device):
     """A frame whose corner a rotation filled with black: warped again, no valid pixel
     is a blend of the fill (dark edges of odd colour), and fill inside the picture (a
     black object not touching the border) stays data."""
-    from hdrcl.core.handheld import warp_one
+    from hdrcl.core.align.handheld import warp_one
 
     h, w = 60, 80
     frame = np.full((h, w, 3), (180, 140, 90), np.uint8)

@@ -2,12 +2,12 @@
 (:func:`run_batch`, :func:`describe_batch`), manifests, the sample shoot and the demo."""
 from __future__ import annotations
 
-from hdrcl.shoot.claims import Cancelled
+from hdrcl.shoot.batch.claims import Cancelled
 from hdrcl.shoot.demo import run_demo
-from hdrcl.shoot.jobs import BatchOptions
-from hdrcl.shoot.manifest import save_manifest
-from hdrcl.shoot.plan import check_manifest, load_source, parse_sets
-from hdrcl.shoot.run import describe_batch, run_batch
+from hdrcl.shoot.batch.jobs import BatchOptions
+from hdrcl.shoot.batch.manifest import save_manifest
+from hdrcl.shoot.batch.plan import check_manifest, load_source, parse_sets
+from hdrcl.shoot.batch.run import describe_batch, run_batch
 from hdrcl.shoot.sample import write_sample_shoot
 from hdrcl.shoot.scan import descends, format_explain, format_table, left_below
 

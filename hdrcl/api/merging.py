@@ -28,7 +28,7 @@ import numpy as np
 
 from hdrcl.core import bracket as _bracket
 from hdrcl.core import calibrate as _calibrate
-from hdrcl.core import exposure as _exposure
+from hdrcl.core.exposure import virtual as _exposure
 from hdrcl.core import merge as _merge
 from hdrcl.core.bracket import Bracket, PathOrArray, memory_budget, read_infos
 from hdrcl.core.calibrate import exposures_used
@@ -111,7 +111,7 @@ def expose(radiance: np.ndarray, response: Union[Response, str, os.PathLike], ti
 def expose_file(radiance_path, output, response, time, *, bits: Optional[int] = None,
                 device: Optional[str] = None, motion_blur=None) -> np.ndarray:
     """Render a radiance file as a virtual photograph file (JPEG, PNG or TIFF); see
-    :func:`hdrcl.core.exposure.expose_file`. The options, and whether the response fits
+    :func:`hdrcl.core.exposure.virtual.expose_file`. The options, and whether the response fits
     the file's channels and the blur its size, are checked from the header first."""
     from hdrcl.core.params import check_expose, check_options
 
@@ -142,7 +142,7 @@ def merge(images: Sequence[PathOrArray], times: Optional[Sequence[float]] = None
     Parameters
     ----------
     align, crop : bool
-        Align hand-held frames to the middle exposure (:mod:`hdrcl.core.handheld`);
+        Align hand-held frames to the middle exposure (:mod:`hdrcl.core.align.handheld`);
         ``crop`` keeps only the area every frame covers.
     align_model : {"auto", "shift", "similarity", "homography"}
         With ``align``: the motion model (``auto``: the simplest the residuals allow).

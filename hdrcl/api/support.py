@@ -26,7 +26,7 @@ _WHERE = {
     "check_output": "hdrcl.io.atomic",
     "check_output_folder": "hdrcl.io.atomic",
     "inapplicable_options": "hdrcl.io.outmeta",
-    "chain_or_none": "hdrcl.core.fisheye",
+    "chain_or_none": "hdrcl.core.luminance.fisheye",
     "parse_patch": "hdrcl.core.radiometry",
     "Response": "hdrcl.core.response",
     "DEFAULT_SMOOTHNESS": "hdrcl.core.response",
@@ -35,11 +35,11 @@ _WHERE = {
     "THRESHOLD": "hdrcl.core.deghost",
     "format_figures": "hdrcl.report.pages",
     "falsecolor_file": "hdrcl.report.falsecolor",
-    "glare_of_file": "hdrcl.core.glare",
-    "glare_metrics": "hdrcl.core.glare",
-    "calibrate_luminance_file": "hdrcl.core.glare",
-    "calibrate_luminance_file": "hdrcl.core.glare",
-    "expose_file": "hdrcl.core.exposure",
+    "glare_of_file": "hdrcl.core.luminance.glare",
+    "glare_metrics": "hdrcl.core.luminance.glare",
+    "calibrate_luminance_file": "hdrcl.core.luminance.glare",
+    "calibrate_luminance_file": "hdrcl.core.luminance.glare",
+    "expose_file": "hdrcl.core.exposure.virtual",
 }
 
 __all__ = sorted(_WHERE)

@@ -1,8 +1,8 @@
 """Host side of ``kernels/align.cl``: grey pyramids, bit-packed threshold bitmaps and
 shift costs on the device.
 
-The search (coarse to fine, thresholds, the tie rule) lives in :mod:`hdrcl.core.align`,
-which drives this processor or its NumPy twin :class:`hdrcl.core.align.NumpyAligner`
+The search (coarse to fine, thresholds, the tie rule) lives in :mod:`hdrcl.core.align.mtb`,
+which drives this processor or its NumPy twin :class:`hdrcl.core.align.mtb.NumpyAligner`
 through the same three calls: :meth:`~AlignProcessor.grey_pyramid`,
 :meth:`~AlignProcessor.bitmaps` and :meth:`~AlignProcessor.costs`.
 """
@@ -43,7 +43,7 @@ def words(w: int) -> int:
 class AlignProcessor(OpenCLProcessor):
     """Median threshold bitmaps and their shift costs on the device.
 
-    Contract: the twins in :mod:`hdrcl.core.align` (``grey_image``, ``downsample``,
+    Contract: the twins in :mod:`hdrcl.core.align.mtb` (``grey_image``, ``downsample``,
     ``threshold_bitmaps``, ``shift_costs``); results are equal, not merely close.
     Buffers belong to a *slot* (``"ref"``, ``"frame"``) and are reused from one call to
     the next: a pyramid or its bitmaps stay valid until their slot is rebuilt.
@@ -118,7 +118,7 @@ class AlignProcessor(OpenCLProcessor):
 
     def costs(self, ref: DeviceBitmaps, frm: DeviceBitmaps, level: int, cy: int, cx: int) -> np.ndarray:
         """Mismatch counts ``(3, 3)`` int64 of the shifts ``(cy + j - 1, cx + i - 1)`` at
-        ``level``; contract: :func:`hdrcl.core.align.shift_costs`."""
+        ``level``; contract: :func:`hdrcl.core.align.mtb.shift_costs`."""
         if ref.shapes[level] != frm.shapes[level]:
             raise ValueError(f"pyramid levels differ in shape: {ref.shapes[level]} vs {frm.shapes[level]}")
         knl = self._cost_kernel()

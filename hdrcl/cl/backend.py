@@ -83,7 +83,7 @@ def get_processor(kind: str, device: Optional[str] = None, work: Optional[int] =
     """The process-wide OpenCL processor of ``kind`` ('fusion', 'exposure', 'align' or
     'tonemap'), or None.
 
-    None means: use the NumPy twins (:mod:`hdrcl.core.reference`, :mod:`hdrcl.core.align`).
+    None means: use the NumPy twins (:mod:`hdrcl.core.reference`, :mod:`hdrcl.core.align.mtb`).
 
     Parameters
     ----------

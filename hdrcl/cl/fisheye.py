@@ -1,6 +1,6 @@
 """Host side of ``kernels/fisheye.cl``: the projection and vignetting steps of a fisheye
-luminance map; contracts: :func:`hdrcl.core.fisheye_math.equisolid_to_equidistant` and
-:func:`hdrcl.core.fisheye_math.apply_vignetting`."""
+luminance map; contracts: :func:`hdrcl.core.luminance.fisheye_math.equisolid_to_equidistant` and
+:func:`hdrcl.core.luminance.fisheye_math.apply_vignetting`."""
 from __future__ import annotations
 
 import numpy as np

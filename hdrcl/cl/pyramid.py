@@ -1,7 +1,7 @@
 """Grey pyramids shared by the alignment kernels and their NumPy twin.
 
 Plain data, no OpenCL: :class:`hdrcl.cl.align.AlignProcessor` fills ``dev`` and
-:class:`hdrcl.core.align.NumpyAligner` only ``host``; both size levels with
+:class:`hdrcl.core.align.mtb.NumpyAligner` only ``host``; both size levels with
 :func:`level_shapes`.
 """
 from __future__ import annotations

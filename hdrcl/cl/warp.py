@@ -1,7 +1,7 @@
 """Host side of ``kernels/warp.cl``: a frame resampled through a 3x3 matrix, strip by
 strip of output rows.
 
-Contract: the twin :func:`hdrcl.core.warp.warp_rows` (float64; the kernel computes in
+Contract: the twin :func:`hdrcl.core.align.warp.warp_rows` (float64; the kernel computes in
 float32). Each strip uploads only the band of source rows its taps reach, so neither
 the frame nor its result has to fit the device whole.
 """
@@ -36,7 +36,7 @@ def source_band(matrix: np.ndarray, y0: int, y1: int, h: int, w: int) -> Tuple[i
 
 
 class WarpProcessor(OpenCLProcessor):
-    """Frames warped on the device; see :mod:`hdrcl.core.warp` for the equations."""
+    """Frames warped on the device; see :mod:`hdrcl.core.align.warp` for the equations."""
 
     source = "warp"
 

@@ -1,5 +1,5 @@
 """``hdrcl glare``: vertical illuminance, DGP, DGI, UGR and the glare sources of a
-calibrated fisheye luminance map, by evalglare's method (:mod:`hdrcl.core.glare`);
+calibrated fisheye luminance map, by evalglare's method (:mod:`hdrcl.core.luminance.glare`);
 ``hdrcl calibrate-luminance``: the calibration factor from a measurement, as a ``.cal``."""
 from __future__ import annotations
 

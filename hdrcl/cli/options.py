@@ -254,7 +254,7 @@ ALIGN_HELP = ("Align hand-held frames to the middle exposure (shift, rotation, s
 
 
 def align_model_option(f):
-    """``--align-model``: the motion model of ``--align`` (hdrcl.core.align)."""
+    """``--align-model``: the motion model of ``--align`` (hdrcl.core.align.mtb)."""
     return click.option("--align-model", type=click.Choice(["auto", "shift", "similarity", "homography"]),
                         default="auto", show_default=True,
                         help="With --align: the motion model; auto picks the simplest one the residuals "
@@ -336,7 +336,7 @@ def warn_inapplicable(output: str, **options) -> None:
 
 
 def luminance_options(f):
-    """The calibrated fisheye luminance map (hdrcl.core.fisheye): seven options, all
+    """The calibrated fisheye luminance map (hdrcl.core.luminance.fisheye): seven options, all
     needing --lens-circle."""
     opts = [
         click.option("--lens-circle", metavar="CX,CY,DIAMETER",

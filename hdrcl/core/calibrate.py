@@ -42,7 +42,7 @@ def calibrate(
     """Recover the camera response from a bracket set.
 
     ``fit_exposures`` (``auto``, ``on``, ``off``): verify each frame's relative exposure
-    against the pixels (:func:`hdrcl.core.exposure_fit.verify_exposures`) and report every
+    against the pixels (:func:`hdrcl.core.exposure.fit.verify_exposures`) and report every
     frame whose metadata disagrees by more than ``exposure_tolerance`` stops (default
     0.5), and frames that are in truth at the same exposure. The scale of the exposure
     axis comes from the frames whose metadata agree, never from a free fit. ``auto``
@@ -96,7 +96,7 @@ def calibrate(
     else:
         br = load_bracket(images, times, times_file=times_file, ignore_color=ignore_color,
                           channel_order=channel_order)
-    from hdrcl.core.exposure_fit import verify_exposures
+    from hdrcl.core.exposure.fit import verify_exposures
 
     names = br.paths or [f"image {k}" for k in range(len(br.frames))]
     check_measurable(br.frames, br.valid_all, names, decimate=not br.grid)
@@ -111,7 +111,7 @@ def calibrate(
         {"file": os.path.basename(n), "nominal": float(t), "fitted": None if fitted is None else float(f),
          "used": float(u)}
         for n, t, f, u in zip(names, br.times, fitted if fitted is not None else br.times, used)]
-    from hdrcl.core.exposure_known import untrusted_metadata
+    from hdrcl.core.exposure.known import untrusted_metadata
 
     doubt = untrusted_metadata(resp, fit, names)
     report_span(resp, warn=warn and doubt is None)

@@ -16,7 +16,7 @@ original x EXPOSURE, Radiance's own convention), and the TIFF's hdrcl JSON. PFM 
 have no metadata and hold ``E`` as is; so do maps in absolute units (cd/m^2), except a
 ``.hdr``, which holds them in Radiance's units (cd/m^2 / 179, :func:`hdr_factor`,
 ``whiteEfficacy`` on its ``HDRCL=`` line, no ``EXPOSURE=`` line). A
-calibrated fisheye luminance map (``chain=``, :mod:`hdrcl.core.fisheye`) is absolute
+calibrated fisheye luminance map (``chain=``, :mod:`hdrcl.core.luminance.fisheye`) is absolute
 too: written once its ``N x N`` result is known (:func:`fuse_through_chain`), with no
 reference exposure and no ``EXPOSURE=`` line.
 
@@ -173,7 +173,7 @@ def fuse_to_file(open_writer: Callable, run: Callable, *, output: str, dtype: st
         Multiplier from 1 s radiance to the file's values (:func:`reference_for`).
     keep_units : bool
         Absolute units: never rescale; float when half cannot hold them.
-    chain : hdrcl.core.fisheye.LuminanceChain, optional
+    chain : hdrcl.core.luminance.fisheye.LuminanceChain, optional
         A calibrated fisheye luminance map (:func:`fuse_through_chain`): the strips go
         into the chain, whose ``N x N`` result is written once the fusion ends, with
         ``open_writer(dtype, 1.0, chain)`` (the callback adapts its metadata, camera and

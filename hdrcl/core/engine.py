@@ -4,7 +4,7 @@
          -> scale -> fuse into the sinks -> commit
 
 ``hdrcl merge`` / :func:`hdrcl.merge_files` (:func:`hdrcl.core.merge.merge_files`), each set
-of ``hdrcl batch`` (:class:`hdrcl.shoot.setrun.SetMerge`, a subclass with the batch's
+of ``hdrcl batch`` (:class:`hdrcl.shoot.batch.setrun.SetMerge`, a subclass with the batch's
 response source, preview and digest), the quality report (from the frames the fusion
 saw, aligned ones included) all go through :class:`MergeJob`. Each stage is timed on the
 :class:`Timed` base (``job.seconds``), not in dicts handed down.
@@ -253,7 +253,7 @@ class MergeJob(Timed):
             self.source = BracketReader(self.inputs.paths, self.inputs.infos)
             return
         from hdrcl.core.bracket import _with_ignore
-        from hdrcl.core.handheld import align_bracket
+        from hdrcl.core.align.handheld import align_bracket
         from hdrcl.core.pipeline import ArraySource
 
         o = self.options
@@ -310,7 +310,7 @@ class MergeJob(Timed):
 
         o = self.options
         if not self.own and o.fit_exposures != "off" and len(self.inputs.paths) > 1:
-            from hdrcl.core.exposure_known import exposures_for_merge
+            from hdrcl.core.exposure.known import exposures_for_merge
 
             used, notes = exposures_for_merge(self.grid.frames, self.times, self.response, mode=o.fit_exposures,
                                               valid=self.grid.valid, weight=o.weight,
@@ -351,7 +351,7 @@ class MergeJob(Timed):
     def alignment_meta(self) -> dict:
         if self.shifts is None:
             return {}
-        from hdrcl.core.handheld import alignment_meta
+        from hdrcl.core.align.handheld import alignment_meta
 
         return alignment_meta(self.shifts, self.alignment)
 
@@ -373,7 +373,7 @@ class MergeJob(Timed):
         """A given response with ``fit_exposures=off``: the exposures are checked only."""
         if self.own or self.options.fit_exposures != "off":
             return None
-        from hdrcl.core.exposure_fit import ExposureCheck
+        from hdrcl.core.exposure.fit import ExposureCheck
         from hdrcl.core.pipeline import fusion_tables
 
         order = np.argsort(self.times, kind="stable")
@@ -586,7 +586,7 @@ def _kept_frames(source, grid):
 def _report_exposure_check(check, result, tolerance):
     """Warn about exposures the pixels contradict; refuse a set whose exposures run in
     reverse order of its brightness (raised inside the writer: no output is left)."""
-    from hdrcl.core.exposure_fit import EXPOSURE_TOLERANCE_STOPS
+    from hdrcl.core.exposure.fit import EXPOSURE_TOLERANCE_STOPS
     from hdrcl.errors import InputError
 
     msgs, backwards = check.problems(EXPOSURE_TOLERANCE_STOPS if tolerance is None else float(tolerance))

@@ -44,7 +44,7 @@ class MemoryJob(MergeJob):
         br, o = self.bracket, self.options
         frames, valid = list(br.frames), list(br.valid)
         if o.align:
-            from hdrcl.core.handheld import align_bracket
+            from hdrcl.core.align.handheld import align_bracket
 
             with self.timed("align"):
                 al = align_bracket(frames, valid, self.times, o.device, o.crop, o.align_model, br.paths or None)

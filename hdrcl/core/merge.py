@@ -118,7 +118,7 @@ def merge_files(paths: Sequence[Union[str, os.PathLike]], output: Union[str, os.
     absolute : bool
         Approximate absolute scale (cd/m^2) from the first frame's f-number and ISO.
     align : bool
-        Align hand-held frames to the middle exposure (:mod:`hdrcl.core.handheld`):
+        Align hand-held frames to the middle exposure (:mod:`hdrcl.core.align.handheld`):
         whole-pixel shift by median threshold bitmaps, then a sub-pixel fit of
         ``align_model``, and a warp. ``result.alignment`` holds one dict per frame
         (model, matrix, rotation, scale, shift, residual); ``result.shifts`` each
@@ -141,7 +141,7 @@ def merge_files(paths: Sequence[Union[str, os.PathLike]], output: Union[str, os.
         Also write the response used (JSON). It is written to a temporary file before
         the radiance, so a full disk or a read-only folder fails the merge before the
         radiance file appears, and renamed into place after it.
-    chain : hdrcl.core.fisheye.LuminanceChain, optional
+    chain : hdrcl.core.luminance.fisheye.LuminanceChain, optional
         A calibrated fisheye luminance map (``LuminanceChain.from_options``): the fused
         strips, in cd/m^2 (``absolute`` is implied unless ``reference_patch`` sets the
         scale), are cropped to the lens circle and area-averaged to ``N x N`` as they
@@ -202,9 +202,9 @@ def check_targets(paths, output, options, extras, response) -> str:
 
 
 def _align(frames, valid, times, device, crop: bool = False, model: str = "auto", names=None):
-    """``(frames, valid, shifts, box)`` of :func:`hdrcl.core.handheld.align_bracket`
+    """``(frames, valid, shifts, box)`` of :func:`hdrcl.core.align.handheld.align_bracket`
     (``box`` None without ``crop``)."""
-    from hdrcl.core.handheld import align_bracket
+    from hdrcl.core.align.handheld import align_bracket
 
     al = align_bracket(frames, valid, times, device, crop, model, names)
     return al.frames, al.valid, al.shifts, al.crop

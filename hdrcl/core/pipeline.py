@@ -190,7 +190,7 @@ def stream_merge(source, times: Sequence[float], response: Response, sink, spec:
         ``source.frames`` when None (in-memory sources), required otherwise.
     ghost_reference, ghost_threshold
         See :func:`hdrcl.core.deghost.reference_index` and :func:`hdrcl.core.deghost.learn`.
-    exposure_check : hdrcl.core.exposure_fit.ExposureCheck, optional
+    exposure_check : hdrcl.core.exposure.fit.ExposureCheck, optional
         Given every strip (frames in exposure order) to measure the exposure ratios.
     clip_mask : numpy.ndarray, optional
         ``(H, W)`` uint8, C-contiguous: receives each pixel's clip flags (1: a channel

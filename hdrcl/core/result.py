@@ -26,7 +26,7 @@ class MergeResult:
     shape: tuple = ()
     thumbnail: Optional[np.ndarray] = None
     shifts: Optional[list] = None  # (dy, dx) per frame when aligned: whole-pixel motion of its centre
-    alignment: Optional[list] = None  # per frame when aligned: hdrcl.core.handheld.describe dicts
+    alignment: Optional[list] = None  # per frame when aligned: hdrcl.core.align.handheld.describe dicts
     nominal: Optional[np.ndarray] = None  # the set's own exposures before any refinement
     crop: Optional[tuple] = None  # (y0, y1, x0, x1) of the input kept, with align + crop
     storage_note: Optional[str] = None  # how an EXR was stored when half could not hold it

@@ -20,7 +20,7 @@ read by standard names:
 ``reference_iso``      ``hdrcl:referenceISO``      to (a batch's shoot-wide ones), with
                                                    ``hdrcl:referenceExposure``
 ``units`` = ``cd/m2``  ``whiteLuminance`` = 1      a calibrated luminance map
-                                                   (:mod:`hdrcl.core.fisheye`): 1.0 is 1
+                                                   (:mod:`hdrcl.core.luminance.fisheye`): 1.0 is 1
                                                    cd/m^2; ``.hdr``: no ``EXPOSURE=`` line
 ``view``               (``.hdr``: ``VIEW=``)       Radiance view, e.g. ``-vta -vh 180 -vv 180``
 ``vertical_illuminance``  (``.hdr``:               lux at the lens (EXR: ``hdrcl:*``

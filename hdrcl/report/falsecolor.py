@@ -94,7 +94,7 @@ def text_mask(text: str, scale: int = 2) -> np.ndarray:
 
 def read_luminance(path) -> np.ndarray:
     """``(H, W)`` luminance in cd/m^2 (float64) of a ``.hdr`` or a calibrated EXR."""
-    from hdrcl.core.fisheye_math import WHITE_EFFICACY, radiance_luminance
+    from hdrcl.core.luminance.fisheye_math import WHITE_EFFICACY, radiance_luminance
     from hdrcl.io.radiance import read_radiance, white_luminance
 
     name = os.fspath(path)

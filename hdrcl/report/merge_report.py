@@ -63,7 +63,7 @@ def write_quality_report(result: MergeResult, folder: Union[str, os.PathLike], *
                 frames, valid = reader.read_grid(stride)
     valid = with_ignore(frames, valid, rgb)
     if getattr(result, "alignment", None) and kept is None:  # what was merged: the warped (and cropped) frames
-        from hdrcl.core.handheld import apply_alignment
+        from hdrcl.core.align.handheld import apply_alignment
 
         frames, valid = apply_alignment(frames, valid, result.alignment, result.crop)
     if stride == 1 and k > 1:  # whole frames in hand: measured on the report's grid all the same

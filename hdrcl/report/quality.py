@@ -8,6 +8,47 @@ range. It tests the response, the exposure times and the fusion together.
 :func:`measure` gathers the figures of the quality report (:mod:`hdrcl.report`) for one
 merge: leave-one-out error, dynamic range, the pixels no frame measured (clipped high
 or low), how much more exposure range would have caught them, and a coverage map.
+
+Definitions
+-----------
+Definitions, with ``L`` levels, ``Zmax = L - 1`` and frames ordered by exposure:
+
+* A frame *measures* a pixel-channel when fusion takes evidence from it
+  (:func:`hdrcl.core.reference.fuse`): the pixel is valid in that frame, its code
+  lies strictly between the clip levels ``(lo, hi)`` of
+  :func:`hdrcl.core.weights.clip_levels` (8-bit: 5 and 250, not merely 0 and 255:
+  JPEG highlights clip anywhere in 250..255) with non-zero weight, no shorter valid
+  frame reads ``>= hi`` and no longer one ``<= lo``. **coverage** of a pixel is the
+  number of frames that measure its least-measured channel; :data:`NO_DATA` (255)
+  where the pixel is valid in no frame.
+* A pixel-channel that no frame measures is **clipped high** when its shortest valid
+  frame reads ``>= hi``, else **clipped low** when its longest valid frame reads
+  ``<= lo``, else (frames that contradict each other) high when the shortest valid
+  frame reads in the upper half (``2 Z >= L``): the rule fusion uses to fill it. A
+  pixel is clipped high (low) when any of its channels is; the fractions are over
+  the pixels valid in at least one frame. So coverage 0 means clipped high or low.
+* **extra_ev_high**: a clipped-high pixel-channel reads ``Z_s >= hi`` in its
+  shortest valid frame ``s``, so ``ln E + ln t_s >= g(Z_s)``: fusion's
+  ``g(Z_s) - ln t_s`` is a lower bound on ``ln E``, and nothing in the frames bounds
+  it from above. A frame of time ``t`` reads it within the working range only if
+  ``ln E + ln t <= g(Z_top)``, with ``Z_top = 245`` (8-bit). Hence
+  ``log2(t / t_shortest) <= log2(t_s / t_shortest) - (g(Z_s) - g(Z_top)) / ln 2``;
+  the minimum of that bound over the clipped pixel-channels is reported. It is
+  honest but optimistic: the true change needed is at least this large, and may be
+  far larger (the sun). ``g`` is taken non-decreasing, as for rendering.
+* **extra_ev_low**, the mirror image: a clipped-low pixel-channel reads
+  ``Z_l <= lo`` in its longest valid frame ``l``, so ``ln E <= g(Z_l) - ln t_l``,
+  and a frame reads it at ``Z_bot = 10`` or above only if ``log2(t / t_longest) >=
+  log2(t_l / t_longest) + (g(Z_bot) - g(Z_l)) / ln 2``; the maximum over the
+  clipped pixel-channels. Pixel-channels filled by the contradiction rule prove no
+  bound and are left out of both.
+* **dynamic_range_stops**: :func:`dynamic_range_stops` of ``radiance``, 0.1th to
+  99.9th percentile. Clipped pixels enter at their fusion bounds, so when more than
+  0.1 % are clipped it is flagged as a lower bound.
+* **loo_rmse**: :func:`leave_one_out_all` (interior frames, each rendered from a
+  response calibrated on the others) on :func:`decimate`'s grid, with the merge's
+  exposures, weighting and smoothness and no refitting of exposures; the median
+  over the interior frames.
 """
 from __future__ import annotations
 
@@ -21,7 +62,7 @@ import numpy as np
 
 from hdrcl.core.bracket import Bracket
 from hdrcl.core.calibrate import calibrate, exposures_used
-from hdrcl.core.exposure import render
+from hdrcl.core.exposure.virtual import render
 from hdrcl.core.fusion import fuse_frames
 from hdrcl.core.response import Response
 from hdrcl.core.weights import DEFAULT_WEIGHT
@@ -375,46 +416,7 @@ def measure(
         ``(H, W, C)`` of the frames merged, recorded as :attr:`QualityFigures.shape`;
         default the bracket's frames' (right unless ``stride > 1``).
 
-    Notes
-    -----
-    Definitions, with ``L`` levels, ``Zmax = L - 1`` and frames ordered by exposure:
-
-    * A frame *measures* a pixel-channel when fusion takes evidence from it
-      (:func:`hdrcl.core.reference.fuse`): the pixel is valid in that frame, its code
-      lies strictly between the clip levels ``(lo, hi)`` of
-      :func:`hdrcl.core.weights.clip_levels` (8-bit: 5 and 250, not merely 0 and 255:
-      JPEG highlights clip anywhere in 250..255) with non-zero weight, no shorter valid
-      frame reads ``>= hi`` and no longer one ``<= lo``. **coverage** of a pixel is the
-      number of frames that measure its least-measured channel; :data:`NO_DATA` (255)
-      where the pixel is valid in no frame.
-    * A pixel-channel that no frame measures is **clipped high** when its shortest valid
-      frame reads ``>= hi``, else **clipped low** when its longest valid frame reads
-      ``<= lo``, else (frames that contradict each other) high when the shortest valid
-      frame reads in the upper half (``2 Z >= L``): the rule fusion uses to fill it. A
-      pixel is clipped high (low) when any of its channels is; the fractions are over
-      the pixels valid in at least one frame. So coverage 0 means clipped high or low.
-    * **extra_ev_high**: a clipped-high pixel-channel reads ``Z_s >= hi`` in its
-      shortest valid frame ``s``, so ``ln E + ln t_s >= g(Z_s)``: fusion's
-      ``g(Z_s) - ln t_s`` is a lower bound on ``ln E``, and nothing in the frames bounds
-      it from above. A frame of time ``t`` reads it within the working range only if
-      ``ln E + ln t <= g(Z_top)``, with ``Z_top = 245`` (8-bit). Hence
-      ``log2(t / t_shortest) <= log2(t_s / t_shortest) - (g(Z_s) - g(Z_top)) / ln 2``;
-      the minimum of that bound over the clipped pixel-channels is reported. It is
-      honest but optimistic: the true change needed is at least this large, and may be
-      far larger (the sun). ``g`` is taken non-decreasing, as for rendering.
-    * **extra_ev_low**, the mirror image: a clipped-low pixel-channel reads
-      ``Z_l <= lo`` in its longest valid frame ``l``, so ``ln E <= g(Z_l) - ln t_l``,
-      and a frame reads it at ``Z_bot = 10`` or above only if ``log2(t / t_longest) >=
-      log2(t_l / t_longest) + (g(Z_bot) - g(Z_l)) / ln 2``; the maximum over the
-      clipped pixel-channels. Pixel-channels filled by the contradiction rule prove no
-      bound and are left out of both.
-    * **dynamic_range_stops**: :func:`dynamic_range_stops` of ``radiance``, 0.1th to
-      99.9th percentile. Clipped pixels enter at their fusion bounds, so when more than
-      0.1 % are clipped it is flagged as a lower bound.
-    * **loo_rmse**: :func:`leave_one_out_all` (interior frames, each rendered from a
-      response calibrated on the others) on :func:`decimate`'s grid, with the merge's
-      exposures, weighting and smoothness and no refitting of exposures; the median
-      over the interior frames.
+    The definitions of every figure are in this module's docstring (*Definitions*).
     """
     weight = weight or response.weight
     frames = bracket.frames

@@ -243,7 +243,7 @@ def _check(operator: str, bits: int) -> int:
 
 def _check_radiance(radiance) -> np.ndarray:
     """``radiance`` as an (H, W[, C]) array of finite numbers, C = 1 or 3 (UsageError
-    naming the parameter otherwise), as :func:`hdrcl.core.exposure.render` wants it."""
+    naming the parameter otherwise), as :func:`hdrcl.core.exposure.virtual.render` wants it."""
     from hdrcl.errors import ParameterTypeError, UsageError
 
     try:

@@ -43,9 +43,9 @@ def run_demo(folder, *, width: int = 768, height: int = 512, frames: int = 7, st
     The camera is an S-shaped curve (:class:`hdrcl.core.synthetic.Camera`) with a slightly
     different curve per channel; the scene spans ``decades`` orders of magnitude.
     ``handle_signals`` lets the batch take SIGTERM/SIGINT (the command line's choice,
-    see :func:`hdrcl.shoot.run.run_batch`).
+    see :func:`hdrcl.shoot.batch.run.run_batch`).
     """
-    from hdrcl.core.exposure import expose_file
+    from hdrcl.core.exposure.virtual import expose_file
     from hdrcl.core.merge import merge_files
     from hdrcl.io.ldr import write_ldr
 
@@ -102,8 +102,8 @@ def run_demo(folder, *, width: int = 768, height: int = 512, frames: int = 7, st
 
 def _demo_batch(rep: DemoReport, device, handle_signals: bool = False) -> None:
     """The shoot job: a sample shoot with EXIF, merged by ``hdrcl batch`` with a report."""
-    from hdrcl.shoot.jobs import BatchOptions
-    from hdrcl.shoot.run import run_batch
+    from hdrcl.shoot.batch.jobs import BatchOptions
+    from hdrcl.shoot.batch.run import run_batch
     from hdrcl.shoot.sample import write_sample_shoot
 
     rep.shoot = os.path.join(rep.folder, "shoot")

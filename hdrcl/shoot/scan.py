@@ -7,8 +7,8 @@ import logging
 import os
 from typing import List, Optional, Sequence, Tuple
 from hdrcl.errors import InputError
-from hdrcl.shoot.manifest import Manifest, Unmerged, _rel
-from hdrcl.shoot.grouping import _exposure_range, _fmt_bias, group_frames
+from hdrcl.shoot.batch.manifest import Manifest, Unmerged, _rel
+from hdrcl.shoot.grouping.rules import _exposure_range, _fmt_bias, group_frames
 
 logger = logging.getLogger(__name__)
 
@@ -165,7 +165,7 @@ def scan_directory(path, *, recursive: bool = False, frames_per_set: Optional[in
         File name endings to read, compared case-insensitively.
     content : bool
         Also compare the frames' content (small exposure-normalised thumbnails,
-        :mod:`hdrcl.shoot.scene`); False groups by the headers alone.
+        :mod:`hdrcl.shoot.grouping.scene`); False groups by the headers alone.
     times_file : path, optional
         Exposure list (wins over EXIF for the frames it names).
 
@@ -218,7 +218,7 @@ def scan_directory(path, *, recursive: bool = False, frames_per_set: Optional[in
     infos, named = _with_exposure_lists(infos, times_file)
     compare = None
     if content and frames_per_set is None:
-        from hdrcl.shoot.scene import SceneCache
+        from hdrcl.shoot.grouping.scene import SceneCache
 
         compare = SceneCache().compare
     manifest = group_frames(infos, frames_per_set=frames_per_set, gap=gap, compare=compare, listed=named)

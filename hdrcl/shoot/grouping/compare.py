@@ -1,6 +1,6 @@
 """Comparing frames' headers: settings, cameras, capture times, and their display.
 
-Shared by :mod:`hdrcl.shoot.grouping` and :mod:`hdrcl.shoot.splitting`.
+Shared by :mod:`hdrcl.shoot.grouping.rules` and :mod:`hdrcl.shoot.grouping.splitting`.
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """A second, independent estimate of a frame's motion, for the frames registration
-sees little of (:mod:`hdrcl.core.handheld`): block matching of tiles.
+sees little of (:mod:`hdrcl.core.align.handheld`): block matching of tiles.
 
-**Picture.** Both frames' rank images (:mod:`hdrcl.core.register`: histogram-equalised,
+**Picture.** Both frames' rank images (:mod:`hdrcl.core.align.register`: histogram-equalised,
 so the same scene point has about the same value at any exposure) are clipped to the
 ranks both frames record well: below the higher of the two floors everything is the
 floor (a dark frame's pedestal noise, fill and masked pixels are flat), above the
@@ -60,7 +60,7 @@ class TileEstimate:
 
     def full(self):
         """``(matrix, points)`` in full-size pixels."""
-        from hdrcl.core.register import to_full
+        from hdrcl.core.align.register import to_full
 
         c = (self.scale - 1) / 2.0
         return to_full(self.matrix, self.scale), self.points * self.scale + c
@@ -128,7 +128,7 @@ def _peak(ncc: np.ndarray):
 def match_tiles(a: np.ndarray, b: np.ndarray, usable: np.ndarray, start: np.ndarray, lo: float, radius: int = RADIUS):
     """``(points, targets)``: template tile centres ``(x, y)`` and where each was found
     in ``b`` (level pixels), for the tiles that match clearly."""
-    from hdrcl.core.warp import apply
+    from hdrcl.core.align.warp import apply
 
     h, w = a.shape
     k, r = TILE, int(radius)
@@ -170,7 +170,7 @@ def fit_similarity(p: np.ndarray, q: np.ndarray) -> np.ndarray:
 def robust_similarity(p: np.ndarray, q: np.ndarray):
     """``(matrix, inliers)`` by RANSAC over every pair of points (module docstring), or
     None with fewer than :data:`MIN_TILES` agreeing."""
-    from hdrcl.core.warp import apply
+    from hdrcl.core.align.warp import apply
 
     n = len(p)
     if n < MIN_TILES:
@@ -202,7 +202,7 @@ def tile_matches(lev_a, valid_a, lev_b, valid_b, start_full: np.ndarray, radius:
     """``(points, targets)``: the centres of the template's tiles that match clearly
     and where each was found in frame ``b``, full-size pixels (searched within
     ``radius`` level pixels of where ``start_full`` puts them)."""
-    from hdrcl.core.register import to_level
+    from hdrcl.core.align.register import to_level
 
     pic = shared_picture(lev_a.rank, lev_a.ok, valid_a, lev_b.rank, lev_b.ok, valid_b)
     if pic is None:
@@ -217,7 +217,7 @@ def tile_matches(lev_a, valid_a, lev_b, valid_b, start_full: np.ndarray, radius:
 
 def tile_estimate(lev_a, valid_a, lev_b, valid_b, start_full: np.ndarray) -> Optional[TileEstimate]:
     """The block-matching similarity of frame ``b`` against template ``a``
-    (:class:`hdrcl.core.register.Level`, same level; ``valid_*`` their masks or None),
+    (:class:`hdrcl.core.align.register.Level`, same level; ``valid_*`` their masks or None),
     searched around ``start_full`` (full size), or None when too few tiles agree."""
     p, q = tile_matches(lev_a, valid_a, lev_b, valid_b, start_full)
     s = lev_a.scale
@@ -233,7 +233,7 @@ def model_errors(matrices, points: np.ndarray, targets: np.ndarray) -> list:
     """Median distance (full-size pixels) from where each matrix puts the tile
     centres to where block matching found them, over the tiles within 2 px of at
     least one of the matrices (a mismatched tile judges none); NaN without tiles."""
-    from hdrcl.core.warp import apply
+    from hdrcl.core.align.warp import apply
 
     if len(points) == 0:
         return [float("nan")] * len(matrices)
@@ -248,7 +248,7 @@ def disagreement(m: np.ndarray, est: TileEstimate) -> float:
     """Largest distance (full-size pixels) between where ``m`` and the estimate put
     the template's agreeing tile centres: how far apart the two estimates are where
     the frame has content."""
-    from hdrcl.core.warp import apply
+    from hdrcl.core.align.warp import apply
 
     mf, pts = est.full()
     return float(np.max(np.hypot(*(apply(m, pts) - apply(mf, pts)).T)))

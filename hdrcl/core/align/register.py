@@ -2,7 +2,7 @@
 homography, robust to the exposure difference.
 
 **Exposure-invariant picture.** Each grey level image (the 2x2 box pyramid of
-:mod:`hdrcl.core.align`) is replaced by its *rank image*: the fraction of the image's
+:mod:`hdrcl.core.align.mtb`) is replaced by its *rank image*: the fraction of the image's
 pixels darker than the pixel (mid-rank for ties). Any monotonic response and any
 exposure give the same ranks to the same scene points, except where a frame clips:
 pixels within ``2 tol + 1`` codes of either end, or near the frame's own noise floor or
@@ -18,7 +18,7 @@ template's strongest-gradient pixels where both frames are usable (at most
 :data:`START_SIDE` pixels down to the finest level with at most
 :data:`ESTIMATE_PIXELS` pixels; it starts from the whole-pixel shift of the median
 threshold bitmaps. Parameters live in centred coordinates scaled to about [-1, 1].
-Matrices use the convention of :mod:`hdrcl.core.warp`: ``frame(M p) ~ template(p)``.
+Matrices use the convention of :mod:`hdrcl.core.align.warp`: ``frame(M p) ~ template(p)``.
 
 **Residual.** After the fit, the frame is cut into 4 x 4 tiles and each textured
 tile's own remaining translation is estimated; ``residual_px`` is the median of their
@@ -32,7 +32,7 @@ from typing import List, Optional, Tuple
 
 import numpy as np
 
-from hdrcl.core.warp import apply, corners
+from hdrcl.core.align.warp import apply, corners
 
 #: Finest level used for estimation has at most this many pixels.
 ESTIMATE_PIXELS = 2_500_000
@@ -150,7 +150,7 @@ def erode3(ok: np.ndarray) -> np.ndarray:
 
 def valid_pyramid(valid: Optional[np.ndarray], levels: int) -> List[Optional[np.ndarray]]:
     """A validity mask per pyramid level: a level pixel is valid when its 2x2 sources are
-    (the odd last row or column dropped, as :func:`hdrcl.core.align.downsample`)."""
+    (the odd last row or column dropped, as :func:`hdrcl.core.align.mtb.downsample`)."""
     out = [None if valid is None else np.asarray(valid, bool)]
     for _ in range(levels - 1):
         v = out[-1]
@@ -284,7 +284,7 @@ class Template:
 def joint_ok(img: Level, m_full: np.ndarray, scale: int) -> np.ndarray:
     """``img.ok`` brought to the template's pixels by the translation part of ``m_full``
     (whole pixels of the level): where the template's samples can find a usable partner."""
-    from hdrcl.core.align import _shift
+    from hdrcl.core.align.mtb import _shift
 
     m = to_level(m_full, scale)
     h, w = img.ok.shape

@@ -3,23 +3,23 @@ a similarity or a homography, then warped onto it (``merge --align``).
 
 Stages, per frame:
 
-1. **Whole-pixel shift** by median threshold bitmaps (:mod:`hdrcl.core.align`, Ward
+1. **Whole-pixel shift** by median threshold bitmaps (:mod:`hdrcl.core.align.mtb`, Ward
    2003): the start, reaching 63 pixels or more.
-2. **Sub-pixel fit** of the model(s) (:mod:`hdrcl.core.register`) on the frames' rank
+2. **Sub-pixel fit** of the model(s) (:mod:`hdrcl.core.align.register`) on the frames' rank
    images, coarse to fine on a pyramid of at most a few megapixels. Each frame is
    registered to its neighbour in exposure on the way to the reference (they share the
    most well-exposed pixels), already registered, and the matrices are composed.
 3. **Model choice** (``auto``): the translation, unless the similarity lowers the
    residual misalignment by more than :data:`CLEAR_GAIN_PX` and :data:`CLEAR_GAIN_FRAC`
    of it; then the homography, only when it also lands the frame's tiles, block-matched
-   independently of the fit (:mod:`hdrcl.core.register_check`), clearly closer than the
+   independently of the fit (:mod:`hdrcl.core.align.check`), clearly closer than the
    similarity (:data:`HOMOGRAPHY_GAIN_PX`). A result within :data:`SNAP_PX` of a
    whole-pixel shift at every corner is taken as that shift (an exact copy, no
    resampling). A bracket in which no frame moved :data:`STATIC_PX` or more
    (:func:`motion_px`: the median over the frame) is left as it is (model ``none``: a
    tripod).
-4. **Trust** (:mod:`hdrcl.core.handheld_trust`). A fit over fewer than :data:`FEW_SAMPLES` samples (a
-   dark frame: its pedestal is left out, :func:`hdrcl.core.register.usable_range`), or
+4. **Trust** (:mod:`hdrcl.core.align.trust`). A fit over fewer than :data:`FEW_SAMPLES` samples (a
+   dark frame: its pedestal is left out, :func:`hdrcl.core.align.register.usable_range`), or
    one whose residual cannot be measured (NaN: no textured tile), is accepted only when
    a second, independent estimate, block matching of tiles on the two frames' shared
    bright structure, agrees with it within :data:`AGREE_PX` where the frame has content
@@ -30,7 +30,7 @@ Stages, per frame:
    above :data:`MAX_RESIDUAL_PX`, or an unmeasurable residual no second estimate
    confirms) is refused: :class:`hdrcl.errors.InputError` naming the frame. Frames under
    :data:`MIN_SIDE` pixels on a side are merged as they are, with a warning.
-5. **Warp** (:mod:`hdrcl.core.warp`; on the device :class:`hdrcl.cl.warp.WarpProcessor`,
+5. **Warp** (:mod:`hdrcl.core.align.warp`; on the device :class:`hdrcl.cl.warp.WarpProcessor`,
    each frame as soon as its matrix is final, on a worker thread while the host
    estimates the next), masks warped with the frames; ``crop`` keeps the largest
    axis-aligned box every frame covers.
@@ -45,12 +45,12 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
-from hdrcl.core import register as R
-from hdrcl.core import warp as W
-from hdrcl.core.handheld_trust import (  # noqa: F401 (the rules, here as before)
+from hdrcl.core.align import register as R
+from hdrcl.core.align import warp as W
+from hdrcl.core.align.trust import (  # noqa: F401 (the rules, here as before)
     AGREE_PX, CLEAR_GAIN_FRAC, CLEAR_GAIN_PX, FEW_SAMPLES, HELD_OUT_RADIUS, HOMOGRAPHY_GAIN_PX, MAX_RESIDUAL_PX,
     MAX_ROTATION, MIN_MEASURABLE, MIN_ZNCC, SCALE_RANGE, SKIP_PX, SNAP_PX, motion_px, register_chained)
-from hdrcl.core.handheld_warp import _warper, _Warps, apply_alignment, warp_one  # noqa: F401 (the API here)
+from hdrcl.core.align.warping import _warper, _Warps, apply_alignment, warp_one  # noqa: F401 (the API here)
 from hdrcl.errors import InputError, UsageError
 
 logger = logging.getLogger(__name__)
@@ -126,7 +126,7 @@ class _Registrar:
     def shift(self, a: int, b: int) -> np.ndarray:
         """Whole-pixel shift of ``b`` against ``a`` by median threshold bitmaps on the
         kept levels (each frame's usable range in place of the fixed one), full size."""
-        from hdrcl.core import align as A
+        from hdrcl.core.align import mtb as A
         from hdrcl.cl.pyramid import GreyPyramid
 
         pa, pb = self.pyr[a], self.pyr[b]
@@ -141,7 +141,7 @@ class _Registrar:
 
 def _usable_pyramid(valid, pyr, est: int):
     """Per kept level: valid (the frame's mask brought to the level) and not fill
-    (:func:`hdrcl.core.register.fill_mask` of the estimation level); None when all is."""
+    (:func:`hdrcl.core.align.register.fill_mask` of the estimation level); None when all is."""
     v = None if valid is None else R.valid_pyramid(valid, len(pyr) + est)[est]
     fill = R.fill_mask(pyr[0])
     if fill.any():
@@ -166,7 +166,7 @@ def estimate(frames: Sequence[np.ndarray], ref: int, model: str, device=None, na
     soon as its matrix is final: once the bracket is known not to be static (a frame
     moved more than :data:`STATIC_PX`, or ``model`` is not ``auto``), so that its warp
     can start while the next frames are estimated."""
-    from hdrcl.core import align as A
+    from hdrcl.core.align import mtb as A
 
     n = len(frames)
     names = names or [f"frame {j}" for j in range(n)]
@@ -253,7 +253,7 @@ def align_bracket(frames, valid, times, device=None, crop: bool = False, model: 
     order = [int(i) for i in np.argsort(np.asarray(times, np.float64), kind="stable")]
     h, w = frames[0].shape[:2]
     ref = n // 2
-    from hdrcl.core.align import get_aligner
+    from hdrcl.core.align.mtb import get_aligner
 
     out_f, out_v = (frames, valid) if inplace else (list(frames), list(valid))
     if min(h, w) < MIN_SIDE:  # nothing to register on: merged as they are, said once

@@ -103,7 +103,7 @@ class GlareResult:
 def parse_glare_view(text: str, where: str = "VIEW") -> ViewSpec:
     """A ``VIEW=`` text, checked as Radiance's view parser does (the view types glare
     metrics are computed for: ``-vta`` and ``-vth``); errors start with ``where``."""
-    from hdrcl.core.fisheye import parse_view
+    from hdrcl.core.luminance.fisheye import parse_view
 
     try:
         _, vtype, vh, vv = parse_view(text)

@@ -1,6 +1,6 @@
 """Translation alignment of hand-held brackets by median threshold bitmaps (Ward 2003).
 
-``merge --align`` starts here and goes on in :mod:`hdrcl.core.handheld` (sub-pixel
+``merge --align`` starts here and goes on in :mod:`hdrcl.core.align.handheld` (sub-pixel
 translation, similarity or homography, and the warp).
 
 G. Ward, "Fast, robust image registration for compositing high dynamic range
@@ -357,7 +357,7 @@ def shift_search(aligner, frames, ref: int, levels: int, radius: int, tol: int, 
                  keep_from: Optional[int] = None) -> Tuple[List[Shift], List[List[np.ndarray]]]:
     """The search of :func:`estimate_shifts` per frame; also, with ``keep_from``, each
     frame's grey pyramid from that level down to the coarsest (host arrays, for the
-    sub-pixel registration of :mod:`hdrcl.core.register`)."""
+    sub-pixel registration of :mod:`hdrcl.core.align.register`)."""
     ref_gp = aligner.grey_pyramid(frames[ref], levels, slot="ref")
     kept: List[List[np.ndarray]] = [[] for _ in frames]
     if keep_from is not None:

@@ -16,7 +16,7 @@ pooled files' contents and the solve's parameters) still matches is loaded inste
 of solved again; chunks running at the same moment each solve and write the same
 file atomically. A camera with a single set in the manifest is solved by that set's
 merge, from the sampling grid of the decode that also feeds its fusion, so its frames
-are decoded once (:func:`hdrcl.shoot.pooling.solve_deferred`); the set digests name the
+are decoded once (:func:`hdrcl.shoot.batch.pooling.solve_deferred`); the set digests name the
 calibration key, so a curve solved either way or loaded from its file gives the same
 digests. The curve used is always the one as written to JSON (rounded the same
 way), so a loaded curve and a freshly solved one give identical outputs.
@@ -48,7 +48,7 @@ on the OpenCL device and encoding the previous one overlap, and memory does not 
 with the image. Meanwhile a read-ahead thread hashes the next set, checks its outputs
 and reads its headers. One OpenCL context and built program serve the process.
 ``jobs > 1`` runs sets in worker processes (``spawn``: each worker makes its own OpenCL
-context once); ``scheduler`` runs them on a Dask cluster (:mod:`hdrcl.shoot.executors`).
+context once); ``scheduler`` runs them on a Dask cluster (:mod:`hdrcl.shoot.batch.executors`).
 
 Outputs, named after each set's folder when every set has its own, else after its first
 frame, or by a ``name`` template (:func:`output_stems`), go directly into the output
@@ -77,8 +77,8 @@ from dataclasses import dataclass, replace
 from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 from hdrcl.errors import ProcessingError, UsageError
-from hdrcl.shoot.claims import Cancelled, cancel_signals, remove_orphan_temps
-from hdrcl.shoot.jobs import (
+from hdrcl.shoot.batch.claims import Cancelled, cancel_signals, remove_orphan_temps
+from hdrcl.shoot.batch.jobs import (
     REPORT_NAME,
     STATUS_FAILED,
     BatchOptions,
@@ -88,11 +88,11 @@ from hdrcl.shoot.jobs import (
     _Context,
     _reference_text,
 )
-from hdrcl.shoot.plan import _plan, check_outputs_spare_inputs, load_source, parse_sets
-from hdrcl.shoot.pooling import _prepare_responses, cache_for
-from hdrcl.shoot.setquality import _contact_sheet
-from hdrcl.shoot.setrun import _failed, _merge_stage, _Opening, _read_stage, process_set
-from hdrcl.shoot.state import (
+from hdrcl.shoot.batch.plan import _plan, check_outputs_spare_inputs, load_source, parse_sets
+from hdrcl.shoot.batch.pooling import _prepare_responses, cache_for
+from hdrcl.shoot.batch.setquality import _contact_sheet
+from hdrcl.shoot.batch.setrun import _failed, _merge_stage, _Opening, _read_stage, process_set
+from hdrcl.shoot.batch.state import (
     _atomic_json,
     _merge_entries,
     _remove_stale_temps,
@@ -189,7 +189,7 @@ class RunSettings:
         does); by default the caller's handlers are left alone.
     name : str, optional
         Output name template (``--name``; fields ``{folder}``, ``{first}``, ``{date}``,
-        ``{index}``, ``{camera}``, :func:`hdrcl.shoot.plan.output_stems`) [default:
+        ``{index}``, ``{camera}``, :func:`hdrcl.shoot.batch.plan.output_stems`) [default:
         ``{folder}`` when every set has a folder of its own, else ``{first}``].
     response_cache : path, optional
         Folder of responses, one per camera group (``<group>.response.json``): one found
@@ -355,11 +355,11 @@ def _run_sets(plan, ctx: _Context, s: RunSettings, rep: BatchReport, out_dir: st
     stems = [os.path.splitext(os.path.basename(j.output))[0] for j in plan.selected]
     try:
         if s.scheduler is not None:
-            from hdrcl.shoot.executors import run_dask
+            from hdrcl.shoot.batch.executors import run_dask
 
             run_dask(plan.selected, ctx, s.scheduler, emit, task=process_set, failed=_failed, retries=s.retries)
         elif s.jobs > 1 and total > 1:
-            from hdrcl.shoot.executors import run_processes
+            from hdrcl.shoot.batch.executors import run_processes
 
             run_processes(plan.selected, ctx, emit, task=process_set, failed=_failed, jobs=min(s.jobs, total))
         else:
@@ -412,8 +412,8 @@ def describe_batch(source, out_dir, *, options: Optional[BatchOptions] = None, s
     ------
     As :func:`run_batch` before it writes anything.
     """
-    from hdrcl.shoot.pooling import _cached, _pool_of, saved_response
-    from hdrcl.shoot.plan import response_path
+    from hdrcl.shoot.batch.pooling import _cached, _pool_of, saved_response
+    from hdrcl.shoot.batch.plan import response_path
 
     options = options or BatchOptions()
     if response is not None and response_cache is not None:

@@ -55,7 +55,7 @@ def render(radiance: np.ndarray, response: Response, time: float, bits: Optional
 def expose(radiance: np.ndarray, response: Union[Response, str, os.PathLike], time: float,
            *, bits: Optional[int] = None, device: Optional[str] = None) -> np.ndarray:
     """Virtual photograph of ``radiance`` at exposure ``time`` seconds through ``response``."""
-    from hdrcl.core.exposure import render
+    from hdrcl.core.exposure.virtual import render
 
     return render(radiance, _as_response(response), time, bits=bits, device=device)
 

@@ -1,4 +1,4 @@
-"""The fits of :mod:`hdrcl.core.handheld` and which of them are trusted: the model
+"""The fits of :mod:`hdrcl.core.align.handheld` and which of them are trusted: the model
 choice (:func:`_fit_models`; ``auto``'s homography judged on block-matched tiles,
 :func:`_held_out_wins`), the refusals (:func:`_refusal`), a frame registered along the
 chain of exposure neighbours (:func:`register_chained`), and a fit over few samples
@@ -11,11 +11,11 @@ import logging
 import math
 from typing import Optional
 
-from hdrcl.core import register as R
-from hdrcl.core import warp as W
+from hdrcl.core.align import register as R
+from hdrcl.core.align import warp as W
 from hdrcl.errors import InputError
 
-logger = logging.getLogger("hdrcl.core.handheld")
+logger = logging.getLogger("hdrcl.core.align.handheld")
 
 #: A richer model must lower the residual by this much (full-size pixels) ...
 CLEAR_GAIN_PX = 0.1
@@ -26,9 +26,9 @@ SNAP_PX = 0.15
 #: A frame sharing fewer usable samples than this with its neighbour cannot be
 #: measured: it takes the neighbour's motion (model ``inherited``), with a warning.
 MIN_MEASURABLE = 200
-#: A fit over fewer samples than this (of :data:`hdrcl.core.register.MAX_SAMPLES`) is
+#: A fit over fewer samples than this (of :data:`hdrcl.core.align.register.MAX_SAMPLES`) is
 #: accepted only when a second, independent estimate agrees with it within
-#: :data:`AGREE_PX` (full-size pixels; :func:`hdrcl.core.handheld_trust.register`).
+#: :data:`AGREE_PX` (full-size pixels; :func:`hdrcl.core.align.trust.register`).
 FEW_SAMPLES = 20_000
 AGREE_PX = 1.0
 #: ``auto``'s homography is judged on tiles block-matched this far (estimation-level
@@ -41,7 +41,7 @@ HELD_OUT_RADIUS = 8
 HOMOGRAPHY_GAIN_PX = 0.5
 #: A frame registered against its neighbour and against the neighbour's own anchor
 #: that lands this far apart (pixels, median over the frame) takes the shorter chain
-#: (:func:`hdrcl.core.handheld_trust.register_chained`).
+#: (:func:`hdrcl.core.align.trust.register_chained`).
 SKIP_PX = 0.25
 #: Refusal: residual misalignment above this (full-size pixels) ...
 MAX_RESIDUAL_PX = 2.0
@@ -127,11 +127,11 @@ def _held_out_wins(reg, anchor: int, j: int, fs, fh) -> bool:
     """True when the homography ``fh`` lands the frame's tiles clearly closer than the
     similarity ``fs`` (:func:`_richer`, and by :data:`HOMOGRAPHY_GAIN_PX` at least) to
     where block matching finds them
-    (:func:`hdrcl.core.register_check.tile_matches`: tiles and a criterion the fits did
+    (:func:`hdrcl.core.align.check.tile_matches`: tiles and a criterion the fits did
     not use). A homography fitted to the rank images' samples can bend the corners by
     pixels for a residual a tenth of a pixel lower (film grain, blooming that grows with
     the exposure): its own residual, even on held-out samples, cannot tell."""
-    from hdrcl.core import register_check as RC
+    from hdrcl.core.align import check as RC
 
     va, vb = (reg.valid[k][0] if reg.valid[k] is not None else None for k in (anchor, j))
     p, q = RC.tile_matches(reg.levels(anchor)[0], va, reg.levels(j)[0], vb, fs.matrix, radius=HELD_OUT_RADIUS)
@@ -222,10 +222,10 @@ def register(reg, anchor: int, j: int, model: str, names):
 
     A fit over few samples (under :data:`FEW_SAMPLES`), or one whose residual cannot be
     measured (no textured tile: NaN), is accepted only when the block-matching estimate
-    of :mod:`hdrcl.core.register_check` agrees with it within :data:`AGREE_PX` where the
+    of :mod:`hdrcl.core.align.check` agrees with it within :data:`AGREE_PX` where the
     frame has content; the fit is retried from that estimate once. Its residual is then
     the larger of the tiles' and the two estimates' distance: never NaN."""
-    from hdrcl.core import register_check as RC
+    from hdrcl.core.align import check as RC
 
     h, w = reg.shape
     m0 = reg.shift(anchor, j)

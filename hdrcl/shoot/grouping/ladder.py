@@ -41,7 +41,7 @@ MAX_STEP = 4.5
 # than this many stops are the same.
 _TOL = 0.22
 # Two exposures closer than this (stops) repeat each other (as ``_STOP_TOL`` of
-# hdrcl.shoot.compare: nominal third stops such as 1/15 and 1/13 s are 0.21 stops apart);
+# hdrcl.shoot.grouping.compare: nominal third stops such as 1/15 and 1/13 s are 0.21 stops apart);
 # two exposure bias values closer than _BIAS_REPEAT EV repeat each other.
 _REPEAT = 0.15
 _BIAS_REPEAT = 0.1

@@ -4,7 +4,7 @@ geometry around it (corners, the box every warped frame covers).
 **Convention.** A frame's matrix ``M`` maps reference pixel coordinates to frame pixel
 coordinates: ``frame(M (x, y, 1)) ~ reference(x, y)`` (pixel centres at integers, x the
 column). A translation ``M = [[1, 0, dx], [0, 1, dy], [0, 0, 1]]`` is the shift
-``(dy, dx)`` of :mod:`hdrcl.core.align`: ``frame(y + dy, x + dx) ~ reference(y, x)``.
+``(dy, dx)`` of :mod:`hdrcl.core.align.mtb`: ``frame(y + dy, x + dx) ~ reference(y, x)``.
 
 **Warp.** ``out(x, y) = frame(sx, sy)`` with ``(sx, sy) = (u / s, v / s)``,
 ``(u, v, s) = M (x, y, 1)``, interpolated by Keys' cubic convolution (``a = -1/2``,

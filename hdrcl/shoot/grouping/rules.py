@@ -35,23 +35,23 @@ bracket set ends and the next begins, using several signals together:
   stops, even when uneven: a phone going on in ISO from its own table) continues it.
   A frame that repeats the exposure of the frame just before, with the ladder going on
   after it on the same scene, is kept in the set as a duplicate (pass 2 of
-  :mod:`hdrcl.shoot.splitting`). A change to or from auto bracketing, or of the
+  :mod:`hdrcl.shoot.grouping.splitting`). A change to or from auto bracketing, or of the
   aperture in the middle of a shutter-speed ladder, ends the set; a change between
   auto and manual exposure (a compact's first frame metered in P, the rest in M) ends
   the run, and the bridges below join it back when the ladder continues.
 * **The scene** (with ``compare``, which ``scan_directory`` gives by default): small
   exposure-normalised thumbnails of a frame and of the set's frame nearest in exposure
-  (:mod:`hdrcl.shoot.scene`); a changed scene ends the set.
+  (:mod:`hdrcl.shoot.grouping.scene`); a changed scene ends the set.
 * **Long gaps bridged**: runs that only a long gap (an auto / manual change, a hand
   ladder turning back) separates are joined when the scene matches and no exposure
-  repeats, in any order and with any step (:func:`hdrcl.shoot.ladder.distinct_of`: a
+  repeats, in any order and with any step (:func:`hdrcl.shoot.grouping.ladder.distinct_of`: a
   compact's third-stop ladder, a ladder shot 1, 2, 1/2 s then on down, a moon ladder
   1/4 -> 1/250 s then 1/2 -> 8 s); where the scene cannot be compared, when they form
   one evenly spaced exposure ladder in an order people shoot
-  (:func:`hdrcl.shoot.ladder.ladder_of`), or carry on one way a ladder the scene vouched
+  (:func:`hdrcl.shoot.grouping.ladder.ladder_of`), or carry on one way a ladder the scene vouched
   for (the darkest frames of a night ladder). Hand-made brackets with 5-80 s between
   frames, and pauses of up to a quarter of an hour on one view while the ladder goes
-  on (:mod:`hdrcl.shoot.splitting`).
+  on (:mod:`hdrcl.shoot.grouping.splitting`).
 
 The rule behind all of these: frames belong together when the scene matches and
 together they form one plausible bracket (every exposure once, a span of stops),
@@ -79,11 +79,11 @@ from typing import Iterable, List, Optional, Sequence
 
 from hdrcl.errors import UsageError
 from hdrcl.io.metadata import FrameInfo
-from hdrcl.shoot.compare import (DEFAULT_GAP, LONG_EXPOSURE, _camera_desc, _camera_key, _camera_label,  # noqa: F401
+from hdrcl.shoot.grouping.compare import (DEFAULT_GAP, LONG_EXPOSURE, _camera_desc, _camera_key, _camera_label,  # noqa: F401
                                  _exposure_range, _fmt_bias, _fmt_f, _gap, _norm, _same_stops, _sort_key, _time,
                                  _varies, format_exposure)
-from hdrcl.shoot.manifest import BracketSet, Manifest, Unmerged, _is_number
-from hdrcl.shoot.splitting import _camera_reason, _Group, chunk, split_stream
+from hdrcl.shoot.batch.manifest import BracketSet, Manifest, Unmerged, _is_number
+from hdrcl.shoot.grouping.splitting import _camera_reason, _Group, chunk, split_stream
 
 logger = logging.getLogger(__name__)
 
@@ -256,8 +256,8 @@ def group_frames(infos: Sequence[FrameInfo], *, frames_per_set: Optional[int] = 
         default (:data:`DEFAULT_GAP`, plus the exposure time after long exposures);
         long gaps are then never bridged.
     compare : callable, optional
-        ``compare(a, b)`` -> :class:`hdrcl.shoot.scene.Verdict` for two frames: the
-        content signal (:class:`hdrcl.shoot.scene.SceneCache.compare`). Without it the
+        ``compare(a, b)`` -> :class:`hdrcl.shoot.grouping.scene.Verdict` for two frames: the
+        content signal (:class:`hdrcl.shoot.grouping.scene.SceneCache.compare`). Without it the
         grouping uses the headers alone.
     listed : dict, optional
         Exposure list (path) -> the frames of ``infos`` it names, in its order: each

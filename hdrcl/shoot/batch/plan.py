@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 from hdrcl.errors import InputError, UsageError
-from hdrcl.shoot.jobs import RESPONSE_SUFFIX, BatchOptions, SetJob
+from hdrcl.shoot.batch.jobs import RESPONSE_SUFFIX, BatchOptions, SetJob
 
 logger = logging.getLogger(__name__)
 
@@ -228,7 +228,7 @@ def load_source(source, *, recursive: bool = False, frames_per_set: Optional[int
     UsageError
         Grouping overrides given with a manifest.
     """
-    from hdrcl.shoot.manifest import Manifest, load_manifest
+    from hdrcl.shoot.batch.manifest import Manifest, load_manifest
     from hdrcl.shoot.scan import scan_directory
 
     if isinstance(source, Manifest):
@@ -266,7 +266,7 @@ def _drop_one_exposure_sets(manifest) -> None:
     merge would refuse them (:func:`hdrcl.io.metadata.relative_exposures`), so that scan
     and batch agree on the sets. The remaining sets are numbered again from 0."""
     from hdrcl.io.metadata import SAME_EXPOSURE_RTOL, format_time
-    from hdrcl.shoot.manifest import Unmerged
+    from hdrcl.shoot.batch.manifest import Unmerged
 
     kept = []
     for st in manifest.sets:
@@ -292,7 +292,7 @@ def check_manifest(manifest) -> Dict[int, str]:
     """What would stop each set of a (hand-edited) manifest from merging, by index.
 
     Reads the frames' headers only: a missing or unreadable file, or a group that
-    :func:`hdrcl.shoot.grouping.unmergeable_reason` rejects (single frame, one exposure,
+    :func:`hdrcl.shoot.grouping.rules.unmergeable_reason` rejects (single frame, one exposure,
     mixed cameras...). Exposures written in the manifest replace the EXIF times.
 
     Returns
@@ -301,9 +301,9 @@ def check_manifest(manifest) -> Dict[int, str]:
         Only the sets with a problem.
     """
     from hdrcl.io.frames import read_info
-    from hdrcl.shoot.grouping import unmergeable_reason
+    from hdrcl.shoot.grouping.rules import unmergeable_reason
 
-    from hdrcl.shoot.claims import check_regular
+    from hdrcl.shoot.batch.claims import check_regular
 
     problems = {}
     for s in manifest.sets:
@@ -438,7 +438,7 @@ class _Plan:
 
 def _plan(manifest, out_dir: str, options: BatchOptions, ranges, name: Optional[str] = None) -> _Plan:
     from hdrcl.io.frames import read_info
-    from hdrcl.shoot.claims import check_regular
+    from hdrcl.shoot.batch.claims import check_regular
 
     sets = sorted(manifest.sets, key=lambda s: s.index)
     stems = output_stems(manifest, name)

@@ -1,12 +1,12 @@
 """Warping a hand-held bracket's frames once their matrices are known
-(:func:`hdrcl.core.handheld.align_bracket`): one frame (:func:`warp_one`), the frames as
+(:func:`hdrcl.core.align.handheld.align_bracket`): one frame (:func:`warp_one`), the frames as
 their matrices become final (:class:`_Warps`), or again from a merge's record
 (:func:`apply_alignment`)."""
 from __future__ import annotations
 
 import numpy as np
 
-from hdrcl.core import warp as W
+from hdrcl.core.align import warp as W
 
 #: Interpolation of the warp: 4 (Keys' cubic, 4 x 4 taps) or 2 (bilinear).
 WARP_TAPS = 4
@@ -36,8 +36,8 @@ def warp_one(frame, m, valid, warper, out=None):
     """``(frame, valid)`` warped by ``m``: untouched for the identity, an exact copy for a
     whole-pixel shift, else resampled (device or twin; on the device into ``out`` when
     it is a free array of the frame's size and type). Black fill at the frame's border
-    (:func:`hdrcl.core.warp.border_fill`) is masked before a frame is moved."""
-    from hdrcl.core.align import _shift
+    (:func:`hdrcl.core.align.warp.border_fill`) is masked before a frame is moved."""
+    from hdrcl.core.align.mtb import _shift
 
     if W.is_integer_shift(m):
         dx, dy = int(round(m[0, 2])), int(round(m[1, 2]))
@@ -112,7 +112,7 @@ class _Warps:
 def apply_alignment(frames, valid, alignment, crop=None, device=None):
     """The frames and masks as a merge aligned them, from its ``result.alignment``
     (and ``result.crop``): for measuring what was merged (quality report)."""
-    from hdrcl.core.align import get_aligner
+    from hdrcl.core.align.mtb import get_aligner
 
     warper = _warper(get_aligner(device))
     out_f, out_v = [], []

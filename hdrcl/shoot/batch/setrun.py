@@ -14,7 +14,7 @@ import numpy as np
 
 from hdrcl.core.engine import Extras, GivenResponse, Inputs, MergeJob, ResponseSource
 from hdrcl.errors import HdrclError
-from hdrcl.shoot.jobs import (
+from hdrcl.shoot.batch.jobs import (
     _FUSE_LOCK,
     STATUS_DONE,
     STATUS_FAILED,
@@ -25,15 +25,15 @@ from hdrcl.shoot.jobs import (
     _Context,
     _reference_text,
 )
-from hdrcl.shoot.pooling import _open_set, _Opened, _response_of
-from hdrcl.shoot.setquality import (
+from hdrcl.shoot.batch.pooling import _open_set, _Opened, _response_of
+from hdrcl.shoot.batch.setquality import (
     REPORT_IMAGE_SIZE,
     _current_quality,
     _KeptFrames,
     _quality_for,
     _quality_stride,
 )
-from hdrcl.shoot.state import (
+from hdrcl.shoot.batch.state import (
     DIGEST_KEY,
     _counts_of,
     _preview_metadata,
@@ -89,9 +89,9 @@ def _rebuild_preview(job: SetJob, digest: str, options: BatchOptions) -> None:
 
 @contextlib.contextmanager
 def _claimed(job: SetJob) -> Iterator[None]:
-    """Hold the set's claim (:mod:`hdrcl.shoot.claims`) while writing any of its files,
+    """Hold the set's claim (:mod:`hdrcl.shoot.batch.claims`) while writing any of its files,
     so that another batch's cleanup or ``--force`` never removes a file in flight."""
-    from hdrcl.shoot.claims import claim_set
+    from hdrcl.shoot.batch.claims import claim_set
 
     claim = claim_set(os.path.dirname(job.output), os.path.splitext(os.path.basename(job.output))[0])
     try:
@@ -136,7 +136,7 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
             if exr_ok and entry.deferred:
                 # Up to date, but its camera's response file (this set alone calibrates it)
                 # is gone: solve and save it again, as report.json names it.
-                from hdrcl.shoot.pooling import _calibration_grid, solve_deferred
+                from hdrcl.shoot.batch.pooling import _calibration_grid, solve_deferred
 
                 opened = _open_set(job)
                 grid = _calibration_grid(job, opened, ctx.options.ignore_color)
@@ -175,11 +175,11 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
 def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResult:
     """Claim the set, then merge it unless another process just did.
 
-    The claim (:mod:`hdrcl.shoot.claims`) makes this process the set's only writer
+    The claim (:mod:`hdrcl.shoot.batch.claims`) makes this process the set's only writer
     until it returns; a set another batch on the same folder merged while this one
     waited for the claim is skipped.
     """
-    from hdrcl.shoot.claims import claim_set
+    from hdrcl.shoot.batch.claims import claim_set
 
     job = step.job
     try:
@@ -237,7 +237,7 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
 class DeferredResponse(ResponseSource):
     """The response of a camera with one set in the manifest: solved by that set's merge
     from the sampling grid of the decode that feeds its fusion, and saved
-    (:func:`hdrcl.shoot.pooling.solve_deferred`); the exposures are then measured through it."""
+    (:func:`hdrcl.shoot.batch.pooling.solve_deferred`); the exposures are then measured through it."""
 
     own = False
     raw_linear = False
@@ -247,7 +247,7 @@ class DeferredResponse(ResponseSource):
         self.name = os.path.basename(entry.file) if entry.file else entry.group
 
     def solve(self, merge, grid):
-        from hdrcl.shoot.pooling import solve_deferred
+        from hdrcl.shoot.batch.pooling import solve_deferred
 
         return solve_deferred(self.entry, self.job, self.infos, (grid.frames, grid.times, grid.valid_all), self.opts)
 
@@ -343,7 +343,7 @@ class SetMerge(MergeJob):
                         ev_offset=round(step.opened.ev_offset, 6), digest=step.digest, response=job.group,
                         storage=res.storage_note)
         if res.alignment is not None:
-            out.alignment = res.alignment  # per frame: hdrcl.core.handheld.describe
+            out.alignment = res.alignment  # per frame: hdrcl.core.align.handheld.describe
         if res.vertical_illuminance is not None:  # a fisheye luminance map with a -vta/-vth view
             out.vertical_illuminance = res.vertical_illuminance
             out.glare = _glare_figures(job.output, notes)
@@ -354,7 +354,7 @@ def _glare_figures(path: str, notes: list) -> Optional[dict]:
     """What ``hdrcl glare`` says of the written map (the same file, the same figures): its
     vertical illuminance, DGP, DGI, UGR and the number of glare sources; None, with a note,
     where the map cannot be rated."""
-    from hdrcl.core.glare import glare_of_file
+    from hdrcl.core.luminance.glare import glare_of_file
 
     try:
         g = glare_of_file(path)

@@ -238,7 +238,7 @@ def cancel_signals(install: bool = True) -> Iterator[None]:
     ----------
     install : bool
         False leaves the handlers alone (an embedding application's, or Python's
-        default that raises ``KeyboardInterrupt``); :func:`hdrcl.shoot.run.run_batch`
+        default that raises ``KeyboardInterrupt``); :func:`hdrcl.shoot.batch.run.run_batch`
         installs them only when asked to (the CLI does). In another thread nothing is
         installed either. The previous handlers are restored on exit.
     """

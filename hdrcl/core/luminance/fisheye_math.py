@@ -1,5 +1,5 @@
 """The equations of a fisheye luminance map, in NumPy float64: the twins of
-``kernels/fisheye.cl`` and the streaming crop-and-resize of :mod:`hdrcl.core.fisheye`.
+``kernels/fisheye.cl`` and the streaming crop-and-resize of :mod:`hdrcl.core.luminance.fisheye`.
 
 Geometry. Pictures are ``N x N``, rows top to bottom. A pixel ``(row i, column j)`` has
 its centre at ``u = (j + 1/2) / N - 1/2``, ``v = (i + 1/2) / N - 1/2`` in units of the

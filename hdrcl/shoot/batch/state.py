@@ -16,9 +16,9 @@ from typing import Dict, List, Sequence, Tuple
 
 
 from hdrcl.errors import HdrclError, InputError
-from hdrcl.shoot.claims import check_regular
-from hdrcl.shoot.jobs import BatchOptions, SetJob, SetResult
-from hdrcl.shoot.plan import _Plan
+from hdrcl.shoot.batch.claims import check_regular
+from hdrcl.shoot.batch.jobs import BatchOptions, SetJob, SetResult
+from hdrcl.shoot.batch.plan import _Plan
 from hdrcl.version import __version__
 
 logger = logging.getLogger(__name__)
@@ -190,7 +190,7 @@ def _counts_of(meta: dict) -> Dict[str, int]:
 def _report_lock(out_dir: str):
     """Serialise read-modify-write of the report between chunks sharing a folder: an
     ``flock`` on the folder itself, so no lock file can be a symbolic link."""
-    from hdrcl.shoot.claims import folder_lock
+    from hdrcl.shoot.batch.claims import folder_lock
 
     return folder_lock(out_dir)
 
@@ -219,12 +219,12 @@ def _remove_stale_temps(out_dir: str, stems: Sequence[str]) -> None:
     """Delete temporary files that killed runs left behind.
 
     A set's files (``stems``) are removed when nobody holds its claim (their writer is
-    gone, :mod:`hdrcl.shoot.claims`). Other temporary files (JSON, the sets of another
+    gone, :mod:`hdrcl.shoot.batch.claims`). Other temporary files (JSON, the sets of another
     chunk, the quality report's) only when older than :data:`STALE_TEMP_SECONDS`, as
     another chunk may be writing them right now, and never a file of a set whose claim
     a live process holds (a long merge of another chunk).
     """
-    from hdrcl.shoot.claims import SetClaim, remove_orphan_temps
+    from hdrcl.shoot.batch.claims import SetClaim, remove_orphan_temps
 
     remove_orphan_temps(out_dir, stems)
     held: Dict[str, bool] = {}

@@ -11,15 +11,15 @@ import numpy as np
 
 from hdrcl.core.response import Response
 from hdrcl.errors import HdrclError
-from hdrcl.shoot.jobs import (
+from hdrcl.shoot.batch.jobs import (
     _FUSE_LOCK,
     STATUS_FAILED,
     BatchOptions,
     SetJob,
     SetResult,
 )
-from hdrcl.shoot.plan import _Plan
-from hdrcl.shoot.state import DIGEST_KEY, _atomic_json
+from hdrcl.shoot.batch.plan import _Plan
+from hdrcl.shoot.batch.state import DIGEST_KEY, _atomic_json
 
 logger = logging.getLogger(__name__)
 

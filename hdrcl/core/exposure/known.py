@@ -5,7 +5,7 @@ ambiguity: ``g(Z_k) - g(Z_j)`` over the pixels two frames both hold in the curve
 is ``ln(dt_k / dt_j)``. Every pair of frames with enough such pixels gives one robust
 ratio; a weighted least-squares solve over all pairs gives every frame's ``ln dt`` up to
 one constant, which the metadata fixes (the frames whose metadata agree with the pixels,
-as in :mod:`hdrcl.core.exposure_fit`). The metadata is kept where it agrees and replaced
+as in :mod:`hdrcl.core.exposure.fit`). The metadata is kept where it agrees and replaced
 where the pixels contradict it (:func:`estimate_exposures`): frames labelled a stop apart
 that are identical, or a frame off by a stop, are corrected; EXIF rounding (1/60 written
 for 1/64 s) is left alone.
@@ -22,7 +22,7 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
-from hdrcl.core.exposure_fit import (
+from hdrcl.core.exposure.fit import (
     EXPOSURE_TOLERANCE_STOPS,
     SAME_STOPS,
     TRUST_STOPS,
@@ -78,7 +78,7 @@ class KnownCurveFit:
         the other measured frames).
     trusted : ndarray of bool
         Frames whose metadata agree with the pixels within
-        :data:`hdrcl.core.exposure_fit.TRUST_STOPS` (on one offset, or one line of slope
+        :data:`hdrcl.core.exposure.fit.TRUST_STOPS` (on one offset, or one line of slope
         ``stretch``); they fix the scale and keep their metadata. All False when no
         unique group of three or more was found (the scale is then the median frame's).
     pixels : ndarray of int
@@ -296,7 +296,7 @@ def estimate_exposures(
        of pairs are not measured and keep their metadata.
     4. The constant comes from the metadata: the offset of the largest unique group of
        at least three frames whose metadata agree with the pixels within
-       :data:`hdrcl.core.exposure_fit.TRUST_STOPS` (the *trusted* frames,
+       :data:`hdrcl.core.exposure.fit.TRUST_STOPS` (the *trusted* frames,
        :func:`_agreeing_line`), else the offset of the median measured frame (the lower
        of the two middle ones for an even count, so that the scale is one frame's own
        metadata). When the trusted frames are evenly spaced wider or narrower than their
@@ -325,7 +325,7 @@ def estimate_exposures(
         samples near the ends of the curve's body counts less in the solve).
     tolerance_stops : float, optional
         Metadata off by more than this is corrected (default
-        :data:`hdrcl.core.exposure_fit.EXPOSURE_TOLERANCE_STOPS`, 0.5).
+        :data:`hdrcl.core.exposure.fit.EXPOSURE_TOLERANCE_STOPS`, 0.5).
     names : sequence of str, optional
         File names for the notes (default ``image 0``, ``image 1``, ...).
     labels : sequence of str, optional
@@ -528,7 +528,7 @@ def untrusted_metadata(response: Response, fit: Optional[ExposureFit] = None,
     ----------
     response : hdrcl.core.response.Response
         The curve calibrated from the set.
-    fit : hdrcl.core.exposure_fit.ExposureFit, optional
+    fit : hdrcl.core.exposure.fit.ExposureFit, optional
         The calibration's exposure check (None when it was off or had two frames).
     names : sequence of str, optional
         The files; default the ``file`` of ``response.exposures``, else ``image k``.

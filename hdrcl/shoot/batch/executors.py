@@ -1,16 +1,16 @@
 """Where the sets of a batch run: worker processes on this machine, or a Dask cluster.
 
 Both run the ``task`` they are given (the batch passes
-:func:`hdrcl.shoot.setrun.process_set`) once per set and hand each result to ``emit`` as
+:func:`hdrcl.shoot.batch.setrun.process_set`) once per set and hand each result to ``emit`` as
 it completes; ``failed(job, exc)`` makes the result of a set whose task could not run.
 This module knows nothing of batches: it receives the functions to run. The in-process
-pipeline (``jobs=1``) lives in :mod:`hdrcl.shoot.run`.
+pipeline (``jobs=1``) lives in :mod:`hdrcl.shoot.batch.run`.
 
 **Worker processes** start with ``spawn``: a forked child would inherit the parent's
 OpenCL driver state, which no OpenCL implementation supports. Each worker creates its
 own context and builds the kernels once, on its first set, and reuses them for every
 later set (:func:`hdrcl.cl.backend.get_processor` caches them per process). Workers
-die with the batch whatever kills it (:func:`hdrcl.shoot.claims.tie_to_parent`), and
+die with the batch whatever kills it (:func:`hdrcl.shoot.batch.claims.tie_to_parent`), and
 an exception in the batch (SIGTERM, Ctrl-C) kills them at once (:func:`_kill_pool`)
 instead of waiting for the queued sets.
 
@@ -39,7 +39,7 @@ def _worker_init(level: int, parent: int, share: int = 1) -> None:
     """Worker processes die with their parent and log like it: one line, same level;
     each holds decoded frames within its ``share`` of ``HDRCL_MEMORY_MB``
     (:mod:`hdrcl.io.framecache`)."""
-    from hdrcl.shoot.claims import tie_to_parent
+    from hdrcl.shoot.batch.claims import tie_to_parent
 
     os.environ["HDRCL_MEMORY_SHARE"] = str(max(1, int(share)))
 

@@ -134,7 +134,7 @@ def _to_unit(a: np.ndarray) -> np.ndarray:
 
 def read_thumb(info) -> Optional[Thumb]:
     """The thumbnail of a frame described by ``info`` (a FrameInfo), or None."""
-    from hdrcl.shoot.ladder import exposure_value
+    from hdrcl.shoot.grouping.ladder import exposure_value
 
     from hdrcl.io.probe import reduced_pixels
 

@@ -7,7 +7,7 @@ Three passes, every decision kept with its reason:
    a time ladder); an exposure (or exposure bias) that repeats one already in the set; a
    ladder that restarts (a monotonic hand ladder walking back, an auto-bracket pattern
    broken; a one-way ladder carried on past its end by a plausible step is not broken);
-   the *scene* changing (:mod:`hdrcl.shoot.scene`); a gap longer than the default limit
+   the *scene* changing (:mod:`hdrcl.shoot.grouping.scene`); a gap longer than the default limit
    (:data:`DEFAULT_GAP`, plus the exposure time after long exposures); a change between
    auto and manual exposure (a run end that pass 3 may undo). A frame that repeats the
    (shutter, aperture, ISO) of the frame before with a *new* exposure compensation that
@@ -21,16 +21,16 @@ Three passes, every decision kept with its reason:
    duplicate"``); a repeat of an earlier frame still starts a new set.
 3. **Bridges.** A run that ended only by a long gap, an auto / manual change or a hand
    ladder turning back is joined with the next when the two together still form one
-   exposure ladder (:func:`hdrcl.shoot.ladder.ladder_of`: evenly spaced in ``t``, ``t *
+   exposure ladder (:func:`hdrcl.shoot.grouping.ladder.ladder_of`: evenly spaced in ``t``, ``t *
    ISO`` or the exposure bias, in an order people shoot) and the scene does not say
    otherwise; when the scene *matches* (the two runs' frames nearest in exposure),
    order and step size no longer matter: no exposure may repeat
-   (:func:`hdrcl.shoot.ladder.distinct_of`). Hand-made ladders with 5-80 s between
+   (:func:`hdrcl.shoot.grouping.ladder.distinct_of`). Hand-made ladders with 5-80 s between
    frames, third-stop steps, a ladder shot 1, 2, 1/2 s then on down, pauses of minutes
    on one view while the ladder goes on. Without a thumbnail the scene cannot vouch, and
    gaps up to :data:`BRIDGE_UNSEEN` seconds are bridged; with a matching scene, up to
    :data:`BRIDGE_SEEN` seconds (plus the exposure time). Thumbnails compared over much of
-   the frame that match neither well nor badly (:attr:`hdrcl.shoot.scene.Verdict.doubtful`)
+   the frame that match neither well nor badly (:attr:`hdrcl.shoot.grouping.scene.Verdict.doubtful`)
    bridge nothing.
 
 With a ``--gap`` override the limit is exact and nothing is bridged.
@@ -42,9 +42,9 @@ from dataclasses import dataclass, field
 from typing import Callable, List, Optional
 
 from hdrcl.io.metadata import FrameInfo
-from hdrcl.shoot.compare import (DEFAULT_GAP, LONG_EXPOSURE, _BIAS_TOL, _MODE_NAMES, _STOP_TOL, _fmt_bias, _fmt_f,
+from hdrcl.shoot.grouping.compare import (DEFAULT_GAP, LONG_EXPOSURE, _BIAS_TOL, _MODE_NAMES, _STOP_TOL, _fmt_bias, _fmt_f,
                                  _gap, _norm, _same_bias, _same_settings, _same_stops, _varies, format_exposure)
-from hdrcl.shoot.ladder import MAX_STEP, MIN_STEP, distinct_of, exposure_value, ladder_of
+from hdrcl.shoot.grouping.ladder import MAX_STEP, MIN_STEP, distinct_of, exposure_value, ladder_of
 
 logger = logging.getLogger(__name__)
 
@@ -58,7 +58,7 @@ BRIDGE_UNSEEN = 60.0
 #: Auto-bracket frames closer than this (s) are one burst: the scene does not split them.
 BURST_GAP = 0.5
 
-# compare(a, b) -> hdrcl.shoot.scene.Verdict, or None: no content signal.
+# compare(a, b) -> hdrcl.shoot.grouping.scene.Verdict, or None: no content signal.
 Compare = Optional[Callable[[FrameInfo, FrameInfo], object]]
 
 

@@ -13,7 +13,7 @@ vertical illuminance) as a sink of the fused radiance strips (:class:`LuminanceC
    come (memory: the ``N x N`` output in float64).
 3. at the end, in this order: ``--fisheye-projection equisolid-to-equidistant``,
    ``--vignetting``, ``--nd-filter``, ``--calibration-factor``
-   (:mod:`hdrcl.core.fisheye_math`, :mod:`hdrcl.io.radcal`).
+   (:mod:`hdrcl.core.luminance.fisheye_math`, :mod:`hdrcl.io.radcal`).
 
 The strips must be in cd/m^2 (the merge's absolute scale, ``--absolute`` or
 ``--reference-patch``; the chain multiplies by K). Files: ``.hdr`` holds the values
@@ -23,7 +23,7 @@ hold cd/m^2 (EXR: ``hdrcl:units = cd/m2`` and OpenEXR's ``whiteLuminance = 1``).
 ``--view`` (a Radiance view, e.g. ``"-vta -vh 186 -vv 186"``) defaults to
 ``-vta -vh 180 -vv 180`` when the projection is corrected (the formula's edge is 90
 degrees off axis) and is left out otherwise. The vertical illuminance at the lens is
-computed for ``-vta`` views (:func:`hdrcl.core.fisheye_math.vertical_illuminance`).
+computed for ``-vta`` views (:func:`hdrcl.core.luminance.fisheye_math.vertical_illuminance`).
 """
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from hdrcl.core import fisheye_math as fm
+from hdrcl.core.luminance import fisheye_math as fm
 from hdrcl.errors import InputError, ProcessingError, UsageError
 from hdrcl.io.radcal import (RadialProjection, Vignetting, calibration_factor_option, check_factor_range,
                              nd_filter_option, read_projection, vignetting_option)

@@ -74,16 +74,16 @@ class BatchOptions:
     fit_exposures : str
         ``off`` (the metadata's exposures), ``auto`` (the default: the exposure measured
         from the pixels through the set's pooled or given response where the metadata is
-        clearly wrong, :func:`hdrcl.core.exposure_known.exposures_for_merge`) or ``on``
+        clearly wrong, :func:`hdrcl.core.exposure.known.exposures_for_merge`) or ``on``
         (measured for every frame).
     align_model : {"auto", "shift", "similarity", "homography"}
-        With ``align``: the motion model (:mod:`hdrcl.core.align`).
+        With ``align``: the motion model (:mod:`hdrcl.core.align.mtb`).
     output_format : {"exr", "hdr"}
         The outputs' file type (``.hdr``: Radiance RGBE).
     luminance : dict, optional
         The fisheye luminance chain's options (``lens_circle``, ``resize``,
         ``projection``, ``vignetting``, ``nd_filter``, ``calibration_factor``, ``view``;
-        :func:`hdrcl.core.fisheye.chain_or_none`): every set becomes a calibrated
+        :func:`hdrcl.core.luminance.fisheye.chain_or_none`): every set becomes a calibrated
         luminance map.
     reference_exposure : float, optional
         Seconds (at the shoot's reference f-number and ISO) that a value of 1.0 in
@@ -151,11 +151,11 @@ class BatchOptions:
                             device=self.device)
 
     def luminance_chain(self):
-        """A fresh :class:`hdrcl.core.fisheye.LuminanceChain` for one set (it holds that
+        """A fresh :class:`hdrcl.core.luminance.fisheye.LuminanceChain` for one set (it holds that
         set's map), or None without the luminance options."""
         if not self.luminance:
             return None
-        from hdrcl.core.fisheye import chain_or_none
+        from hdrcl.core.luminance.fisheye import chain_or_none
 
         return chain_or_none(**self.luminance, device=self.device)
 
@@ -189,7 +189,7 @@ class BatchOptions:
 def _luminance_identity(options: tuple) -> dict:
     """What a luminance chain's options mean (its ``describe()`` and view, the ``.cal``
     files read once per process), for the outputs' digest."""
-    from hdrcl.core.fisheye import chain_or_none
+    from hdrcl.core.luminance.fisheye import chain_or_none
 
     chain = chain_or_none(**dict(options))
     d = dict(chain.describe(), view=chain.view[0] if chain.view else None)
@@ -244,9 +244,9 @@ class SetResult:
     response: Optional[str] = None
     quality: Optional[dict] = None
     storage: Optional[str] = None  # how the EXR was stored when half could not hold it (a decision)
-    alignment: Optional[list] = None  # with --align: per frame model, matrix, shift, residual (hdrcl.core.handheld)
+    alignment: Optional[list] = None  # with --align: per frame model, matrix, shift, residual (hdrcl.core.align.handheld)
     vertical_illuminance: Optional[float] = None  # lux at the lens, with a fisheye luminance map (-vta view)
-    glare: Optional[dict] = None  # DGP, DGI, UGR, sources of that map (hdrcl.core.glare, as `hdrcl glare`)
+    glare: Optional[dict] = None  # DGP, DGI, UGR, sources of that map (hdrcl.core.luminance.glare, as `hdrcl glare`)
 
     def to_dict(self) -> dict:
         from hdrcl.report.sheet import status_label

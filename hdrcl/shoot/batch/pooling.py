@@ -15,14 +15,14 @@ import numpy as np
 from hdrcl.core.response import Response
 from hdrcl.errors import HdrclError, InputError
 from hdrcl.io.jsondoc import read_state
-from hdrcl.shoot.jobs import (
+from hdrcl.shoot.batch.jobs import (
     MAX_POOL_SETS,
     BatchOptions,
     ResponseEntry,
     SetJob,
 )
-from hdrcl.shoot.plan import _camera_label, _Plan, _shoot_scale, response_path
-from hdrcl.shoot.state import (
+from hdrcl.shoot.batch.plan import _camera_label, _Plan, _shoot_scale, response_path
+from hdrcl.shoot.batch.state import (
     DIGEST_RECIPE,
     _atomic_json,
     _file_digest,
@@ -58,7 +58,7 @@ def _open_set(job: SetJob) -> _Opened:
     from hdrcl.io.frames import check_compatible
     from hdrcl.io.metadata import relative_exposures, resolve_exposures
 
-    from hdrcl.shoot.claims import check_regular
+    from hdrcl.shoot.batch.claims import check_regular
 
     if len(job.files) < 2:
         raise InputError(f"{job.files[0]}: a bracket set needs at least two exposures")

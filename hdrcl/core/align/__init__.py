@@ -1,0 +1,1 @@
+"""Hand-held alignment: MTB shifts (mtb), registration (register) and its independent check (check), the warp (warp, warping), the trust rules (trust) and the chain to the reference frame (handheld)."""
