@@ -94,16 +94,13 @@ def radiance_bin():
     import os
     import shutil
 
-    why = None
+    why, folder = None, None
     try:
-        import pyradiance  # noqa: F401
+        import pyradiance
     except Exception as exc:  # not installed, or a wheel that does not load here
         why = f"pyradiance is not importable ({exc}); pip install '.[radiance]'"
-    folder = None
     if why is None:
         from pathlib import Path
-
-        import pyradiance
 
         folder = Path(pyradiance.__file__).parent / "bin"
         if not (folder / "pcomb").exists():
@@ -116,3 +113,44 @@ def radiance_bin():
             pytest.fail(f"HDRCL_REQUIRE_RADIANCE is set but {why}")
         pytest.skip(f"{why}; set HDRCL_REQUIRE_RADIANCE=1 to make this an error")
     return folder
+
+
+@pytest.fixture(scope="session")
+def chromium_path():
+    """Headless Chromium for the report's HTML checks: its path; skips with the reason
+    when neither ``chromium`` nor ``chromium-browser`` is on PATH, unless
+    ``HDRCL_REQUIRE_BROWSER`` is set (CI), where that is a failure."""
+    import os
+    import shutil
+
+    for name in ("chromium", "chromium-browser"):
+        path = shutil.which(name)
+        if path:
+            return path
+    if os.environ.get("HDRCL_REQUIRE_BROWSER", "") not in ("", "0"):
+        pytest.fail("HDRCL_REQUIRE_BROWSER is set but neither chromium nor chromium-browser is on PATH "
+                    "(Debian: apt-get install chromium)")
+    pytest.skip("headless Chromium not found (Debian: apt-get install chromium); "
+                "set HDRCL_REQUIRE_BROWSER=1 to make this an error")
+
+
+def _write_pngs(folder, frames, names=None, prefix="f"):
+    import os
+
+    from hdrcl.io.ldr import write_ldr
+
+    folder = os.fspath(folder)
+    os.makedirs(folder, exist_ok=True)
+    paths = []
+    for k, f in enumerate(frames):
+        paths.append(os.path.join(folder, names[k] if names else f"{prefix}{k}.png"))
+        write_ldr(paths[-1], f)
+    return paths
+
+
+@pytest.fixture(scope="session")
+def write_frames():
+    """``write_frames(folder, frames, names=None, prefix="f")``: the frames as PNG files
+    (``f0.png``, ``f1.png``, ... or ``names``) in ``folder`` (made if missing); their
+    paths as strings, in order."""
+    return _write_pngs

@@ -540,23 +540,11 @@ def test_library_entry_point(clean, tmp_path):
 # ------------------------------------------------------------- quality report
 
 
-def _chromium():
-    for name in ("chromium", "chromium-browser"):
-        path = shutil.which(name)
-        if path:
-            return path
-    if os.environ.get("HDRCL_REQUIRE_BROWSER", "") not in ("", "0"):
-        pytest.fail("HDRCL_REQUIRE_BROWSER is set but neither chromium nor chromium-browser is on PATH "
-                    "(Debian: apt-get install chromium)")
-    pytest.skip("headless Chromium not found (Debian: apt-get install chromium); "
-                "set HDRCL_REQUIRE_BROWSER=1 to make this an error")
-
-
 def _statuses(page):
     return dict(re.findall(r'data-set="([^"]+)" data-status="([^"]+)"', page))
 
 
-def test_quality_report_in_chromium(tmp_path):
+def test_quality_report_in_chromium(tmp_path, chromium_path):
     """Done when: the batch's HTML report opens in headless Chromium and shows every set.
 
     A farm chunk first (the sheet lists the whole manifest, the other sets pending),
@@ -567,7 +555,7 @@ def test_quality_report_in_chromium(tmp_path):
     from hdrcl.report.pages import format_figures, load_set_report
     from hdrcl.shoot.batch.plan import load_source
 
-    browser = _chromium()
+    browser = chromium_path
     shoot_dir, out, rep_dir, plain = (tmp_path / n for n in ("shoot", "out", "rep", "plain"))
     assert run("sample-shoot", shoot_dir).exit_code == 0
     stems = [output_stems(load_source(shoot_dir))[i] for i in range(3)]

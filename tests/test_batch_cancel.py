@@ -319,7 +319,7 @@ def test_scan_of_a_manifest_with_a_fifo_does_not_hang(tmp_path):
 def test_watchdog_kills_a_worker_whose_parent_died_without_pdeathsig(tmp_path):
     """The fallback for systems without PR_SET_PDEATHSIG: the parent-pid watchdog."""
     pidfile = tmp_path / "grandchild.pid"
-    grandchild = ("import os, sys, time; from hdrcl.shoot import claims; claims._pdeathsig = lambda: False; "
+    grandchild = ("import os, sys, time; from hdrcl.shoot.batch import claims; claims._pdeathsig = lambda: False; "
                   "claims.tie_to_parent(os.getppid()); open(sys.argv[1], 'w').write(str(os.getpid())); "
                   "time.sleep(60)")
     child = ("import subprocess, sys, time; subprocess.Popen([sys.executable, '-c', sys.argv[1], sys.argv[2]]); "

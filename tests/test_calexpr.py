@@ -356,3 +356,14 @@ def _write_rgbe_via_pvalue(path, img, radiance_bin):
     with open(path, "wb") as f:
         subprocess.run([str(radiance_bin / "pvalue"), "-r", "-h", "-df", "-y", str(h), "+x", str(w)],
                        input=img.astype(np.float32).tobytes(), stdout=f, check=True, timeout=60)
+
+
+def test_a_function_chain_too_deep_to_evaluate_is_one_error_line(tmp_path):
+    """call_function (--fisheye-projection's rad(r)) evaluated without the guard that
+    evaluate() has: 190 chained functions, each within the parser's limits, raised a
+    bare RecursionError."""
+    lines = ["f0(r) = r;"] + [f"f{i}(r) = f{i - 1}(r)+0+0+0+0+0+0+0+0;" for i in range(1, 190)] + ["rad(r) = f189(r);"]
+    prog = calexpr.parse_file(_write(tmp_path, "deep.cal", "\n".join(lines)))
+    with pytest.raises(InputError, match="deep.cal: ") as err:
+        calexpr.call_function(prog, "rad", np.linspace(0, 0.5, 5))
+    assert "\n" not in str(err.value)

@@ -131,3 +131,20 @@ def test_a_set_merged_elsewhere_does_not_hold_its_frames_or_block_the_next(one_s
     assert ahead.decode_ahead(list(reversed(paths)), infos, OPEN)
     ahead.cancel_all()
     assert ahead.pending() == 0
+
+
+def test_nothing_is_decoded_ahead_once_the_batch_stopped(tmp_path):
+    """A read of the next set still running when the batch is cancelled must not start
+    decoding it after cancel_all() (its frames would stay in memory, and decode-ahead be
+    off for the rest of the process)."""
+    import threading
+
+    from hdrcl.io import ahead
+
+    from types import SimpleNamespace
+
+    info = SimpleNamespace(nchannels=3, width=4, height=4, bits=8)
+    stop = threading.Event()
+    stop.set()
+    assert ahead.decode_ahead([str(tmp_path / "a.png")], [info], lambda *a: None, stop) is False
+    assert ahead.pending() == 0

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from hdrcl.core import synthetic as s
 from hdrcl.core.encode import RangeMeter, default_reference, fuse_to_file, reference_for
 from hdrcl.io.framecache import FrameCache
-from hdrcl.io.ldr import write_ldr, write_photo
+from hdrcl.io.ldr import write_photo
 
 CAM = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
 
@@ -37,16 +37,6 @@ def decoded(monkeypatch):
 
 def _rows_of_frame(calls, k):
     return sum(n for _p, kk, n in calls if kk == k)
-
-
-def _write_set(folder, frames, prefix="f"):
-    os.makedirs(folder, exist_ok=True)
-    paths = []
-    for k, f in enumerate(frames):
-        p = os.path.join(folder, f"{prefix}{k}.png")
-        write_ldr(p, f)
-        paths.append(p)
-    return paths
 
 
 def _spec(path):
@@ -94,12 +84,12 @@ def test_frame_cache_spills_beyond_its_share_of_the_budget(monkeypatch):
 
 
 @pytest.fixture(scope="module")
-def bracket(tmp_path_factory):
+def bracket(tmp_path_factory, write_frames):
     d = tmp_path_factory.mktemp("set")
     rad = s.radiance_field(96, 128, decades=4.0, seed=3)
     times = s.stops(5, 2.0, centre=1.0 / float(np.median(rad)))
     frames = s.bracket(rad, times, CAM, noise=0.5, seed=4)
-    return _write_set(str(d), frames), times / 10.0  # labelled so that the middle is not 1 s
+    return write_frames(d, frames), times / 10.0  # labelled so that the middle is not 1 s
 
 
 def test_calibrating_merge_spilled_equals_in_memory(bracket, tmp_path, monkeypatch, decoded, cl_device):
@@ -368,9 +358,9 @@ def test_warm_up_opens_the_device_while_the_frames_decode(monkeypatch):
     monkeypatch.delenv("HDRCL_REQUIRE_OPENCL", raising=False)
     monkeypatch.delenv("PYOPENCL_CTX", raising=False)
     monkeypatch.delenv("HDRCL_OPENCL", raising=False)
-    _warm_up(None, False, work=backend.small_work() + 1).join()
+    _warm_up(None, work=backend.small_work() + 1).join()
     assert seen == ["fusion"]
-    _warm_up(None, False, work=12345).join()
+    _warm_up(None, work=12345).join()
     assert seen == ["fusion"]
 
 

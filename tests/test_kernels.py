@@ -342,3 +342,18 @@ def test_fusion_every_pixel_to_fix(cl_device):
     np.testing.assert_allclose(got, want, rtol=RTOL, atol=0)
     assert gc == wc and wc["clipped_high"] == 40 * 50 * 3
     np.testing.assert_array_equal(mask_k, mask_t)
+
+
+def test_profile_kernel_on_a_bracket_that_is_all_fix_up(cl_device):
+    """profile_kernel's fix list was npix bytes for npix ints and never emptied between
+    repeats: an all-black bracket (every pixel on the list) crashed the process."""
+    from hdrcl.cl.backend import get_processor
+    from hdrcl.cl.fusion import profile_kernel
+    from hdrcl.core.weights import weight_table
+
+    proc = get_processor("fusion")
+    frames = [np.zeros((300, 400, 3), np.uint8)] * 3
+    z = np.arange(256, dtype=np.float64)
+    tables = np.stack([np.log(np.maximum(z, 0.5) / 128.0)] * 3)
+    seconds = profile_kernel(proc, frames, np.log([0.25, 1.0, 4.0]), tables, weight_table(256), repeats=3)
+    assert np.isfinite(seconds) and seconds > 0

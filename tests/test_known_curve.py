@@ -266,19 +266,7 @@ def test_untrusted_metadata_names_the_frames(field):
     assert untrusted_metadata(good) is None
 
 
-def _write(folder, frames):
-    from hdrcl.io.ldr import write_ldr
-
-    folder.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for k, f in enumerate(frames):
-        p = folder / NAMES[k]
-        write_ldr(str(p), f)
-        paths.append(str(p))
-    return paths
-
-
-def test_merge_with_a_response_corrects_wrong_labels_end_to_end(tmp_path, field, wrong_ladder, cl_device):
+def test_merge_with_a_response_corrects_wrong_labels_end_to_end(tmp_path, field, wrong_ladder, cl_device, write_frames):
     """``merge --response`` with wrong labels: the frames the pixels contradict are
     measured through the curve (one decode feeds both), said per frame, and the radiance
     follows the truth; ``--fit-exposures off`` keeps the labels and only warns."""
@@ -286,7 +274,7 @@ def test_merge_with_a_response_corrects_wrong_labels_end_to_end(tmp_path, field,
 
     rad, _ = field
     frames, labelled, truth = wrong_ladder
-    paths = _write(tmp_path / "set", frames)
+    paths = write_frames(tmp_path / "set", frames, names=NAMES)
     res = merge_files(paths, tmp_path / "m.exr", times=list(labelled), response=true_response(),
                       keep_radiance=True)
     assert exposure_error(res.times, truth) < 0.05

@@ -180,3 +180,16 @@ def test_range_meter_without_write_scaled():
     assert np.array_equal(sink.rows[0], data * 4)
     meter.write_rows(1, 2, np.array([[[1e5, 1.0, 1.0]]], np.float32))
     assert meter.overflow and len(sink.rows) == 1 and meter.hi == 4e5
+
+
+@pytest.mark.parametrize("zero", [False, True])
+def test_subnormal_inputs_under_a_large_scale(zero):
+    """float32 subnormals (1e-39) scaled by 2^120 land in half's normal range, but the bit
+    trick read their zero exponent field as a normal one: 0.00848 instead of 0.001329."""
+    x = np.array([1e-39, 3e-39, 2e-39, 1.5e-39] * 4, np.float32)
+    if zero:
+        x[0] = 0.0
+    out = np.empty(x.size, np.float16)
+    hr.OnePass().to_half(x, 2.0 ** 120, out)
+    want = (x * np.float32(2.0 ** 120)).astype(np.float16)
+    assert (out.view(np.uint16) == want.view(np.uint16)).all(), (out, want)

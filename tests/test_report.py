@@ -187,18 +187,6 @@ def test_contact_sheet_html(report):
         assert (folder / unquote(ref)).is_file(), ref
 
 
-def _chromium() -> str:
-    for name in ("chromium", "chromium-browser"):
-        path = shutil.which(name)
-        if path:
-            return path
-    if os.environ.get("HDRCL_REQUIRE_BROWSER", "") not in ("", "0"):
-        pytest.fail("HDRCL_REQUIRE_BROWSER is set but neither chromium nor chromium-browser is on PATH "
-                    "(Debian: apt-get install chromium)")
-    pytest.skip("headless Chromium not found (Debian: apt-get install chromium); "
-                "set HDRCL_REQUIRE_BROWSER=1 to make this an error")
-
-
 def _run_chromium(browser, tmp_path, *args):
     cmd = [browser, "--headless", "--no-sandbox", "--disable-gpu", f"--user-data-dir={tmp_path / 'profile'}",
            "--virtual-time-budget=5000", *args]
@@ -207,9 +195,9 @@ def _run_chromium(browser, tmp_path, *args):
     return proc.stdout
 
 
-def test_contact_sheet_in_chromium(report, tmp_path):
+def test_contact_sheet_in_chromium(report, tmp_path, chromium_path):
     """Done when: the HTML report opens in headless Chromium and shows every set."""
-    browser = _chromium()
+    browser = chromium_path
     folder, index, entries = report
     url = "file://" + os.path.abspath(index)
     dom = _run_chromium(browser, tmp_path, "--dump-dom", url)
@@ -245,9 +233,9 @@ def test_contact_sheet_in_chromium(report, tmp_path):
     assert len(np.unique(rgb, axis=0)) > 500  # photographs and plots, not just text on a background
 
 
-def test_missing_picture_is_reported(report, tmp_path):
+def test_missing_picture_is_reported(report, tmp_path, chromium_path):
     """A picture gone from the folder is named on the page (and only then)."""
-    browser = _chromium()
+    browser = chromium_path
     folder, index, entries = report
     moved = tmp_path / "copy"
     shutil.copytree(folder, moved)
@@ -343,10 +331,10 @@ def test_one_set_layout(tmp_path):
     assert '<main class="sets">' in many
 
 
-def test_one_set_fills_the_width_in_chromium(tmp_path):
+def test_one_set_fills_the_width_in_chromium(tmp_path, chromium_path):
     """On a 1280 px wide window, the right half of a one-set page shows the set's
     figures and plots, not the empty background of a second grid column."""
-    browser = _chromium()
+    browser = chromium_path
     entry = _one_set(tmp_path)
     index = write_contact_sheet(tmp_path, [entry])
     shot = tmp_path / "one.png"

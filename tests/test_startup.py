@@ -76,8 +76,9 @@ def test_small_job_rule(fresh, records):
     assert len(said) == 1 and said[0].levelno == logging.INFO  # said once
     # no size given: OpenCL as before
     assert backend.get_processor("fusion") is not None
-    # OpenCL open already: its start-up is paid, small jobs use it too
-    assert backend.get_processor("exposure", work=1000) is not None
+    # OpenCL open already: a small job still takes the NumPy path (the job alone decides,
+    # never what the process ran before: issue 25)
+    assert backend.get_processor("exposure", work=1000) is None
 
 
 @pytest.mark.parametrize("force", ["device", "PYOPENCL_CTX", "HDRCL_REQUIRE_OPENCL", "large"])

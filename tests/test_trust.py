@@ -7,6 +7,7 @@ wrong times, deghosting a static scene with a curve error in the highlights, val
 beyond the half-float range, and nonsense that used to go through silently.
 """
 import logging
+import os
 
 import numpy as np
 import pytest
@@ -179,17 +180,6 @@ def test_deghost_reference_choice_and_no_double_image(cl_device):
         fuse_frames(moved, times, resp, deghost=True, ghost_reference=7)
 
 
-def _write_set(tmp_path, frames, names=None):
-    from hdrcl.io.ldr import write_ldr
-
-    paths = []
-    for k, f in enumerate(frames):
-        p = tmp_path / (names[k] if names else f"f{k}.png")
-        write_ldr(str(p), f)
-        paths.append(p)
-    return paths
-
-
 def _read(path):
     import OpenImageIO as oiio
 
@@ -200,7 +190,7 @@ def _read(path):
     return px, spec
 
 
-def test_tiny_exposures_are_written_as_half_relative_to_the_middle_exposure(tmp_path, field, cl_device):
+def test_tiny_exposures_are_written_as_half_relative_to_the_middle_exposure(tmp_path, field, cl_device, write_frames):
     """Radiance relative to 1 s reaches 1e6..1e10 with microsecond exposures; relative
     to the bracket's middle exposure (hdrcl.core.encode) it is an ordinary image: half,
     no rescale, the reference recorded in standard metadata, and hdrcl's reader gives
@@ -211,7 +201,7 @@ def test_tiny_exposures_are_written_as_half_relative_to_the_middle_exposure(tmp_
     rad, c = field
     times = s.stops(5, 2.0, centre=c)
     frames = s.bracket(rad, times, CAM, noise=0.5, seed=7)
-    paths = _write_set(tmp_path, frames)
+    paths = write_frames(tmp_path, frames)
     tiny = times * 1e-7
     res = merge_files(paths, tmp_path / "auto.exr", times=tiny, response=true_response(), keep_radiance=True)
     px, spec = _read(tmp_path / "auto.exr")
@@ -226,7 +216,7 @@ def test_tiny_exposures_are_written_as_half_relative_to_the_middle_exposure(tmp_
     np.testing.assert_allclose(back, res.radiance, rtol=1e-3)
 
 
-def test_values_beyond_half_are_rescaled_or_written_as_float(tmp_path, field, cl_device):
+def test_values_beyond_half_are_rescaled_or_written_as_float(tmp_path, field, cl_device, write_frames):
     """A real DSLR set gave 0.26 % inf; --reference-patch ...=100 on Memorial 1,516. With
     the reference exposure asked to be 1 s, microsecond exposures give radiance of
     1e6..1e10: measured on the data, it does not fit half."""
@@ -235,7 +225,7 @@ def test_values_beyond_half_are_rescaled_or_written_as_float(tmp_path, field, cl
     rad, c = field
     times = s.stops(5, 2.0, centre=c)
     frames = s.bracket(rad, times, CAM, noise=0.5, seed=7)
-    paths = _write_set(tmp_path, frames)
+    paths = write_frames(tmp_path, frames)
     tiny = times * 1e-7
     out = tmp_path / "r.exr"
     # Default (--dtype auto): float, so every tool reads the radiance as it is.
@@ -272,7 +262,7 @@ def test_values_beyond_half_are_rescaled_or_written_as_float(tmp_path, field, cl
     assert any("written as float to keep its units" in w for w in res2.warnings)
 
 
-def test_batch_keeps_values_beyond_half(tmp_path, field, cl_device):
+def test_batch_keeps_values_beyond_half(tmp_path, field, cl_device, write_frames):
     """The batch path takes the same storage decision as merge: no value clamped."""
     from click.testing import CliRunner
 
@@ -284,8 +274,8 @@ def test_batch_keeps_values_beyond_half(tmp_path, field, cl_device):
     frames = s.bracket(rad, times, CAM, noise=0.5, seed=7)
     folder = tmp_path / "set"
     folder.mkdir()
-    paths = _write_set(folder, frames)
-    (folder / "times.txt").write_text("".join(f"{p.name} {float(t) * 1e-7!r}\n" for p, t in zip(paths, times)))
+    paths = write_frames(folder, frames)
+    (folder / "times.txt").write_text("".join(f"{os.path.basename(p)} {float(t) * 1e-7!r}\n" for p, t in zip(paths, times)))
     true_response().save(str(tmp_path / "true.json"))
     out = tmp_path / "out"
     res = CliRunner().invoke(main, ["batch", str(folder), "-o", str(out), "--response", str(tmp_path / "true.json"),
@@ -314,18 +304,18 @@ def test_batch_keeps_values_beyond_half(tmp_path, field, cl_device):
     np.testing.assert_allclose(back2, back, rtol=2e-3)
 
 
-def test_absurd_times_are_refused(tmp_path, field):
+def test_absurd_times_are_refused(tmp_path, field, write_frames):
     from hdrcl.core.merge import merge_files
 
     rad, c = field
     frames = s.bracket(rad, s.stops(3, 2.0, centre=c), CAM, noise=0.5, seed=7)
-    paths = _write_set(tmp_path, frames)
+    paths = write_frames(tmp_path, frames)
     with pytest.raises(InputError, match="f2.png: effective exposure 1e.300 s"):
         merge_files(paths, tmp_path / "x.exr", times=[1.0, 2.0, 1e300])
     assert not (tmp_path / "x.exr").exists()
 
 
-def test_given_response_checks_the_exposure_order(tmp_path, field, caplog, cl_device):
+def test_given_response_checks_the_exposure_order(tmp_path, field, caplog, cl_device, write_frames):
     """Times in reversed order with --response went through silently (radiance off by
     0.6x to 61x)."""
     from hdrcl.core.merge import merge_files
@@ -333,7 +323,7 @@ def test_given_response_checks_the_exposure_order(tmp_path, field, caplog, cl_de
     rad, c = field
     times = s.stops(4, 1.0, centre=c)
     frames = s.bracket(rad, times, CAM, noise=0.5, seed=8)
-    paths = _write_set(tmp_path, frames)
+    paths = write_frames(tmp_path, frames)
     resp = true_response()
     with pytest.raises(InputError, match="reverse order"):
         merge_files(paths, tmp_path / "rev.exr", times=times[::-1], response=resp)
@@ -364,7 +354,7 @@ def test_bad_given_response_and_identical_frames(tmp_path, field, caplog):
     assert any("image 1 and image 3 have identical pixels" in r.getMessage() for r in caplog.records)
 
 
-def test_streamed_file_merge_learns_the_residuals_from_the_grid(tmp_path, cl_device):
+def test_streamed_file_merge_learns_the_residuals_from_the_grid(tmp_path, cl_device, write_frames):
     """With --response the files stream strip by strip: the residual model is learnt on
     the decimated grid first; the mask then matches the in-memory merge's."""
     from hdrcl.core.merge import merge_files
@@ -373,7 +363,7 @@ def test_streamed_file_merge_learns_the_residuals_from_the_grid(tmp_path, cl_dev
     times = s.stops(3, 2.0, centre=1.0 / float(np.median(rad)))
     frames = s.bracket(rad, times, CAM, noise=0.5, seed=12)
     frames[0][40:70, 30:60] = 230
-    paths = _write_set(tmp_path, frames)
+    paths = write_frames(tmp_path, frames)
     mask = tmp_path / "mask.png"
     res = merge_files(paths, tmp_path / "d.exr", times=times, response=true_response(), deghost=True,
                       ghost_mask=mask, ghost_threshold=8.0)
@@ -398,7 +388,7 @@ def test_steep_toe_alone_is_not_a_stretched_curve():
     assert stretched.span_decades() > 4.0 and "stretch" in stretched.span_problem()
 
 
-def test_ordinary_set_is_plain_half_or_float_never_scaled_by_default(tmp_path, field, cl_device):
+def test_ordinary_set_is_plain_half_or_float_never_scaled_by_default(tmp_path, field, cl_device, write_frames):
     """A daylight-like set whose possible range exceeds half (short frames) must not be
     stored scaled by default: other tools would show it stops too dark."""
     from hdrcl.core.merge import merge_files
@@ -406,7 +396,7 @@ def test_ordinary_set_is_plain_half_or_float_never_scaled_by_default(tmp_path, f
     rad, c = field
     times = s.stops(5, 2.0, centre=c) * 1e-3
     frames = s.bracket(rad, times, CAM, noise=0.5, seed=8)
-    paths = _write_set(tmp_path, frames)
+    paths = write_frames(tmp_path, frames)
     res = merge_files(paths, tmp_path / "d.exr", times=times, response=true_response(), keep_radiance=True)
     px, spec = _read(tmp_path / "d.exr")
     assert spec.getattribute("hdrcl:halfScale") is None and spec.format == "half"

@@ -111,8 +111,8 @@ def _small_job(kind: str, device: Optional[str], work: int) -> bool:
         return False
     if opencl_required():
         return False
-    if _processors:
-        return False  # OpenCL is open already: its start-up is paid
+    # Not "OpenCL is open already": a job's backend is decided by the job alone, never by
+    # what the process ran before (the same set gives the same bytes in any order).
     limit = small_work()
     if work >= limit:
         _info_once("small-work:opencl", f"OpenCL path: {work} pixel-samples, at least HDRCL_SMALL_WORK={limit}")

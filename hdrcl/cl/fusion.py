@@ -265,9 +265,10 @@ def profile_kernel(proc: FusionProcessor, frames, log_times, tables, weights, re
         packed = np.stack([np.ascontiguousarray(f).reshape(-1) for f in frames])
         fargs = (cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=packed), np.int32(npix * c))
     ob = cl.Buffer(ctx.context, mf.READ_WRITE, npix * c * 4)
-    todo = cl.Buffer(ctx.context, mf.READ_WRITE, npix)
+    todo = cl.Buffer(ctx.context, mf.READ_WRITE, npix * 4)  # one int per pixel put on the fix list
     best = float("inf")
     for _ in range(max(1, repeats)):
+        cl.enqueue_copy(q, plan.counts_b, plan._zero, dst_offset=12, is_blocking=True)  # the list starts empty
         ev = plan.knl(q, (round_up(npix // 4),), None, *fargs, plan.valid_b, plan.lut, plan.lt2, ob, plan.counts_b,
                       todo, np.int32(npix), np.int32(len(frames)), np.int32(plan.levels), np.int32(npix))
         ev.wait()

@@ -229,7 +229,7 @@ class MergeJob(Timed):
         self.nch = 3 if first.nchannels >= 3 else 1
         self.h, self.w = first.height, first.width
         self.work = first.width * first.height * len(self.inputs.paths)
-        self.warm = _warm_up(o.device, self.response is None, self.work)
+        self.warm = _warm_up(o.device, self.work)
         check_image_size(self.w, self.h, neutral=o.neutral, reference_patch=o.reference_patch)
         if self.chain is not None:
             self.chain.bind(self.h, self.w, self.nch)  # --lens-circle against the image, before any decoding
@@ -551,15 +551,13 @@ class Tee:
             s.write_rows(y0, y1, data)
 
 
-def _warm_up(device, calibrating: bool, work=None):
-    """Open the OpenCL device (and import the solver) on a helper thread while the
-    frames decode: both take a few tenths of a second that need not add up."""
+def _warm_up(device, work=None):
+    """Open the OpenCL device on a helper thread while the frames decode (a few tenths of
+    a second that need not add up); the job's own size decides whether it needs one."""
     import threading
 
     def warm():
         try:
-            if calibrating:
-                import scipy.sparse  # noqa: F401
             fusion_processor(device, work)
         except Exception:  # the main thread meets the same error and reports it
             pass

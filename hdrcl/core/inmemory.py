@@ -36,7 +36,7 @@ class MemoryJob(MergeJob):
         self.h, self.w = frames[0].shape[:2]
         self.nch = frames[0].shape[2] if frames[0].ndim == 3 else 1
         self.work = self.h * self.w * len(frames)
-        self.warm = _warm_up(self.options.device, self.response is None, self.work)
+        self.warm = _warm_up(self.options.device, self.work)
 
     def load(self) -> None:
         from hdrcl.core.pipeline import ArraySource

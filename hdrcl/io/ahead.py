@@ -85,12 +85,14 @@ class _Ahead:
             logger.debug("decode ahead of %s stopped: %s", self.paths[0], exc)
 
 
-def decode_ahead(paths: Sequence, infos, open_reader: Callable) -> bool:
+def decode_ahead(paths: Sequence, infos, open_reader: Callable, stop=None) -> bool:
     """Start decoding the set ``paths`` (headers ``infos``) on the helper thread, when its
     codes fit the in-memory share of the budget and no other set is ahead. True when
     started. ``open_reader(paths, infos)`` gives the decoder (a
     :class:`hdrcl.io.reader.BracketReader` that takes nothing decoded ahead itself):
-    its ``decode_frame(k)``, ``decode_seconds`` and ``close()`` are used."""
+    its ``decode_frame(k)``, ``decode_seconds`` and ``close()`` are used. ``stop``: a
+    :class:`threading.Event` the caller sets before :func:`cancel_all`; checked under the
+    registry's lock, so a set read after a cancel is never decoded ahead."""
     from hdrcl.io.framecache import MEMORY_SHARE_DIVISOR, memory_budget_bytes
 
     if infos is None or not paths or os.environ.get("HDRCL_DECODE_AHEAD", "").strip() == "0":
@@ -102,7 +104,7 @@ def decode_ahead(paths: Sequence, infos, open_reader: Callable) -> bool:
         return False
     key = _key(paths)
     with _lock:
-        if _pending:
+        if _pending or (stop is not None and stop.is_set()):
             return False
         job = _pending[key] = _Ahead(list(key), list(infos), open_reader)
     job.thread.start()

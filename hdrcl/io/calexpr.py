@@ -507,7 +507,7 @@ def call_function(prog: CalProgram, name: str, *values) -> np.ndarray:
     if len(d.params) != len(values):
         raise InputError(f"{prog.path}, line {d.line}: {name}() takes {len(d.params)} argument(s)")
     env = _Env(prog, np.zeros(1), np.zeros(1), 1.0, 1.0, None)
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"), _no_recursion_error(prog.path):
         return np.asarray(env.eval(d.body, dict(zip(d.params, (np.asarray(v, np.float64) for v in values))), 0),
                           np.float64)
 

@@ -147,6 +147,7 @@ def fits(data: np.ndarray) -> bool:
 BLOCK = 1 << 15
 _F32_NORMAL_HALF = np.float32(HALF_MIN_NORMAL)
 _F32_HALF_MAX = np.float32(HALF_MAX)
+_F32_TINY = np.finfo(np.float32).tiny  # the smallest normal float32
 
 
 @dataclass
@@ -232,12 +233,13 @@ class OnePass:
         lo, hi = mn * s, mx * s
         if mn == 0 and mx * s <= _F32_HALF_MAX:  # pixels without data: 0, the rest may be plain
             pos = np.minimum.reduce(x, where=x > 0, initial=np.inf)
-            if pos * s >= _F32_NORMAL_HALF:
+            # the bit trick needs normal float32 inputs: a subnormal's exponent field is 0
+            if pos * s >= _F32_NORMAL_HALF and pos >= _F32_TINY:
                 self._bits_to_half(x, k, o)
                 zero = x == 0
                 np.copyto(o, x, where=zero, casting="unsafe")  # 0 and -0 as they are
                 return StripRange(float(pos * s), float(hi))
-        elif lo >= _F32_NORMAL_HALF and hi <= _F32_HALF_MAX:  # NaN fails both
+        elif lo >= _F32_NORMAL_HALF and hi <= _F32_HALF_MAX and mn >= _F32_TINY:  # NaN fails them all
             self._bits_to_half(x, k, o)
             return StripRange(float(lo), float(hi))
         v = np.multiply(x, s, out=self._f32[:n]) if s != 1 else x

@@ -335,14 +335,9 @@ class LuminanceChain:
         """The OpenCL twin of the projection and vignetting steps, or None (NumPy)."""
         if self.projection is None and self.vignetting is None:
             return None
-        from hdrcl.core import pipeline
+        from hdrcl.core.pipeline import fusion_processor
 
-        if hasattr(pipeline, "fusion_processor"):  # by size and device alone (issue 25)
-            fusion = pipeline.fusion_processor(self.device, self.size * self.size)
-        else:  # until the engine's pipeline is in
-            from hdrcl.cl.backend import get_processor
-
-            fusion = get_processor("fusion", self.device, work=self.size * self.size)
+        fusion = fusion_processor(self.device, self.size * self.size)  # by size and device alone (issue 25)
         if fusion is None:
             return None
         from hdrcl.cl.fisheye import FisheyeProcessor

@@ -293,11 +293,16 @@ def glare_metrics(lum: np.ndarray, view: ViewSpec, *, threshold: float = DEFAULT
     limit = threshold if threshold > 100 else threshold * avlum
     labels = _clusters(valid & (lum > limit), dirs, SEARCH_ANGLE)
     if peak_extraction and labels.any() and float(lum[labels > 0].max()) > PEAK_LIMIT:
+        from scipy import ndimage
+
         high = (labels > 0) & (lum >= PEAK_LIMIT)
         nxt = int(labels.max())
+        boxes = ndimage.find_objects(labels)  # each source's bounding box: the work stays in it
         for k in np.unique(labels[high]):
-            sub = _clusters(high & (labels == k), dirs, SEARCH_ANGLE)
-            labels[sub > 0] = sub[sub > 0] + nxt
+            box = boxes[k - 1]
+            region = labels[box]  # a view: the new labels land in ``labels``
+            sub = _clusters(high[box] & (region == k), dirs[box], SEARCH_ANGLE)
+            region[sub > 0] = sub[sub > 0] + nxt
             nxt += int(sub.max())
     sources = _sources(lum, om, dirs, labels, view)
     edir = float(sum(s.illuminance for s in sources))

@@ -71,6 +71,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 import time as _time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
@@ -123,7 +124,7 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
         step = _read_stage(job, ctx)
         if ahead and isinstance(step, _Opening):
             # Decode its frames too, at low priority, while the current set fuses and encodes.
-            decode_ahead(job.files, step.opened.infos, open_reader)
+            decode_ahead(job.files, step.opened.infos, open_reader, stop)
         return step
 
     from functools import partial
@@ -132,6 +133,7 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
     from hdrcl.io.reader import BracketReader
 
     open_reader = partial(BracketReader, ahead=False)
+    stop = threading.Event()  # set before cancel_all: a read still running starts nothing after it
 
     reader = ThreadPoolExecutor(1, thread_name_prefix="hdrcl-readahead")
     try:
@@ -147,6 +149,7 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
             emit(step)
     finally:
         # Cancelled: do not wait for the read-ahead of a set that will not be merged.
+        stop.set()
         reader.shutdown(wait=False, cancel_futures=True)
         cancel_all()  # frames decoded ahead for a set that will not be merged: dropped
 
