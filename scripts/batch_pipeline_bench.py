@@ -17,13 +17,15 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+if HERE not in sys.path:
+    sys.path.insert(0, HERE)
+import bench  # noqa: E402  (scripts/bench.py: loadavg, timed_child)
 
 VARIANTS = {
     "ahead": ({}, []),
@@ -32,28 +34,14 @@ VARIANTS = {
 }
 
 
-def loadavg() -> str:
-    try:
-        with open("/proc/loadavg") as f:
-            return " ".join(f.read().split()[:3])
-    except OSError:
-        return "n/a"
-
-
 def run_once(shoot, out, env_extra, extra):
     env = dict(os.environ)
     env.pop("PYTHONDONTWRITEBYTECODE", None)  # an installed hdrcl has its bytecode
     env.setdefault("PYTHONPYCACHEPREFIX", os.path.join(tempfile.gettempdir(), "hdrcl-startup-pyc"))
     env.update(env_extra)
     cmd = [sys.executable, "-m", "hdrcl", "batch", shoot, "-r", "-o", out, "--force", "--quiet", *extra]
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    r = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if r.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)} failed ({r.returncode}):\n{r.stderr[-2000:]}")
-    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    wall, cpu, _ = bench.timed_child(cmd, env)
+    return wall, cpu
 
 
 def main(argv=None):
@@ -69,7 +57,7 @@ def main(argv=None):
     cores = os.cpu_count() or 1
     tmp = tempfile.mkdtemp(prefix="hdrcl-pipeline-bench-")
     try:
-        print(f"shoot {args.shoot}; {args.runs} round(s); {cores} cores; loadavg {loadavg()}")
+        print(f"shoot {args.shoot}; {args.runs} round(s); {cores} cores; loadavg {bench.loadavg()}")
         run_once(args.shoot, os.path.join(tmp, "warm"), {}, [])  # page cache, bytecode, OpenCL programs
         got = {n: [] for n in names}
         for _ in range(args.runs):
@@ -82,7 +70,7 @@ def main(argv=None):
             cpus = [c for _, c in got[n]]
             w, c = statistics.median(walls), statistics.median(cpus)
             print(f"{n:10s} {w:9.2f} [{min(walls):6.2f} - {max(walls):6.2f}] s {c:7.2f} {c / (w * cores):9.0%}")
-        print(f"loadavg after {loadavg()}")
+        print(f"loadavg after {bench.loadavg()}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

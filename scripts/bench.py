@@ -66,6 +66,31 @@ TARGETS = {
 }
 
 
+def loadavg() -> str:
+    """The 1, 5 and 15-minute load averages (``/proc/loadavg``), or ``n/a``: printed beside
+    every figure of the benchmarks, since a busy neighbour on 2 cores halves a figure."""
+    try:
+        with open("/proc/loadavg") as f:
+            return " ".join(f.read().split()[:3])
+    except OSError:
+        return "n/a"
+
+
+def timed_child(cmd, env=None):
+    """``(wall seconds, CPU seconds of the child, CompletedProcess)`` of one run of
+    ``cmd``; SystemExit with its stderr's tail when it fails."""
+    import resource
+
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if r.returncode != 0:
+        raise SystemExit(f"{' '.join(map(str, cmd[:4]))} ... failed ({r.returncode}):\n{r.stderr[-2000:]}")
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), r
+
+
 def _log(msg: str) -> None:
     print(f"[bench {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 

@@ -42,13 +42,6 @@ CAP = 40000.0  # the brightest value in the file: half floats hold it (a first p
 STRIP_PIXELS = 1 << 18
 
 
-def loadavg() -> str:
-    try:
-        with open("/proc/loadavg") as f:
-            return " ".join(f.read().split()[:3])
-    except OSError:
-        return "?"
-
 
 def radiance_map(mp: float, seed: int = 3, cap: float = CAP) -> np.ndarray:
     """Float32 ``(H, W, 3)`` radiance (relative to 1 s) of ``mp`` megapixels."""
@@ -164,12 +157,12 @@ def main(argv=None) -> int:
     results = []
     import hdrcl
 
-    print(f"hdrcl from {os.path.dirname(hdrcl.__file__)}  load before: {loadavg()}  cpus: {os.cpu_count()}")
+    print(f"hdrcl from {os.path.dirname(hdrcl.__file__)}  load before: {bench.loadavg()}  cpus: {os.cpu_count()}")
     with tempfile.TemporaryDirectory(prefix="hdrcl-encode-bench-") as folder:
         for mp in args.mp:
             for fmt in args.formats:
                 r = measure(mp, fmt, args.runs, folder, args.cap)
-                r["load"] = loadavg()
+                r["load"] = bench.loadavg()
                 results.append(r)
                 print(f"{r['size']} {fmt}: hdrcl {r['hdrcl_wall_s']:.3f} s wall {r['hdrcl_cpu_s']:.3f} s CPU | "
                       f"OpenImageIO alone {r['floor_wall_s']:.3f} s wall {r['floor_cpu_s']:.3f} s CPU | "

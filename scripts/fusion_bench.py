@@ -54,13 +54,6 @@ def cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
-def loadavg() -> str:
-    try:
-        with open("/proc/loadavg") as f:
-            return " ".join(f.read().split()[:3])
-    except OSError:
-        return "n/a"
-
 
 def decode_all(paths, threads: int):
     """Every frame decoded once (uint8), one frame per thread."""
@@ -144,7 +137,7 @@ def main(argv=None) -> int:
         info = bench.ensure_set(args.workdir, args.mp, args.frames)
         paths, times = info["paths"], np.asarray(info["times"], np.float64)
     threads = os.cpu_count() or 1
-    load0 = loadavg()
+    load0 = bench.loadavg()
     frames = decode_all(paths, threads)  # warm-up: OIIO's JPEG plugin, page cache
     h, w, c = frames[0].shape
     order = np.argsort(times, kind="stable")
@@ -177,7 +170,7 @@ def main(argv=None) -> int:
     med = {k: statistics.median(v) for k, v in rows.items() if v}
     res = {
         "cpu": cpu_model(), "cpus": threads, "driver": proc.ctx.name,
-        "loadavg_before": load0, "loadavg_after": loadavg(),
+        "loadavg_before": load0, "loadavg_after": bench.loadavg(),
         "frames": len(frames), "size": f"{w}x{h}", "frame_mp": round(fpx / 1e6, 1), "runs": args.runs,
         "weight": args.weight, "strip_rows": plan.rows,
         "decode_s": med["decode"], "fuse_s": med["fuse"], "kernel_s": med.get("kernel"),

@@ -34,13 +34,10 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 
+if HERE not in sys.path:
+    sys.path.insert(0, HERE)
+import bench  # noqa: E402  (scripts/bench.py: loadavg, timed_child)
 
-def loadavg() -> str:
-    try:
-        with open("/proc/loadavg") as f:
-            return " ".join(f.read().split()[:3])
-    except OSError:
-        return "?"
 
 
 def run_batch(photos: str, out: str, report: str = None) -> dict:
@@ -85,7 +82,7 @@ def main(argv=None) -> int:
     info = shoot_bench.generate_shoot(a.workdir, a.data, a.shape, a.mp, a.sets, frames)
     photos = info["photos"]
     print(f"shoot: {info['frames']} frames in {len(info['sets'])} sets, {info['megapixels']:.0f} MP ({photos})")
-    print(f"load before: {loadavg()}  (cores: {os.cpu_count()})")
+    print(f"load before: {bench.loadavg()}  (cores: {os.cpu_count()})")
     out, rep = os.path.join(a.workdir, "out"), os.path.join(a.workdir, "report")
     plain, reported = [], []
     run_batch(photos, out)  # warm the page cache and the OpenCL program cache
@@ -95,7 +92,7 @@ def main(argv=None) -> int:
         plain.append(p)
         reported.append(r)
         print(f"round {k + 1}: batch {p['wall']:.2f} s {p['rss_mb']:.0f} MB | --report {r['wall']:.2f} s "
-              f"{r['rss_mb']:.0f} MB (quality {r['quality']:.2f} s) | load {loadavg()}")
+              f"{r['rss_mb']:.0f} MB (quality {r['quality']:.2f} s) | load {bench.loadavg()}")
 
     def med(rows, key):
         return statistics.median(x[key] for x in rows)
@@ -106,7 +103,7 @@ def main(argv=None) -> int:
           f"quality stage {med(reported, 'quality'):.2f} s summed over sets")
     print(f"--report / batch: wall {statistics.median(ratios):.2f}x (median of each round's ratio; target <= 1.30), "
           f"peak memory {med(reported, 'rss_mb') / med(plain, 'rss_mb'):.2f}x (target <= 1.00)")
-    print(f"load after: {loadavg()}")
+    print(f"load after: {bench.loadavg()}")
     return 0
 
 

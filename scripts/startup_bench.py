@@ -28,14 +28,16 @@ from __future__ import annotations
 import argparse
 import glob
 import os
-import resource
 import statistics
 import subprocess
 import sys
 import tempfile
-import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+
+if HERE not in sys.path:
+    sys.path.insert(0, HERE)
+import bench  # noqa: E402  (scripts/bench.py: loadavg, timed_child)
 DEFAULT_FRAMES = os.path.join(HERE, "..", "..", "shared", "data", "frobisher_001", "*.jpg")
 
 IO_FLOOR = """
@@ -61,26 +63,6 @@ def child_env(args):
         env["PYTHONPYCACHEPREFIX"] = args.pyc_dir
     return env
 
-
-def timed(cmd, env=None):
-    """(wall seconds, CPU seconds of the child) of one run of ``cmd``; raises on failure."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    r = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if r.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd[:4])} ... failed ({r.returncode}):\n{r.stderr[-2000:]}")
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return wall, cpu, r
-
-
-def loadavg() -> str:
-    try:
-        with open("/proc/loadavg") as f:
-            return " ".join(f.read().split()[:3])
-    except OSError:
-        return "n/a"
 
 
 def import_top(cmd, env, n=12):
@@ -134,14 +116,14 @@ def main(argv=None):
             ]
         print(f"set: {len(frames)} frames, {frames[0]} ...; {args.runs} runs each; "
               f"bytecode {'as the environment has it' if args.as_is else 'cached in ' + args.pyc_dir}; "
-              f"loadavg {loadavg()}")
+              f"loadavg {bench.loadavg()}")
         for _, cmd in cases:  # warm the page cache, the bytecode and the OpenCL program caches
-            timed(cmd, env)
+            bench.timed_child(cmd, env)
         stats = {name: [] for name, _ in cases}
         last = None
         for _ in range(args.runs):  # rounds alternate the commands: drift hits all alike
             for name, cmd in cases:
-                wall, cpu, r = timed(cmd, env)
+                wall, cpu, r = bench.timed_child(cmd, env)
                 stats[name].append((wall, cpu))
                 if cmd is merge:
                     last = r
@@ -152,7 +134,7 @@ def main(argv=None):
             print(f"{name:34s} {statistics.median(walls):9.3f} {min(walls):9.3f} {statistics.median(cpus):9.3f}")
         med = statistics.median(w for w, _ in stats[cases[0][0]])
         print(f"end to end: median {med:.3f} s wall against the target {args.target:.2f} s "
-              f"({'met' if med <= args.target else 'not met'}); loadavg {loadavg()}")
+              f"({'met' if med <= args.target else 'not met'}); loadavg {bench.loadavg()}")
         if last is not None and last.stdout.strip():
             print("merge said:", last.stdout.strip().splitlines()[0])
         if args.imports:

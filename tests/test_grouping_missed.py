@@ -33,8 +33,9 @@ def names(manifest):
 
 
 @pytest.mark.parametrize("seed", range(10))
-@pytest.mark.parametrize("name", cardgen.MISSED + ("mixed_missed",))
+@pytest.mark.parametrize("name", cardgen.MISSED + ("mixed_missed",) + cardgen.PEOPLE + ("mixed_people",))
 def test_missed_card_grouped_exactly(tmp_path, name, seed):
+    """Every generated card of the patterns once missed (issues 19 and 27) grouped exactly."""
     truth = cardgen.write_card(tmp_path, name, seed=seed)
     m = scan_directory(tmp_path)
     assert names(m) == truth["sets"], (name, seed)
