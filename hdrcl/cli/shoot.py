@@ -109,7 +109,7 @@ def _descend(source, recursive: bool, exclude=()) -> bool:
 # ------------------------------------------------------------------------ batch
 #: How the summary and the progress lines call a set's status (report.json keeps the
 #: status values themselves).
-SHOWN = {"skipped": "up to date"}
+SHOWN = {"skipped": "up to date", "check": "done, check it"}
 
 
 class _Progress:
@@ -121,7 +121,7 @@ class _Progress:
     def __init__(self, stream, tty: bool, quiet: bool):
         self.stream, self.tty, self.quiet = stream, tty, quiet
         self.total = 0
-        self.counts = {"done": 0, "skipped": 0, "failed": 0}  # "skipped": up to date
+        self.counts = {"done": 0, "check": 0, "skipped": 0, "failed": 0}  # "skipped": up to date
         self.t0 = time.monotonic()
         self.drawn = False
 
@@ -138,6 +138,9 @@ class _Progress:
             if res.status == "failed":
                 self._clear()
                 self.stream.write(f"hdrcl: set {res.index} ({name}) failed: {res.error}\n")
+            elif res.status == "check":
+                self._clear()
+                self.stream.write(f"hdrcl: set {res.index} ({name}) merged, check it: {'; '.join(res.causes())}\n")
             if not self.quiet:
                 self._draw(completed)
         elif not self.quiet or res.status == "failed":
@@ -147,6 +150,8 @@ class _Progress:
                     f"({res.seconds.get('total', 0.0):.2f} s)")
             if res.error:
                 line += f": {res.error}"
+            elif res.status == "check":
+                line += f": {'; '.join(res.causes())}"
             self.stream.write(line + "\n")
             self.stream.flush()
 
@@ -162,7 +167,8 @@ class _Progress:
         eta = f", {elapsed / completed * (self.total - completed):.0f} s left" if 0 < completed < self.total else ""
         c = self.counts
         self.stream.write(f"\r\033[K[{'#' * fill}{'-' * (width - fill)}] {completed}/{self.total} sets "
-                          f"({c['done']} done, {c['skipped']} up to date, {c['failed']} failed{eta})")
+                          f"({c['done']} done, {c['check']} to check, {c['skipped']} up to date, "
+                          f"{c['failed']} failed{eta})")
         self.stream.flush()
         self.drawn = True
 
@@ -355,13 +361,17 @@ def _summary(rep) -> None:
                 more = f" (+{len(u['files']) - 1} more)" if len(u["files"]) > 1 else ""
                 click.echo(f"  not merged: {os.path.basename(u['files'][0])}{more}: {u['reason']}")
     else:
-        click.echo(f"{n} set(s): {rep.count('done')} done, {rep.count('skipped')} up to date, "
+        check = f"{rep.count('check')} to check, " if rep.count("check") else ""
+        click.echo(f"{n} set(s): {rep.count('done')} done, {check}{rep.count('skipped')} up to date, "
                    f"{rep.count('failed')} failed in {rep.seconds:.1f} s; report: {rep.path}")
     if rep.quality_report:
         click.echo(f"quality report: {rep.quality_report}")
     for r in rep.results:
         if r.status == "failed":
             click.echo(f"  failed: set {r.index} ({os.path.basename(r.files[0])}): {r.error}")
+        elif r.needs_check:  # merged now, or up to date from a run that found the same
+            for cause in r.causes():
+                click.echo(f"  check: set {r.index} ({os.path.basename(r.files[0])}): {cause}")
     for r in rep.responses:
         if r.error:
             click.echo(f"  no response for {r.group}: {r.error}")

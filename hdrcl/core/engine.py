@@ -217,6 +217,7 @@ class MergeJob(Timed):
         self.notes: List[str] = []  # on the exposures measured
         self.check_notes: List[str] = []  # on the exposures checked against a given response
         self.write_warnings: List[str] = []
+        self.findings: list = []  # hdrcl.core.findings.Finding, from every stage (see find())
         self.factors, self.units = None, {"units": "relative"}
         self.processor = None
 
@@ -334,6 +335,14 @@ class MergeJob(Timed):
             self.inputs.paths, self.inputs.infos, self.source, self.times, self.response,
             o.replace(absolute=absolute) if absolute != o.absolute else o, self.nch, self.h, self.w,
             exposure_reference=self.inputs.reference)
+
+    def find(self, finding) -> None:
+        """Record what a check found (:class:`hdrcl.core.findings.Finding`): logged as a
+        warning now, and carried on the result (its ``findings`` and ``warnings``)."""
+        if any(f.message == finding.message for f in self.findings):
+            return
+        logger.warning("%s", finding.message)
+        self.findings.append(finding)
 
     # ------------------------------------------------------------------ hooks
     def metadata(self) -> dict:
@@ -512,6 +521,8 @@ class MergeJob(Timed):
     def _finish(self, t0: float, t2: float):
         res, counts = self.result, self.counts
         res.counts = counts
+        res.findings = list(self.findings)
+        res.warnings += [f.message for f in self.findings if f.message not in res.warnings]
         res.radiance = self.keep.array if self.keep is not None else None
         res.thumbnail = self.thumb.array if self.thumb is not None else None
         if counts.get("no_data"):

@@ -35,6 +35,7 @@ class MergeResult:
     stages: dict = field(default_factory=dict)  # seconds per stage (decode, solve, fuse, encode, write); overlapping
     vertical_illuminance: Optional[float] = None  # lux at the lens, with a fisheye luminance chain (-vta view)
     recorded: Optional[list] = None  # per frame, the shutter time its header records (None where it has none)
+    findings: list = field(default_factory=list)  # hdrcl.core.findings.Finding: what the checks found
 
     def __post_init__(self):
         if not self.shape and self.radiance is not None:

@@ -21,11 +21,12 @@ from hdrcl.report.plots import coverage_legend
 from hdrcl.report.quality import QualityFigures
 from hdrcl.report.verdicts import grade_figures, legend_rows, thin_coverage_percent, worst
 
-STATUS_DONE, STATUS_SKIPPED, STATUS_FAILED = "done", "skipped", "failed"
+STATUS_DONE, STATUS_SKIPPED, STATUS_FAILED, STATUS_CHECK = "done", "skipped", "failed", "check"
 #: What the page calls each status (a batch's internal "skipped" is an up-to-date output,
-#: not a problem); unknown statuses are shown as they are.
+#: not a problem; "check" a merged output a check could not vouch for); unknown statuses
+#: are shown as they are.
 STATUS_LABELS = {STATUS_DONE: "merged", STATUS_SKIPPED: "up to date", STATUS_FAILED: "failed",
-                 "pending": "pending"}
+                 STATUS_CHECK: "merged: check it", "pending": "pending"}
 
 
 def status_label(status: Optional[str]) -> str:
@@ -376,8 +377,10 @@ def contact_sheet_html(entries: Sequence, title: str = "hdrcl quality report",
     failed = sum(1 for e in entries if e.status == STATUS_FAILED)
     merged = sum(1 for e in entries if e.status == STATUS_DONE)
     skipped = sum(1 for e in entries if e.status == STATUS_SKIPPED)
-    other = len(entries) - failed - merged - skipped
+    check = sum(1 for e in entries if e.status == STATUS_CHECK)
+    other = len(entries) - failed - merged - skipped - check
     summary = (f"{len(entries)} set{'s' if len(entries) != 1 else ''}: {merged} merged, "
+               + (f"{check} to check, " if check else "")
                + (f"{skipped} {STATUS_LABELS[STATUS_SKIPPED]}, " if skipped else "") + f"{failed} failed"
                + (f", {other} pending" if other else ""))
     verdicts = [worst(grade_figures(e.figures).values()) for e in entries if e.figures is not None]

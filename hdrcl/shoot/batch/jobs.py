@@ -30,6 +30,8 @@ MAX_POOL_SETS = 3
 
 
 STATUS_DONE, STATUS_SKIPPED, STATUS_FAILED = "done", "skipped", "failed"
+#: Merged, but a check found that the result cannot be vouched for (``findings`` say why).
+STATUS_CHECK = "check"
 
 
 # --------------------------------------------------------------------------- records
@@ -247,6 +249,16 @@ class SetResult:
     alignment: Optional[list] = None  # with --align: per frame model, matrix, shift, residual (hdrcl.core.align.handheld)
     vertical_illuminance: Optional[float] = None  # lux at the lens, with a fisheye luminance map (-vta view)
     glare: Optional[dict] = None  # DGP, DGI, UGR, sources of that map (hdrcl.core.luminance.glare, as `hdrcl glare`)
+    findings: List[dict] = field(default_factory=list)  # hdrcl.core.findings.Finding.to_dict of each
+
+    @property
+    def needs_check(self) -> bool:
+        """Whether a finding says the result cannot be vouched for."""
+        return any(f.get("severity") == "check" for f in self.findings)
+
+    def causes(self) -> List[str]:
+        """The messages of the findings that need a check."""
+        return [f["message"] for f in self.findings if f.get("severity") == "check"]
 
     def to_dict(self) -> dict:
         from hdrcl.report.sheet import status_label
@@ -270,6 +282,7 @@ class SetResult:
             **({"alignment": self.alignment} if self.alignment is not None else {}),
             **({"vertical_illuminance": self.vertical_illuminance} if self.vertical_illuminance is not None else {}),
             **({"glare": self.glare} if self.glare is not None else {}),
+            "findings": [dict(f) for f in self.findings],
         }
 
 
@@ -351,7 +364,7 @@ class BatchReport:
 
     @property
     def exit_code(self) -> int:
-        """0 when every set is done or skipped; 1 when a set (or an input file) failed,
+        """0 when every set is done, to check or skipped; 1 when a set (or an input file) failed,
         or when nothing could be merged (the folder holds no bracket set); 128 + the
         signal when cancelled (143 SIGTERM, 130 SIGINT)."""
         if self.cancelled:
@@ -369,6 +382,7 @@ class BatchReport:
             "unmerged": self.unmerged,
             "responses": [r.to_dict() for r in self.responses],
             "summary": {"sets": len(self.entries), "done": counts.get(STATUS_DONE, 0),
+                        "check": counts.get(STATUS_CHECK, 0),
                         "skipped": counts.get(STATUS_SKIPPED, 0), "failed": counts.get(STATUS_FAILED, 0),
                         "unreadable_files": len(self.unreadable),
                         **({"cancelled": signal_name(self.cancelled)} if self.cancelled else {})},

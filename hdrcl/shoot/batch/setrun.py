@@ -16,6 +16,7 @@ from hdrcl.core.engine import Extras, GivenResponse, Inputs, MergeJob, ResponseS
 from hdrcl.errors import HdrclError
 from hdrcl.shoot.batch.jobs import (
     _FUSE_LOCK,
+    STATUS_CHECK,
     STATUS_DONE,
     STATUS_FAILED,
     STATUS_SKIPPED,
@@ -336,12 +337,15 @@ class SetMerge(MergeJob):
                  + self.check_notes + self.write_warnings)
         if counts.get("no_data"):
             notes.append(f"{counts['no_data']} pixel-channels are invalid in every frame and were set to 0")
+        notes += [f.message for f in res.findings if f.message not in notes]
         keys = ("clipped_high", "clipped_low", "no_data") + (("ghost", "ghost_unresolved") if opts.deghost else ())
         out = SetResult(index=job.index, files=list(job.files), status=STATUS_DONE, output=job.output,
                         preview=job.preview, warnings=notes, seconds=step.seconds,
                         counts={k: int(counts.get(k, 0)) for k in keys},
                         ev_offset=round(step.opened.ev_offset, 6), digest=step.digest, response=job.group,
-                        storage=res.storage_note)
+                        storage=res.storage_note, findings=[f.to_dict() for f in res.findings])
+        if out.needs_check:
+            out.status = STATUS_CHECK
         if res.alignment is not None:
             out.alignment = res.alignment  # per frame: hdrcl.core.align.handheld.describe
         if res.vertical_illuminance is not None:  # a fisheye luminance map with a -vta/-vth view

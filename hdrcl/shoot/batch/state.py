@@ -17,7 +17,7 @@ from typing import Dict, List, Sequence, Tuple
 
 from hdrcl.errors import HdrclError, InputError
 from hdrcl.shoot.batch.claims import check_regular
-from hdrcl.shoot.batch.jobs import BatchOptions, SetJob, SetResult
+from hdrcl.shoot.batch.jobs import STATUS_SKIPPED, BatchOptions, SetJob, SetResult
 from hdrcl.shoot.batch.plan import _Plan
 from hdrcl.version import __version__
 
@@ -199,9 +199,10 @@ def _merge_entries(path: str, results: List[SetResult], plan: _Plan) -> List[dic
     """This run's entries plus earlier entries of other sets of the same manifest."""
     from hdrcl.io.jsondoc import read_state
 
-    mine = {r.index: r.to_dict() for r in results}
     old = read_state(path, "batch report") or {}  # absent or damaged: this run's entries only
     old_sets = old.get("sets") if isinstance(old.get("sets"), list) else []
+    _carry_over(results, old_sets)
+    mine = {r.index: r.to_dict() for r in results}
     for e in old_sets:
         if not isinstance(e, dict) or not isinstance(e.get("index"), int) or isinstance(e["index"], bool):
             continue
@@ -213,6 +214,28 @@ def _merge_entries(path: str, results: List[SetResult], plan: _Plan) -> List[dic
         if i not in mine and job is not None and [os.path.abspath(f) for f in files] == job.files:
             mine[i] = e
     return [mine[i] for i in sorted(mine)]
+
+
+#: What an up-to-date (skipped) set keeps from the run that merged the same output: what
+#: that run learnt of the result, which a skip does not measure again.
+CARRIED = ("findings", "vertical_illuminance", "glare")
+
+
+def _carry_over(results: List[SetResult], old_sets: list) -> None:
+    """Skipped sets take :data:`CARRIED` from the earlier entry of the same output (same
+    digest), so that a rerun neither forgets a finding nor the luminance figures."""
+    by_hash = {e.get("hash"): e for e in old_sets if isinstance(e, dict) and e.get("hash")}
+    for r in results:
+        e = by_hash.get(r.digest) if r.status == STATUS_SKIPPED and r.digest else None
+        if e is None:
+            continue
+        for key in CARRIED:
+            value = e.get(key)
+            if value is not None and not getattr(r, key):
+                setattr(r, key, list(value) if isinstance(value, list) else value)
+        for f in r.findings:
+            if isinstance(f, dict) and f.get("message") and f["message"] not in r.warnings:
+                r.warnings.append(f["message"])
 
 
 def _remove_stale_temps(out_dir: str, stems: Sequence[str]) -> None:
