@@ -183,7 +183,7 @@ def merge(images: Sequence[PathOrArray], times: Optional[Sequence[float]] = None
         name = os.fspath(response) if isinstance(response, (str, os.PathLike)) else "response"
         raise UsageError(f"{name}: a response for {resp.bits}-bit frames, but the frames are "
                          f"{8 * br.frames[0].dtype.itemsize}-bit")
-    from hdrcl.core.engine import GivenResponse, ResponseSource
+    from hdrcl.core.sources import GivenResponse, ResponseSource
     from hdrcl.core.inmemory import MemoryJob
 
     source = ResponseSource() if resp is None else GivenResponse(

@@ -7,16 +7,10 @@ import time
 
 import numpy as np
 
-from hdrcl.core.engine import (
-    Extras,
-    Inputs,
-    MergeJob,
-    ResponseSource,
-    _report_exposure_check,
-    _warm_up,
-)
+from hdrcl.core.engine import Extras, MergeJob, _report_exposure_check, _warm_up
 from hdrcl.core.options import MergeOptions
 from hdrcl.core.pipeline import fusion_processor
+from hdrcl.core.sources import Inputs, ResponseSource
 
 
 class MemoryJob(MergeJob):

@@ -39,7 +39,7 @@ def merge_bracket(
     (then with the exposures that calibration refined, see :func:`calibrate`).
     ``deghost``, ``ghost_threshold`` and ``ghost_reference`` as
     :func:`hdrcl.core.fusion.fuse_frames`."""
-    from hdrcl.core.engine import response_source
+    from hdrcl.core.sources import response_source
     from hdrcl.core.inmemory import MemoryJob
     from hdrcl.core.params import check_options
 
@@ -149,7 +149,8 @@ def merge_files(paths: Sequence[Union[str, os.PathLike]], output: Union[str, os.
         ``result.vertical_illuminance`` holds the lux at the lens for ``-vta`` views.
         ``result.radiance`` and the thumbnail stay the full merged map.
     """
-    from hdrcl.core.engine import Extras, Inputs, MergeJob, response_source
+    from hdrcl.core.engine import Extras, MergeJob
+    from hdrcl.core.sources import Inputs, response_source
     from hdrcl.core.options import MergeOptions
     from hdrcl.core.params import check_images, check_options
 

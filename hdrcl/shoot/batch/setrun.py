@@ -12,7 +12,8 @@ from typing import Dict, Iterator, List, Optional
 
 import numpy as np
 
-from hdrcl.core.engine import Extras, GivenResponse, Inputs, MergeJob, ResponseSource
+from hdrcl.core.engine import Extras, MergeJob
+from hdrcl.core.sources import GivenResponse, Inputs, ResponseSource
 from hdrcl.errors import HdrclError
 from hdrcl.shoot.batch.jobs import (
     _FUSE_LOCK,
