@@ -247,3 +247,55 @@ def test_interrupted_grid_read_stops_its_decoders_first(tmp_path, monkeypatch):
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
+
+
+def test_bare_times_list_taken_in_name_order(tmp_path, caplog):
+    """A list of times alone (the Memorial download's shutter_times.txt) is taken for the
+    frames in name order when the counts agree, with a warning; refused naming both counts
+    otherwise (issue 34)."""
+    import logging
+
+    from hdrcl.errors import InputError
+    from hdrcl.io.exposure_lists import read_times_file
+
+    lst = tmp_path / "shutter_times.txt"
+    lst.write_text("# longest first\n32\n1/2\n\n0.25\n")
+    frames = [str(tmp_path / n) for n in ("m03.png", "m01.png", "m02.png")]
+    with caplog.at_level(logging.WARNING):
+        table = read_times_file(lst, frames)
+    assert {k: v.time for k, v in table.items()} == {"m01.png": 32.0, "m02.png": 0.5, "m03.png": 0.25}
+    assert "name order" in caplog.text
+    with pytest.raises(InputError, match="bare list of 3 time.*2 frame"):
+        read_times_file(lst, frames[:2])
+    with pytest.raises(InputError, match="bare list of 3"):
+        read_times_file(lst)
+    lst.write_text("32\n-2\n")
+    with pytest.raises(InputError, match="line 2: exposure time -2 s is not a positive time"):
+        read_times_file(lst, frames[:2])
+    lst.write_text("m01.png\n")  # a name without its time stays a bad line
+    with pytest.raises(InputError, match="expected 'file seconds'"):
+        read_times_file(lst, frames[:1])
+
+
+def test_bare_times_list_merges_like_named_list(tmp_path, write_frames, cl_device):
+    from click.testing import CliRunner
+
+    from hdrcl.cli import main
+    from hdrcl.core import synthetic
+
+    cam = synthetic.Camera()
+    rad = synthetic.radiance_field(31, 47, decades=3.0, seed=3)
+    times = [1 / 60, 1 / 15, 1 / 4]
+    frames = synthetic.bracket(rad, times, cam, seed=1)
+    paths = write_frames(tmp_path, frames)
+    (tmp_path / "bare.txt").write_text("".join(f"{t}\n" for t in times))
+    (tmp_path / "named.txt").write_text("".join(f"{os.path.basename(p)} {t}\n" for p, t in zip(paths, times)))
+    outs = []
+    for lst in ("bare.txt", "named.txt"):
+        out = tmp_path / f"{lst}.exr"
+        r = CliRunner().invoke(main, ["merge", *paths, "--times-file", str(tmp_path / lst), "-o", str(out)])
+        assert r.exit_code == 0, r.output
+        from hdrcl.io.radiance import read_radiance
+
+        outs.append(read_radiance(str(out))[0])
+    assert np.array_equal(outs[0], outs[1])

@@ -112,6 +112,12 @@ def test_batch_of_fisheye_sets_equals_the_steps_one_by_one(fisheye_shoot, cl_dev
     again = CliRunner().invoke(main, ["batch", str(d / "shoot"), "-o", str(out), "--format", "hdr",
                                       "--no-preview", *_chain_args(d)])
     assert again.exit_code == 0 and "2 up to date" in again.output, again.output
+    # ... and the skipped sets keep their luminance figures in report.json (issue 34).
+    kept = {e["index"]: e for e in json.loads((out / "report.json").read_text())["sets"]}
+    for entry in rep["sets"]:
+        assert kept[entry["index"]]["status"] == "skipped"
+        assert kept[entry["index"]]["vertical_illuminance"] == entry["vertical_illuminance"]
+        assert kept[entry["index"]]["glare"] == entry["glare"]
     # ... and a different calibration factor makes them out of date.
     changed = [a if a != str(d / "cf.cal") else "1.3" for a in _chain_args(d)]
     third = CliRunner().invoke(main, ["batch", str(d / "shoot"), "-o", str(out), "--format", "hdr",

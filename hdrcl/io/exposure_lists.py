@@ -177,22 +177,28 @@ def _float_field(text: str) -> Optional[float]:
     return value if math.isfinite(value) else None
 
 
-def read_times_file(path) -> dict:
+def read_times_file(path, frames=None) -> dict:
     """Read a list of exposures, one file per line.
 
-    Two layouts are recognised line by line:
+    Three layouts are recognised:
 
     * ``file seconds`` where seconds may be a fraction (``IMG_1.JPG 1/30``);
     * HDRShop image lists, ``file exposure 1/shutter_speed f/stop gain(db) ND_filters``
       (trailing columns may be left out). The ``exposure`` column is the shutter time in
       seconds (the Memorial Church list runs from 32 down to 1/1024 with ``1/shutter``
-      its reciprocal); it is used as the time, the f-stop, gain and ND as given.
+      its reciprocal); it is used as the time, the f-stop, gain and ND as given;
+    * a bare list of times, one a line and nothing else on any line (the Memorial
+      download's ``shutter_times.txt``): the times of ``frames`` in name order, when the
+      list holds exactly one time per frame.
 
     ``#`` starts a comment; blank lines are skipped.
 
     Parameters
     ----------
     path : str or os.PathLike
+    frames : sequence of str, optional
+        The files a bare list applies to (sorted by base name); without them, or when
+        their number differs from the list's, a bare list is refused naming both counts.
 
     Returns
     -------
@@ -213,6 +219,9 @@ def read_times_file(path) -> dict:
         raise InputError(f"{name}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{name}: cannot read times file ({exc})") from None
+    bare = _bare_times(name, lines, frames)
+    if bare is not None:
+        return bare
     result = {}
     where = {}
     inconsistent = []
@@ -269,6 +278,30 @@ def read_times_file(path) -> dict:
     if not result:
         raise InputError(f"{name}: no exposures listed")
     return result
+
+
+def _bare_times(name: str, lines, frames) -> Optional[dict]:
+    """A list of times alone (one a line, no file names) as ``{frame: Exposure}`` for
+    ``frames`` in name order; None when the list names files."""
+    rows = [(k, f[0]) for k, raw in enumerate(lines, 1) if (f := raw.split("#", 1)[0].split())]
+    if not rows or any(len(raw.split("#", 1)[0].split()) != 1 for raw in lines if raw.split("#", 1)[0].split()):
+        return None
+    times = []
+    for lineno, text in rows:
+        seconds = parse_seconds(text)
+        if seconds is None:
+            if _float_field(text) is not None:
+                raise InputError(f"{name} line {lineno}: exposure time {text} s is not a positive time")
+            return None  # a lone word: a file name without its time, refused as such below
+        times.append(seconds)
+    names = sorted({os.path.basename(os.fspath(f)) for f in (frames or [])})
+    if len(names) != len(times):
+        frames_text = f"{len(names)} frame(s) to apply it to" if frames else "no frames named to apply it to"
+        raise InputError(f"{name}: a bare list of {len(times)} time(s) (no file names) and {frames_text}; "
+                         "give one time per frame, or 'file seconds' lines")
+    logger.warning("%s: a bare list of %d times, taken for the frames in name order (%s .. %s)",
+                name, len(times), names[0], names[-1])
+    return {n: Exposure(time=t) for n, t in zip(names, times)}
 
 
 def list_in(folder: str) -> Optional[str]:

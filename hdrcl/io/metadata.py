@@ -102,13 +102,18 @@ def header_exposures(paths, infos) -> Tuple[list, List[str]]:
         folder = os.path.dirname(os.path.abspath(os.fspath(n)))
         if folder not in tables:
             found = list_in(folder)
-            tables[folder] = (found, read_times_file(found) if found else {})
+            tables[folder] = (found, read_times_file(found, _frames_in(folder, paths)) if found else {})
         found, table = tables[folder]
         e = table.get(os.path.basename(os.fspath(n)))
         if e is not None and found not in used:
             used.append(found)
         out.append(None if e is None else Exposure(e.time, info.fnumber or e.fnumber, info.iso, e.gain_db, e.nd))
     return out, used
+
+
+def _frames_in(folder: str, paths) -> list:
+    """The frames of ``paths`` in ``folder`` (what a bare list beside them applies to)."""
+    return [p for p in paths if os.path.dirname(os.path.abspath(os.fspath(p))) == folder]
 
 
 def _shared_or_none(values, label):
@@ -238,7 +243,7 @@ def resolve_exposures(
         if isinstance(times_file, Mapping):
             table, source = times_file, "the times file"
         else:
-            table, source = read_times_file(times_file), os.fspath(times_file)
+            table, source = read_times_file(times_file, names), os.fspath(times_file)
         exposures = []
         for n in names:
             key = os.path.basename(n)

@@ -66,7 +66,7 @@ def _with_exposure_lists(infos, times_file):
     from hdrcl.io.metadata import header_exposures
     from hdrcl.io.exposure_lists import read_times_file
 
-    given = read_times_file(times_file) if times_file is not None else {}
+    given = read_times_file(times_file, [i.path for i in infos]) if times_file is not None else {}
     listed = {}  # frames without EXIF exposure time, by folder: one read of its list
     for info in infos:
         if os.path.basename(info.path) not in given and info.exposure_time is None:

@@ -253,7 +253,7 @@ def load_source(source, *, recursive: bool = False, frames_per_set: Optional[int
     if times_file is not None:
         from hdrcl.io.exposure_lists import read_times_file
 
-        table = read_times_file(times_file)
+        table = read_times_file(times_file, [f for s in manifest.sets for f in s.files])
         for s in manifest.sets:
             if not s.exposures and all(os.path.basename(f) in table for f in s.files):
                 s.exposures = [float(table[os.path.basename(f)].factor) for f in s.files]
