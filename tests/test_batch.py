@@ -367,9 +367,12 @@ def test_killed_run_is_finished_by_the_next(tmp_path):
 def test_chunks_and_processes_give_identical_files(manifest, full, tmp_path):
     ref, _ = full
     chunks = tmp_path / "chunks"
-    for sel in ("0-2", "3-5", "6-99"):  # the last one is clamped to the real sets
-        res = run("batch", manifest, "-o", chunks, "--sets", sel)
+    for sel, mine in (("0-2", [0, 1, 2]), ("3-5", [3, 4, 5]), ("6-99", [6, 7])):  # 6-99: clamped to the real sets
+        res = run("batch", manifest, "-o", chunks, "--sets", sel, "--json")
         assert res.exit_code == 0, res.output  # chunks do not own the unreadable file
+        said = json.loads(res.stdout)  # a chunk's --json is its own sets (issue 34)
+        assert [s["index"] for s in said["sets"]] == mine
+        assert said["summary"]["sets"] == said["summary"]["done"] == len(mine)
     procs = tmp_path / "procs"
     res = run("batch", manifest, "-o", procs, "--jobs", "2")
     assert res.exit_code == 1  # the whole manifest: the corrupt file counts

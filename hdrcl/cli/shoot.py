@@ -306,7 +306,7 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
         click.echo(f"hdrcl: {_stopped(rep.cancelled)} ({len(rep.results)} set(s) finished; report: {rep.path})",
                    err=True)
     if as_json:
-        click.echo(json.dumps(rep.to_dict(), indent=1))
+        click.echo(json.dumps(rep.to_dict(run_only=True), indent=1))
     elif calibrate_only:
         for r in rep.responses:
             state = f"error: {r.error}" if r.error else f"{r.source} {r.file}"

@@ -373,15 +373,19 @@ class BatchReport:
             return 1
         return 1 if self.sets_in_manifest == 0 else 0
 
-    def to_dict(self) -> dict:
-        counts = Counter(e["status"] for e in self.entries)
+    def to_dict(self, run_only: bool = False) -> dict:
+        """The report: every set of the output folder's report (this run's and earlier
+        runs' or other chunks' entries), or with ``run_only`` this run's sets alone
+        (``hdrcl batch --json``: a farm chunk reports its own sets)."""
+        entries = [r.to_dict() for r in self.results] if run_only else self.entries
+        counts = Counter(e["status"] for e in entries)
         return {
             "hdrcl": __version__,
             "reference": _reference_text(self.reference),
-            "sets": self.entries,
+            "sets": entries,
             "unmerged": self.unmerged,
             "responses": [r.to_dict() for r in self.responses],
-            "summary": {"sets": len(self.entries), "done": counts.get(STATUS_DONE, 0),
+            "summary": {"sets": len(entries), "done": counts.get(STATUS_DONE, 0),
                         "check": counts.get(STATUS_CHECK, 0),
                         "skipped": counts.get(STATUS_SKIPPED, 0), "failed": counts.get(STATUS_FAILED, 0),
                         "unreadable_files": len(self.unreadable),
