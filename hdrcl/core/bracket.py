@@ -130,7 +130,7 @@ def load_bracket(
         paths = [os.fspath(p) for p in images]
         infos = read_infos(paths)
         exposures = metadata.resolve_exposures(paths, infos, times=times, times_file=times_file)
-        check_orientation(infos)
+        check_orientation(infos)  # arrays come back as stored (a file merge: hdrcl.core.orientation)
         with BracketReader(paths, infos) as reader:
             frames, masks = reader.read_all()
     if rgb is not None:
@@ -193,13 +193,12 @@ def _all_raw(paths) -> bool:
 
 def _open_files(paths, times, times_file):
     from hdrcl.io import metadata
-    from hdrcl.io.frames import check_compatible, check_orientation
+    from hdrcl.io.frames import check_compatible
 
     paths = [os.fspath(p) for p in paths]
     infos = read_infos(paths)
     exposures = metadata.resolve_exposures(paths, infos, times=times, times_file=times_file)
-    check_compatible(infos)
-    check_orientation(infos)
+    check_compatible(infos)  # orientation: a merge's finding (hdrcl.core.orientation), calibrate's warning
     return paths, infos, np.asarray(metadata.relative_exposures(exposures), np.float64)
 
 

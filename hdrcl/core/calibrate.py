@@ -83,6 +83,9 @@ def calibrate(
     elif len(images) and not any(isinstance(im, np.ndarray) for im in images):
         # Files: only the sampling grid is kept, so memory does not grow with the image.
         paths, infos, rel = _open_files(images, times, times_file)
+        from hdrcl.io.frames import check_orientation
+
+        check_orientation(infos)
         if _all_raw(paths):
             from hdrcl.core.response import linear_response
 

@@ -95,6 +95,7 @@ class MergeJob(Timed):
     # ------------------------------------------------------------------ stages
     def open(self) -> None:
         """Sizes and checks from the headers, the backend, the OpenCL warm-up."""
+        from hdrcl.core.orientation import orientation_findings
         from hdrcl.core.params import check_image_size, check_response_fits
 
         o, first = self.options, self.inputs.infos[0]
@@ -103,6 +104,8 @@ class MergeJob(Timed):
         self.work = first.width * first.height * len(self.inputs.paths)
         self.warm = _warm_up(o.device, self.work)
         check_image_size(self.w, self.h, neutral=o.neutral, reference_patch=o.reference_patch)
+        for finding in orientation_findings(self.inputs.infos, self.output):  # hdrcl.core.orientation
+            self.find(finding)
         if self.chain is not None:
             self.chain.bind(self.h, self.w, self.nch)  # --lens-circle against the image, before any decoding
             if o.reference_patch is None and not (first.fnumber and first.iso) and self.inputs.reference is None:

@@ -2,7 +2,8 @@
 
 **Radiance RGBE** (``.hdr``), encoded strip by strip. A Radiance picture is a text header
 (``#?RADIANCE``, ``FORMAT=32-bit_rle_rgbe``, other ``NAME=value`` lines, a blank line), a
-resolution line (``-Y H +X W``: rows top to bottom, columns left to right) and H scanlines
+resolution line (``-Y H +X W``: rows top to bottom, columns left to right; another one where
+EXIF Orientation turns the picture, :func:`hdrcl.io.exif.hdr_resolution`) and H scanlines
 of W pixels of four bytes: three 8-bit mantissas sharing an exponent byte, value =
 mantissa x 2^(exponent - 136).
 
@@ -67,19 +68,23 @@ _F32_MAX_RGBE = np.float32(RGBE_MAX)
 _CHUNK_PIXELS = 1 << 18  # pixels per strip of write_rgbe
 
 
-def header(width: int, height: int, lines: Iterable[str] = ()) -> bytes:
+def header(width: int, height: int, lines: Iterable[str] = (), orientation: int = 1) -> bytes:
     """The header and resolution line of a ``width`` x ``height`` picture, top row first.
 
     ``lines`` (without newlines) follow ``FORMAT=``, as OpenImageIO's header followed by
-    the lines hdrcl inserts into it (:func:`hdrcl.io.outmeta.hdr_header_lines`).
+    the lines hdrcl inserts into it (:func:`hdrcl.io.outmeta.hdr_header_lines`). The
+    scanlines are stored alike whatever EXIF ``orientation`` says; the resolution line
+    says how to show them (:func:`hdrcl.io.exif.hdr_resolution`).
     """
+    from hdrcl.io.exif import hdr_resolution
+
     text = "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n"
     for line in lines:
         line = str(line)
         if "\n" in line or "\r" in line:
             raise ValueError(f"Radiance header lines cannot hold newlines: {line!r}")
         text += line + "\n"
-    return (text + f"\n-Y {int(height)} +X {int(width)}\n").encode("utf-8")
+    return (text + f"\n{hdr_resolution(orientation, int(height), int(width))}\n").encode("utf-8")
 
 
 class _Buffers:
@@ -334,14 +339,14 @@ class RGBEFile:
     """
 
     def __init__(self, path: str, width: int, height: int, lines: Iterable[str] = (), *,
-                 rle: bool = True, name: Optional[str] = None):
+                 rle: bool = True, name: Optional[str] = None, orientation: int = 1):
         self.width, self.height = int(width), int(height)
         if self.width < 1 or self.height < 1:
             raise ValueError(f"picture must be at least 1x1, got {width}x{height}")
         self.name = name or path
         self.rows_written = 0
         self._encoder = RGBEEncoder(self.width, rle=rle)
-        head = header(self.width, self.height, lines)
+        head = header(self.width, self.height, lines, orientation)
         self._file = None
         try:
             self._file = open(path, "wb")
@@ -388,7 +393,7 @@ class RGBEFile:
                 pass
 
 
-def write_rgbe(path, image, lines: Iterable[str] = (), *, rle: bool = True) -> None:
+def write_rgbe(path, image, lines: Iterable[str] = (), *, rle: bool = True, orientation: int = 1) -> None:
     """Write float ``(H, W, 3)`` (or ``(H, W, 1)``: grey, written as RGB) radiance to the
     Radiance file ``path``, atomically (:func:`hdrcl.io.atomic.atomic_output`), in strips
     of about 256K pixels so that the work arrays stay small.
@@ -409,7 +414,7 @@ def write_rgbe(path, image, lines: Iterable[str] = (), *, rle: bool = True) -> N
     h, w, _ = img.shape
     step = max(1, _CHUNK_PIXELS // w)
     with atomic_output(target) as tmp:
-        out = RGBEFile(tmp, w, h, lines, rle=rle, name=target)
+        out = RGBEFile(tmp, w, h, lines, rle=rle, name=target, orientation=orientation)
         try:
             for y in range(0, h, step):
                 out.write(np.broadcast_to(img[y:y + step], (min(step, h - y), w, 3)))

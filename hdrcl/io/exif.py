@@ -1,12 +1,19 @@
 """EXIF values as hdrcl reads them, whichever reader found them (OpenImageIO for image
 files, hdrcl's own TIFF walk for camera RAW headers): one place for the rules that turn
-recorded fields into exposure times and capture times.
+recorded fields into exposure times and capture times, and what EXIF Orientation means.
+
+**Orientation** (EXIF/TIFF tag 274, 1..8) says how the stored rows and columns are to be
+shown: 1 as stored, 6 "rotate 90 degrees clockwise to view" (a camera held upright), 8
+counter-clockwise, 3 half a turn, 2/4/5/7 the mirrored variants. hdrcl merges the pixels
+as stored (every frame of a set alike) and writes the set's orientation into the output
+(:func:`hdr_resolution` for Radiance files, the ``Orientation`` attribute elsewhere);
+:func:`to_display` turns stored pixels into the upright picture (the batch's previews).
 """
 from __future__ import annotations
 
 import datetime as _dt
 import logging
-from typing import Optional
+from typing import Iterable, Optional
 
 import numpy as np
 
@@ -58,3 +65,63 @@ def capture_time(original: Optional[str], subsec: Optional[str], container: Opti
     if when is None and camera:
         when = parse_datetime(container)
     return when
+
+
+#: What each EXIF Orientation asks of a viewer (stored pixels -> the picture as shot).
+ORIENTATIONS = {
+    1: "upright as stored",
+    2: "mirror left-right to view",
+    3: "rotate 180 degrees to view",
+    4: "mirror top-bottom to view",
+    5: "mirror along the main diagonal to view",
+    6: "rotate 90 degrees clockwise to view",
+    7: "mirror along the other diagonal to view",
+    8: "rotate 90 degrees counter-clockwise to view",
+}
+
+
+def orientation_value(value) -> int:
+    """EXIF Orientation as an int 1..8; 1 (as stored) when absent or not one of those."""
+    try:
+        o = int(value)
+    except (TypeError, ValueError):
+        return 1
+    return o if o in ORIENTATIONS else 1
+
+
+def common_orientation(tags: Iterable[int]) -> int:
+    """The orientation a set's output takes: the tag most frames carry, the first
+    frame's among equally common ones (1 for no frames)."""
+    tags = [orientation_value(t) for t in tags]
+    if not tags:
+        return 1
+    return max(dict.fromkeys(tags), key=tags.count)  # max keeps the first of equals
+
+
+def to_display(a: np.ndarray, orientation: int) -> np.ndarray:
+    """Stored pixels ``a`` (H, W[, C]) as a viewer shows them under EXIF ``orientation``
+    (6: turned 90 degrees clockwise, so the stored top row becomes the right column)."""
+    o = orientation_value(orientation)
+    if o in (2, 3):
+        a = a[:, ::-1]
+    if o in (3, 4):
+        a = a[::-1]
+    if o >= 5:
+        a = a.swapaxes(0, 1)  # 5: the transpose; 6, 7, 8 a transpose and a mirror
+        if o in (6, 7):
+            a = a[:, ::-1]
+        if o in (7, 8):
+            a = a[::-1]
+    return np.ascontiguousarray(a)
+
+
+def hdr_resolution(orientation: int, height: int, width: int) -> str:
+    """Radiance's resolution line for ``height`` stored scanlines of ``width`` pixels
+    shown under EXIF ``orientation``: ``-Y H +X W`` for 1 (top row first, left to
+    right), ``-X H -Y W`` for 6 (the stored rows are the picture's columns, right to
+    left, each top to bottom). Radiance's programs (pvalue, pfilt, ra_tiff, ximage)
+    place the pixels by it."""
+    o = orientation_value(orientation)
+    y = "+Y" if o in (3, 4, 7, 8) else "-Y"
+    x = "-X" if o in (2, 3, 6, 7) else "+X"
+    return f"{y} {height} {x} {width}" if o <= 4 else f"{x} {height} {y} {width}"

@@ -37,7 +37,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from hdrcl.errors import InputError, check_readable
-from hdrcl.io.exif import capture_time, snap_reciprocal
+from hdrcl.io.exif import capture_time, orientation_value, snap_reciprocal
 from hdrcl.io.metadata import FrameInfo
 from hdrcl.io.raw import is_raw
 
@@ -287,6 +287,7 @@ def _info_from_spec(spec, path: str) -> FrameInfo:
         serial=_as_str(_attr(spec, "Exif:BodySerialNumber", "Exif:SerialNumber")),
         lens=_as_str(_attr(spec, "Exif:LensModel", "Exif:LensSpecification")),
         focal_length=_as_float(spec.getattribute("Exif:FocalLength")),
+        orientation=orientation_value(spec.getattribute("Orientation")),
         extra=extra,
     )
 
@@ -499,29 +500,18 @@ def check_compatible(infos: Sequence[FrameInfo]) -> None:
 
 
 def check_orientation(infos: Sequence[FrameInfo]) -> Optional[str]:
-    """Say what happens to EXIF Orientation: hdrcl merges the pixels as stored and never
-    rotates them. Frames whose tags differ (some rotated by a tool, some only tagged)
-    are warned about, naming two of them; the warning is also returned. A tag shared
-    by every frame is only logged at info level (the map keeps the stored layout)."""
-    tags = []
-    for info in infos:
-        try:
-            tags.append(int(info.extra.get("Orientation", 1) or 1))
-        except (TypeError, ValueError):
-            tags.append(1)
-    if not tags:
-        return None
+    """Warn when the frames' EXIF Orientation tags differ (some rotated by a tool, some
+    only tagged), naming two of them; the warning is also returned. The pixels are used
+    as stored. (A merge says this as a finding instead, :mod:`hdrcl.core.orientation`,
+    and writes the set's orientation into its output.)"""
+    tags = [orientation_value(getattr(info, "orientation", 1)) for info in infos]
     odd = next((k for k, t in enumerate(tags) if t != tags[0]), None)
-    if odd is not None:
-        msg = (f"{infos[odd].path}: EXIF Orientation {tags[odd]}, but {infos[0].path} has {tags[0]}; "
-               "orientation is not applied: the frames are merged as stored (rotate the files alike "
-               "if their pixels do not line up)")
-        logger.warning("%s", msg)
-        return msg
-    if tags[0] != 1:
-        logger.info("EXIF Orientation %d of every frame is not applied: the radiance map keeps the stored "
-                    "layout", tags[0])
-    return None
+    if odd is None:
+        return None
+    msg = (f"{infos[odd].path}: EXIF Orientation {tags[odd]}, but {infos[0].path} has {tags[0]}; "
+           "the frames are used as stored (rotate the files alike if their pixels do not line up)")
+    logger.warning("%s", msg)
+    return msg
 
 
 def _channel_layout_counts(info: FrameInfo):

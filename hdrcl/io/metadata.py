@@ -46,6 +46,8 @@ class FrameInfo:
 
     Attributes are ``None`` where the file does not carry the field.
     ``capture_time`` joins DateTimeOriginal and SubSecTimeOriginal (naive local time).
+    ``orientation`` is EXIF Orientation 1..8 (:data:`hdrcl.io.exif.ORIENTATIONS`); 1 for a
+    file without it and for camera RAW, which LibRaw turns upright as it decodes.
     """
 
     path: str
@@ -65,6 +67,7 @@ class FrameInfo:
     serial: Optional[str] = None
     lens: Optional[str] = None
     focal_length: Optional[float] = None  # mm
+    orientation: int = 1  # EXIF Orientation: how the stored pixels are to be shown
     extra: dict = field(default_factory=dict)
 
 

@@ -25,6 +25,9 @@ read by standard names:
 ``view``               (``.hdr``: ``VIEW=``)       Radiance view, e.g. ``-vta -vh 180 -vv 180``
 ``vertical_illuminance``  (``.hdr``:               lux at the lens (EXR: ``hdrcl:*``
                        ``VERTICAL_ILLUMINANCE=``)  metadata of the chain)
+``orientation``        ``Orientation`` (int)       the frames' EXIF Orientation (2..8; left
+                       (``.hdr``: the resolution   out for 1); the pixels stay as stored
+                       line, ``-X H -Y W`` for 6)  (:func:`orientation_carrier`)
 =====================  ==========================  =========================================
 
 The reference f-number and ISO are the first frame's (the merge expresses every frame's
@@ -45,10 +48,11 @@ from typing import Mapping, Optional, Sequence
 
 from hdrcl.io.colorspace import chromaticities
 from hdrcl.io.colorspace import check as check_space
+from hdrcl.io.exif import common_orientation, hdr_resolution, orientation_value
 from hdrcl.errors import ProcessingError
 
 __all__ = ["software", "standard_attributes", "hdr_header_lines", "patch_hdr_header", "hdr_colorspace", "hdr_header",
-           "inapplicable_options", "camera_from_infos"]
+           "inapplicable_options", "camera_from_infos", "orientation_carrier", "read_orientation"]
 
 #: Longest Radiance header we read back (bytes).
 _HDR_HEADER_MAX = 1 << 16
@@ -71,6 +75,8 @@ def standard_attributes(ext: str, camera: Optional[Mapping]) -> list:
     out = [("Software", software())]
     if cam.get("owner"):
         out.append(("Copyright", _clean(cam["owner"])))
+    if ext in (".exr", ".tif", ".tiff") and int(cam.get("orientation") or 1) != 1:
+        out.append(("Orientation", int(cam["orientation"])))  # TIFF tag 274; an EXR int attribute
     if ext in (".tif", ".tiff"):
         out += [(name, _clean(cam[key])) for key, name in (("make", "Make"), ("model", "Model")) if cam.get(key)]
         return out
@@ -267,6 +273,7 @@ def camera_from_infos(infos: Sequence, *, owner: Optional[str] = None, units: st
     """The ``camera`` mapping of :func:`standard_attributes` from the frames' headers.
 
     Make, model, lens, focal length and owner come from the first frame that has them;
+    the orientation is the one most frames carry (:func:`hdrcl.io.exif.common_orientation`);
     the reference exposure (``exposure_time`` seconds, see :mod:`hdrcl.core.encode`, at
     the first frame's f-number and ISO, or at ``reference = (f-number, ISO)`` where the
     caller set another, as ``hdrcl batch`` does for a shoot) only when the map is in
@@ -279,6 +286,8 @@ def camera_from_infos(infos: Sequence, *, owner: Optional[str] = None, units: st
         owner = next((i.extra.get("Copyright") for i in infos if (getattr(i, "extra", None) or {}).get("Copyright")),
                      None)
     cam["owner"] = owner
+    o = common_orientation(getattr(i, "orientation", 1) for i in infos)
+    cam["orientation"] = o if o != 1 else None
     if units == "relative" and infos:
         cam.update(_capture_exposure(infos, reference, float(exposure_time)))
     return {k: v for k, v in cam.items() if v not in (None, "")}
@@ -312,3 +321,43 @@ def _capture_exposure(infos: Sequence, reference: Optional[tuple], t_ref: float)
     elif n_cap is None and iso_cap is None and not n_ref and not iso_ref:
         out["exposure_time"] = t_ref  # no settings recorded: the reference is the frames' own
     return out
+
+
+def orientation_carrier(path, orientation: int) -> str:
+    """What the output ``path`` says of EXIF ``orientation``, for a finding's message:
+    EXR and TIFF carry an ``Orientation`` attribute, a Radiance file its resolution
+    line, a PFM nothing."""
+    name = os.path.basename(os.fspath(path))
+    ext = os.path.splitext(name)[1].lower()
+    o = orientation_value(orientation)
+    if o == 1:
+        return f"{name} keeps the stored layout"
+    if ext == ".hdr":
+        return f"{name}'s resolution line ({hdr_resolution(o, 'H', 'W')}) shows it turned in Radiance's programs"
+    if ext == ".pfm":
+        return f"{name} cannot say so and keeps the stored layout (write .exr, .hdr or .tif to keep the orientation)"
+    return (f"{name} says Orientation {o} in its header (OpenImageIO tools and some viewers honour it; "
+            "oiiotool --reorient turns the pixels)")
+
+
+def read_orientation(path) -> int:
+    """The EXIF orientation an output says: a Radiance file's resolution line, or the
+    ``Orientation`` attribute of another format (1 where it says none)."""
+    name = os.fspath(path)
+    if os.path.splitext(name)[1].lower() == ".hdr":
+        with open(name, "rb") as fh:
+            head = fh.read(_HDR_HEADER_MAX)
+        end = head.find(b"\n\n")
+        line = head[end + 2:].split(b"\n", 1)[0].decode("ascii", "replace").split() if end >= 0 else []
+        if len(line) == 4:
+            for o in range(1, 9):
+                if hdr_resolution(o, line[1], line[3]).split() == line:
+                    return o
+        return 1
+    from hdrcl.io.frames import open_input
+
+    inp = open_input(name)
+    try:
+        return orientation_value(inp.spec().getattribute("Orientation"))
+    finally:
+        inp.close()

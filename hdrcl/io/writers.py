@@ -242,7 +242,8 @@ def write_radiance(path, image, *, dtype="half", compression=DEFAULT_EXR_COMPRES
     if ext == ".hdr":
         if np.any(img[finite] < 0):
             warnings.append(f"{target}: negative values are written as 0 in RGBE")
-        write_rgbe(target, img, _hdr_lines(ext, camera, colorspace, timestamp, metadata))
+        write_rgbe(target, img, _hdr_lines(ext, camera, colorspace, timestamp, metadata),
+                   orientation=int((camera or {}).get("orientation") or 1))
     else:
         if ext == ".exr":
             exr_threads(_oiio())
@@ -290,7 +291,8 @@ class RadianceWriter:
         self._tmp = self._ctx.__enter__()
         self._out = None
         if ext == ".hdr":
-            self._rgbe = self._guarded(lambda: RGBEFile(self._tmp, width, height, self._hdr_lines, name=target))
+            self._rgbe = self._guarded(lambda: RGBEFile(self._tmp, width, height, self._hdr_lines, name=target,
+                                                        orientation=int((camera or {}).get("orientation") or 1)))
         elif self._whole is None:
             self._open()
             if ext == ".exr":

@@ -85,7 +85,11 @@ def _rebuild_preview(job: SetJob, digest: str, options: BatchOptions) -> None:
         counts = _counts_of(old) if old.get(DIGEST_KEY) == digest else {}
     except HdrclError:
         counts = {}
-    write_ldr(job.preview, encode(downscale(rad, options.preview_size), options.tonemap),
+    from hdrcl.io.exif import to_display
+    from hdrcl.io.outmeta import read_orientation
+
+    write_ldr(job.preview, to_display(encode(downscale(rad, options.preview_size), options.tonemap),
+                                      read_orientation(job.output)),  # upright, as the EXR says
               metadata=_preview_metadata(digest, options, counts))
 
 
@@ -315,8 +319,12 @@ class SetMerge(MergeJob):
             from hdrcl.io.ldr import write_ldr
             from hdrcl.report.preview import encode
 
-            with self.timed("preview"):
-                write_ldr(self.step.job.preview, encode(self.small.result(), self.opts.tonemap),
+            from hdrcl.io.exif import common_orientation, to_display
+
+            with self.timed("preview"):  # upright: turned as the frames' EXIF Orientation says
+                upright = to_display(encode(self.small.result(), self.opts.tonemap),
+                                     common_orientation(i.orientation for i in self.inputs.infos))
+                write_ldr(self.step.job.preview, upright,
                           metadata=_preview_metadata(self.step.digest, self.opts, counts))
 
     def quality_bracket(self):
