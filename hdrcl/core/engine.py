@@ -573,11 +573,7 @@ def _warm_up(device, work=None):
         except Exception:  # the main thread meets the same error and reports it
             pass
 
-    # Not a daemon: a set that fails before its fusion leaves the OpenCL build running,
-    # and a process that exits under it crashes in the driver (Intel's CPU runtime:
-    # "terminate called without an active exception", a segfault, exit 134/139).
-    # The interpreter waits for the build to end at exit instead.
-    t = threading.Thread(target=warm, name="hdrcl-warm-up", daemon=False)
+    t = threading.Thread(target=warm, name="hdrcl-warm-up", daemon=False)  # exit waits: a build cut crashes
     t.start()
     return t
 
