@@ -447,7 +447,7 @@ def _warm_up(device, work=None):
         except Exception:  # the main thread meets the same error and reports it
             pass
 
-    t = threading.Thread(target=warm, name="hdrcl-warm-up", daemon=True)
+    t = threading.Thread(target=warm, name="hdrcl-warm-up", daemon=False)  # exit waits: a build cut crashes
     t.start()
     return t
 

@@ -23,6 +23,7 @@ decoding ahead off (for measuring what it gains).
 """
 from __future__ import annotations
 
+import atexit
 import logging
 import os
 import threading
@@ -36,6 +37,7 @@ AHEAD_NICE = 10
 
 _lock = threading.Lock()
 _pending: Dict[Tuple[str, ...], "_Ahead"] = {}
+_exit_hook: List[bool] = []  # cancel_all registered with atexit
 
 
 def _key(paths: Sequence) -> Tuple[str, ...]:
@@ -107,6 +109,11 @@ def decode_ahead(paths: Sequence, infos, open_reader: Callable, stop=None) -> bo
         if _pending or (stop is not None and stop.is_set()):
             return False
         job = _pending[key] = _Ahead(list(key), list(infos), open_reader)
+        if not _exit_hook:
+            # A process that exits with a decoder running under a daemon thread crashes
+            # in C++ teardown: stop the helper (the frame in hand finishes) first.
+            atexit.register(cancel_all)
+            _exit_hook.append(True)
     job.thread.start()
     return True
 

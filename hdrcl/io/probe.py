@@ -10,9 +10,16 @@ from typing import Optional, Tuple
 
 import numpy as np
 
+from hdrcl.errors import InputError
+
 logger = logging.getLogger(__name__)
 
-__all__ = ["reduced_pixels", "pixels_readable"]
+__all__ = ["reduced_pixels", "pixels_readable", "Damaged"]
+
+
+class Damaged(InputError):
+    """A file whose header reads but whose pixels do not decode (truncated or corrupt
+    data); the message is one line naming the file and the decoder's cause."""
 
 
 def reduced_pixels(path, min_size: Tuple[int, int] = (24, 32)) -> Optional[np.ndarray]:
@@ -25,9 +32,17 @@ def reduced_pixels(path, min_size: Tuple[int, int] = (24, 32)) -> Optional[np.nd
     decode in the file's own sample type (a 4 MP JPEG: 0.05 s as uint8, 0.38 s as
     float). Camera RAW files give None (their previews are not read here). The values
     are the file's own (uint8, uint16 or float); the caller reduces them further.
+
+    Raises
+    ------
+    Damaged
+        The pixels decoded in full do not decode cleanly (a truncated JPEG, whose
+        missing rows the decoder fills with grey, or a corrupt PNG); the decoder's own
+        lines are held back from stderr.
     """
     import OpenImageIO as oiio
 
+    from hdrcl.io.frames import _read_error as read_error, decoder_stderr
     from hdrcl.io.raw import is_raw
 
     path = os.fspath(path)
@@ -62,8 +77,15 @@ def reduced_pixels(path, min_size: Tuple[int, int] = (24, 32)) -> Optional[np.nd
             level, spec = n, s
         inp.geterror()  # the failed seek past the last level
         own = {oiio.UINT8: oiio.UINT8, oiio.UINT16: oiio.UINT16}.get(spec.format.basetype, oiio.FLOAT)
-        a = inp.read_image(0, level, 0, min(spec.nchannels, 3), own)
-        return None if a is None else np.asarray(a)
+        with decoder_stderr():
+            try:
+                a = inp.read_image(0, level, 0, min(spec.nchannels, 3), own)
+            except Exception as exc:  # noqa: BLE001 - some OIIO readers raise on damage
+                raise Damaged(f"{path}: corrupt data ({' '.join(str(exc).split())})") from None
+            why = read_error(inp, path) if (a is None or inp.has_error) else None
+        if why is not None or a is None:
+            raise Damaged(why or f"{path}: corrupt data (no pixels decoded)")
+        return np.asarray(a)
     finally:
         inp.close()
 

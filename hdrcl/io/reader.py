@@ -379,7 +379,9 @@ class _Prefetch:
 
         self._result = None
         self._error = None
-        self._thread = threading.Thread(target=self._run, args=(reader, y0, y1), daemon=True,
+        # Not a daemon: a merge that fails leaves at most this strip decoding, and the
+        # interpreter waits for it rather than exiting under a running decoder.
+        self._thread = threading.Thread(target=self._run, args=(reader, y0, y1), daemon=False,
                                         name="hdrcl-prefetch")
         self._thread.start()
 

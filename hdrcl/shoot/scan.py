@@ -8,6 +8,7 @@ import os
 from typing import List, Optional, Sequence, Tuple
 from hdrcl.errors import InputError
 from hdrcl.shoot.batch.manifest import Manifest, Unmerged, _rel
+from hdrcl.shoot.grouping.damaged import DAMAGED, mark_damaged, place_damaged
 from hdrcl.shoot.grouping.rules import _exposure_range, _fmt_bias, group_frames
 
 logger = logging.getLogger(__name__)
@@ -205,26 +206,50 @@ def scan_directory(path, *, recursive: bool = False, frames_per_set: Optional[in
         logger.info("%s", note)
         recursive = True
     files = _list_files(root, recursive, extensions)
-    infos, bad = [], []
+    infos, bad, salvaged = [], [], []
     for p in files:
         try:
             infos.append(read_info(p))
         except (InputError, OSError) as e:
-            msg = str(e)
-            if msg.startswith(p + ": "):
-                msg = msg[len(p) + 2:]
+            msg = _cause(str(e), p)
+            info = _salvage(p)
+            if info is not None:  # its EXIF still places it in its set, which then fails
+                salvaged.append((info, msg))
+                continue
             logger.info("not grouped: %s: %s", p, msg)
             bad.append(Unmerged(files=[p], reason=f"corrupt: {msg}"))
     infos, named = _with_exposure_lists(infos, times_file)
-    compare = None
+    compare, damaged = None, {}
     if content and frames_per_set is None:
         from hdrcl.shoot.grouping.scene import SceneCache
 
-        compare = SceneCache().compare
-    manifest = group_frames(infos, frames_per_set=frames_per_set, gap=gap, compare=compare, listed=named)
+        cache = SceneCache()
+        compare = cache.compare
+        for info in infos:  # read once each anyway; a frame whose pixels fail is known first
+            cache.thumb(info)
+        damaged = {p: _cause(m, p) for p, m in cache.damaged.items()}
+    listed = {id(f) for fs in named.values() for f in fs}
+    aside = [(i, damaged[os.fspath(i.path)]) for i in infos
+             if os.fspath(i.path) in damaged and id(i) not in listed]
+    kept = [i for i in infos if not any(i is a for a, _ in aside)]
+    manifest = group_frames(kept, frames_per_set=frames_per_set, gap=gap, compare=compare, listed=named)
+    mark_damaged(manifest, damaged)  # frames an exposure list put in their set
+    place_damaged(manifest, kept, aside + salvaged)
     manifest.unmerged.extend(bad)
     manifest.root = root
     return manifest
+
+
+def _cause(msg: str, path: str) -> str:
+    """The message without the path it starts with (the file is named where it is shown)."""
+    msg = msg.splitlines()[0] if msg else "unreadable"
+    return msg[len(path) + 2:] if msg.startswith(path + ": ") else msg
+
+
+def _salvage(path: str):
+    from hdrcl.io.salvage import salvage_info
+
+    return salvage_info(path)
 
 
 # ------------------------------------------------------------------------ display
@@ -264,6 +289,12 @@ def format_table(manifest: Manifest) -> str:
             if len(u.files) > 1:
                 files += f" (+{len(u.files) - 1} more)"
             lines.append(f"  {files}: {u.reason}")
+    hurt = [(s, f, c) for s in manifest.sets for f, c in s.extra.get(DAMAGED, {}).items()]
+    if hurt:
+        lines.append("")
+        lines.append(f"damaged ({len(hurt)}):")
+        for s, f, c in hurt:
+            lines.append(f"  {f}: {c}; set {s.index} fails until the file is replaced or taken out of it")
     lines.append("")
     lines.append(f"{len(manifest.sets)} set(s), "
                  f"{sum(len(s.files) for s in manifest.sets)} frame(s) to merge, "

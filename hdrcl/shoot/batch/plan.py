@@ -288,6 +288,17 @@ def _drop_one_exposure_sets(manifest) -> None:
         manifest.sets = kept
 
 
+def damaged_files(manifest) -> List[str]:
+    """The files a batch counts as unreadable: the unmerged ones the scan could not read
+    (``"corrupt: ..."``) and the damaged frames it placed in their sets
+    (:mod:`hdrcl.shoot.grouping.damaged`; such a set fails naming the file)."""
+    out = [f for u in manifest.unmerged if u.reason.startswith("corrupt") for f in u.files]
+    for s in manifest.sets:
+        names = set((s.extra or {}).get("damaged") or ())
+        out += [f for f in s.files if os.path.basename(f) in names]
+    return out
+
+
 def check_manifest(manifest) -> Dict[int, str]:
     """What would stop each set of a (hand-edited) manifest from merging, by index.
 

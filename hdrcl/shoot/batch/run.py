@@ -89,7 +89,7 @@ from hdrcl.shoot.batch.jobs import (
     _Context,
     _reference_text,
 )
-from hdrcl.shoot.batch.plan import _plan, check_outputs_spare_inputs, load_source, parse_sets
+from hdrcl.shoot.batch.plan import _plan, check_outputs_spare_inputs, damaged_files, load_source, parse_sets
 from hdrcl.shoot.batch.pooling import _prepare_responses, cache_for
 from hdrcl.shoot.batch.setquality import _contact_sheet
 from hdrcl.shoot.batch.setrun import _failed, _merge_stage, _Opening, _read_stage, process_set
@@ -296,8 +296,7 @@ def run_batch(source, out_dir, *, options: Optional[BatchOptions] = None,
         # A camera with one set in the manifest is calibrated by that set's merge, from the
         # decode that feeds its fusion (each frame decoded once).
         responses = _prepare_responses(plan, out_dir, options, response, defer=not s.calibrate_only, cache=cache)
-        unreadable = [f for u in manifest.unmerged if u.reason.startswith("corrupt") for f in u.files] \
-            if ranges is None else []
+        unreadable = damaged_files(manifest) if ranges is None else []
         rep = BatchReport(unmerged=[{"files": [os.path.abspath(f) for f in u.files], "reason": u.reason}
                                     for u in manifest.unmerged],
                           responses=[responses[g] for g in sorted(responses)], unreadable=unreadable,

@@ -16,9 +16,12 @@ from hdrcl.io.metadata import FrameInfo
 DEFAULT_GAP = 8.0
 
 
-#: After an exposure this long (seconds) or longer the default gap limit grows by the
-#: exposure time: long-exposure noise reduction takes a dark frame of the same length.
-LONG_EXPOSURE = 1.0
+#: After an exposure this long (seconds) or longer the default gap limit grows by
+#: :data:`NR_FACTOR` times the exposure time: long-exposure noise reduction takes a dark
+#: frame of the same length, and the camera's processing of the pair grows with it
+#: (a night ladder 1 s, 2 s, 0.5 s, then on down: 9.5-14 s between frames).
+LONG_EXPOSURE = 0.5
+NR_FACTOR = 2.0
 
 
 # Two settings closer than this (in stops) are the same: below half a third-stop step,

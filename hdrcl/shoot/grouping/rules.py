@@ -19,8 +19,10 @@ bracket set ends and the next begins, using several signals together:
 * **Time gap**, measured from the *end* of one exposure to the *start* of the next:
   ``gap = start(i+1) - (start(i) + exposure_time(i))``. Within a set gaps are short
   (a burst: ~0.1-1 s; by hand: a few seconds). The default limit is
-  :data:`DEFAULT_GAP` seconds plus, after exposures of 1 s or longer, the exposure time
-  again (cameras with long-exposure noise reduction take a dark frame that long).
+  :data:`DEFAULT_GAP` seconds plus, after exposures of 0.5 s or longer, twice the exposure
+  time (cameras with long-exposure noise reduction take a dark frame that long, and
+  their processing grows with it: 9.5-14 s between the 1 s, 2 s and 0.5 s frames of a
+  night ladder).
 * **Exposure pattern**: a set is a ladder of different exposures. A frame whose
   settings (time, aperture, ISO) equal those of a frame already in the set starts a new
   set, which splits sets shot back to back even when the gap between them is shorter
@@ -253,7 +255,7 @@ def group_frames(infos: Sequence[FrameInfo], *, frames_per_set: Optional[int] = 
         to split, but each set is still checked (mixed cameras, one exposure...).
     gap : float, optional
         Override: the largest end-to-start gap in seconds within a set, instead of the
-        default (:data:`DEFAULT_GAP`, plus the exposure time after long exposures);
+        default (:data:`DEFAULT_GAP`, plus twice the exposure time after exposures of 0.5 s or more);
         long gaps are then never bridged.
     compare : callable, optional
         ``compare(a, b)`` -> :class:`hdrcl.shoot.grouping.scene.Verdict` for two frames: the

@@ -136,10 +136,12 @@ def read_thumb(info) -> Optional[Thumb]:
     """The thumbnail of a frame described by ``info`` (a FrameInfo), or None."""
     from hdrcl.shoot.grouping.ladder import exposure_value
 
-    from hdrcl.io.probe import reduced_pixels
+    from hdrcl.io.probe import Damaged, reduced_pixels
 
     try:
         a = reduced_pixels(info.path, GRID)
+    except Damaged:
+        raise  # the scan sets the frame aside and fails its set (SceneCache.damaged)
     except Exception as exc:  # a damaged file: the header reader reports it elsewhere
         logger.debug("%s: no thumbnail (%s)", info.path, exc)
         return None
@@ -218,11 +220,19 @@ class SceneCache:
 
     def __init__(self):
         self._cache: Dict[str, Optional[Thumb]] = {}
+        #: Frames whose pixels do not decode, by path: the one-line reason naming the file.
+        self.damaged: Dict[str, str] = {}
 
     def thumb(self, info) -> Optional[Thumb]:
+        from hdrcl.io.probe import Damaged
+
         key = os.fspath(info.path)
         if key not in self._cache:
-            self._cache[key] = read_thumb(info)
+            try:
+                self._cache[key] = read_thumb(info)
+            except Damaged as exc:
+                self._cache[key] = None
+                self.damaged[key] = str(exc).splitlines()[0]
         return self._cache[key]
 
     def compare(self, a, b) -> Verdict:

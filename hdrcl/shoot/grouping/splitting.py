@@ -8,7 +8,7 @@ Three passes, every decision kept with its reason:
    ladder that restarts (a monotonic hand ladder walking back, an auto-bracket pattern
    broken; a one-way ladder carried on past its end by a plausible step is not broken);
    the *scene* changing (:mod:`hdrcl.shoot.grouping.scene`); a gap longer than the default limit
-   (:data:`DEFAULT_GAP`, plus the exposure time after long exposures); a change between
+   (:data:`DEFAULT_GAP`, plus twice the exposure time after long exposures); a change between
    auto and manual exposure (a run end that pass 3 may undo). A frame that repeats the
    (shutter, aperture, ISO) of the frame before with a *new* exposure compensation that
    carries the set's compensation on one way (a phone in auto mode with 0.25-0.5 EV
@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 from typing import Callable, List, Optional
 
 from hdrcl.io.metadata import FrameInfo
-from hdrcl.shoot.grouping.compare import (DEFAULT_GAP, LONG_EXPOSURE, _BIAS_TOL, _MODE_NAMES, _STOP_TOL, _fmt_bias, _fmt_f,
+from hdrcl.shoot.grouping.compare import (DEFAULT_GAP, LONG_EXPOSURE, NR_FACTOR, _BIAS_TOL, _MODE_NAMES, _STOP_TOL, _fmt_bias, _fmt_f,
                                  _gap, _norm, _same_bias, _same_settings, _same_stops, _varies, format_exposure)
 from hdrcl.shoot.grouping.ladder import MAX_STEP, MIN_STEP, distinct_of, exposure_value, ladder_of
 
@@ -75,7 +75,7 @@ def _gap_limit(prev: FrameInfo, override: Optional[float]) -> float:
         return override
     limit = DEFAULT_GAP
     if (prev.exposure_time or 0.0) >= LONG_EXPOSURE:
-        limit += prev.exposure_time
+        limit += NR_FACTOR * prev.exposure_time  # the dark frame, and processing that grows with it
     return limit
 
 
