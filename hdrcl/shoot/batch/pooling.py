@@ -376,9 +376,9 @@ def _prepare_responses(plan: _Plan, out_dir: str, options: BatchOptions, respons
 
 def cache_for(first_info, cache):
     """The ``--response-cache`` folder for a group whose first frame is ``first_info``,
-    or None: a group whose frames name no camera is grouped by its folder, and a folder's
-    name says nothing about the camera (another shoot's "set01" may be another camera's),
-    so it is calibrated each time and saved beside the outputs, never cached."""
+    or None: a group whose frames name no camera is one camera only within its shoot (by
+    size and bit depth; another shoot's converted frames may be another camera's), so it
+    is calibrated each time and saved beside the outputs, never cached."""
     if cache is None or first_info is None or _camera_label(first_info) == "unknown camera":
         return None
     return cache
