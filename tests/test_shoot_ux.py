@@ -297,14 +297,16 @@ def test_memorial_in_a_shoot_uses_its_list_and_is_named_after_its_folder(tmp_pat
     rep = json.loads((out / "report.json").read_text())
     memorial = next(s for s in rep["sets"] if s["output"].endswith("memorial.exr"))
     assert not any("f-number" in w for w in memorial["warnings"]), memorial["warnings"]
-    assert memorial["response"] == "memorial" and (out / "memorial.response.json").is_file()
+    # Frames naming no camera: one camera per size and bit depth (issue 32 item 7).
+    assert memorial["response"] == "unknown camera 768x512 8-bit", memorial["response"]
+    assert (out / "unknown-camera-768x512-8-bit.response.json").is_file()
     assert (out / "Canon-EOS-R6-ISO-100.response.json").is_file()
 
 
 def test_response_cache_keeps_out_frames_that_name_no_camera(tmp_path, cl_device):
-    """Sets whose frames name no camera are grouped by folder; a folder's name says
-    nothing about the camera (every shoot has a "set01"), so such a group is calibrated
-    each time and never taken from, nor written to, the response cache."""
+    """Sets whose frames name no camera are one camera per size and bit depth within a
+    shoot, but nothing says another shoot's are the same camera, so such a group is
+    calibrated each time and never taken from, nor written to, the response cache."""
     shoot = tmp_path / "shoot" / "set01"
     shoot.mkdir(parents=True)
     frames = frames_of(5)

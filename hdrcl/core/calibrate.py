@@ -189,3 +189,25 @@ def exposures_used(response: Response, bracket_times) -> np.ndarray:
             [e["nominal"] for e in ex], nominal, rtol=1e-9):
         return np.asarray([e["used"] for e in ex], np.float64)
     return nominal
+
+
+def metadata_verdict(bracket: Bracket, *, samples: Optional[int] = None, smoothness: Optional[float] = None,
+                     weight: str = DEFAULT_WEIGHT, seed: int = 0, fit_exposures: str = "auto",
+                     exposure_tolerance: Optional[float] = None):
+    """What :func:`calibrate` would say of a set's exposure metadata, said by nobody:
+    ``(verdict, span)``, the verdict of
+    :func:`hdrcl.core.exposure.known.untrusted_metadata` (None when nothing says the
+    metadata is wrong) and the span in decades (codes 10..245) of the set's own curve.
+
+    A batch asks it of every set it pools (:mod:`hdrcl.shoot.batch.pooling`), so that a
+    set whose times cannot be trusted never shapes its camera's pooled curve, and of every
+    other set it merges with a pooled curve, so that it says so as ``calibrate`` would.
+    """
+    from hdrcl.core.exposure.fit import UNTRUSTED
+
+    if bracket.paths and _all_raw(bracket.paths):  # linear: no curve, no verdict
+        return None, 0.0
+    resp = calibrate(bracket, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
+                     fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance, warn=False)
+    verdict = next((w for w in resp.warnings if w.startswith(UNTRUSTED)), None)
+    return verdict, float(resp.span_decades())

@@ -16,6 +16,7 @@ a caller can prefer a response from a good set of the same camera.
 """
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass, field
 from typing import List, Optional, Sequence
@@ -556,8 +557,9 @@ def untrusted_metadata(response: Response, fit: Optional[ExposureFit] = None,
                        "camera JPEGs about 2.5 and 1.9)")
     if not reasons:
         return None
-    return ("the exposure metadata of this set cannot be trusted: " + "; ".join(reasons)
-            + "; prefer a response from a good set of the same camera (--response, or a batch's pooled response)")
+    from hdrcl.core.exposure.fit import PREFER_GOOD, UNTRUSTED
+
+    return UNTRUSTED + ": " + "; ".join(reasons) + PREFER_GOOD
 
 
 def exposures_for_merge(frames, times, response: Response, *, mode: str = "auto", valid=None,
@@ -593,7 +595,5 @@ def exposures_for_merge(frames, times, response: Response, *, mode: str = "auto"
                          "brightness with this response; check the times")
     used = fit.used if mode == "auto" else np.where(fit.measured, fit.fitted, fit.nominal)
     if fit.scale_note:  # how the scale was pinned: information, not a problem
-        import logging
-
         logging.getLogger(__name__).info("exposure check: %s", fit.scale_note)
     return np.asarray(used, np.float64), list(fit.notes)

@@ -302,10 +302,16 @@ class ResponseEntry:
     # its fusion (each frame decoded once); ``key`` is its calibration key.
     deferred: bool = False
     key: Optional[str] = None
+    # Sets whose exposure metadata cannot be trusted, by index: [verdict, span of their own
+    # curve in decades] (hdrcl.shoot.batch.pooling.trust_findings); never pooled when a good set is.
+    untrusted: Dict[int, list] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        return {"group": self.group, "file": self.file, "source": self.source, "pooled_sets": self.sets,
-                "hash": self.digest, "error": self.error, "warnings": self.warnings}
+        d = {"group": self.group, "file": self.file, "source": self.source, "pooled_sets": self.sets,
+             "hash": self.digest, "error": self.error, "warnings": self.warnings}
+        if self.untrusted:
+            d["untrusted_sets"] = sorted(self.untrusted)
+        return d
 
 
 @dataclass

@@ -347,14 +347,16 @@ def _camera_label(info) -> str:
 
 
 def _group_of(info, folder: str = "") -> str:
-    """Response group of a set from its first frame: camera body and ISO; a set without
-    camera make and model is its folder's (``folder``, relative to the scanned one), as
-    nothing says two folders of such frames come from one camera."""
+    """Response group of a set from its first frame: camera body and ISO. Frames without
+    camera make and model (converted PNG or TIFF, film scans) count as one camera in one
+    shoot unless they differ in size (either orientation) or bit depth: their folders
+    share one pooled curve, so overlapping views of one scene read alike (issue 32). The
+    group then says so: ``unknown camera 1600x1200 8-bit``. (``folder`` is not used.)"""
     if info is None:
         return "unreadable"
     label = _camera_label(info)
-    if label == "unknown camera" and folder:
-        label = folder
+    if label == "unknown camera":
+        label += f" {max(info.width, info.height)}x{min(info.width, info.height)} {info.bits}-bit"
     if info.serial:
         label += f" #{info.serial}"
     return f"{label} ISO {info.iso:g}" if info.iso else label

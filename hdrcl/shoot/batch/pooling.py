@@ -12,6 +12,7 @@ from typing import Dict, List, Sequence
 
 import numpy as np
 
+from hdrcl.core.exposure.fit import UNTRUSTED
 from hdrcl.core.response import Response
 from hdrcl.errors import HdrclError, InputError
 from hdrcl.io.jsondoc import read_state
@@ -149,8 +150,10 @@ def saved_response(group: str, jobs: List[SetJob], out_dir: str, options: BatchO
             usable.append(j)
         except InputError as exc:
             entry.warnings.append(f"set {j.index} not pooled: {exc}")
+    # "trust": sets whose exposure metadata cannot be trusted are left out of the pool (a
+    # curve saved before that was known is solved again).
     key = _json_digest({"recipe": DIGEST_RECIPE, "hdrcl": __version__, "solve": options.solve_params(),
-                        "reference": list(jobs[0].reference) if jobs else None, "sets": keyed})
+                        "reference": list(jobs[0].reference) if jobs else None, "sets": keyed, "trust": 1})
     entry.key = key
     saved = read_state(path, "pooled response") or {}  # absent or damaged: solve again
     calib = saved.get("calibration")
@@ -167,6 +170,7 @@ def saved_response(group: str, jobs: List[SetJob], out_dir: str, options: BatchO
             entry.digest = _key_digest(key)
             entry.source = "loaded"
             entry.warnings += warns
+            _restore_trust(entry, calib)
     return entry, usable
 
 
@@ -175,25 +179,37 @@ def _solve_pool(entry: ResponseEntry, usable: List[SetJob], options: BatchOption
     as ``grids``: ``{index: (frames, times, valid)}``) and save it with its key."""
     from hdrcl.core.solve import recover_response_pooled
 
+    from hdrcl.core.bracket import Bracket
+
     group, path, key = entry.group, entry.file, entry.key
     brackets, pooled, first_info = [], [], None
     for j in usable:
         if grids is not None:
             infos, grid = grids[j.index]
-            brackets.append(grid)
-            pooled.append(j.index)
-            first_info = first_info or infos[0]
-            continue
-        try:
-            opened = _open_set(j)
-            br = _calibration_grid(j, opened, options.ignore_color)
-        except HdrclError as exc:
-            entry.warnings.append(f"set {j.index} not pooled: {str(exc).splitlines()[0]}")
-            continue
-        if first_info is None:
-            first_info = opened.infos[0]
+            frames, times, valid = grid
+            br = Bracket(frames=list(frames), times=times, valid=[valid] * len(frames), paths=list(j.files),
+                         infos=list(infos), grid=True)
+        else:
+            try:
+                opened = _open_set(j)
+                br = _calibration_grid(j, opened, options.ignore_color)
+            except HdrclError as exc:
+                entry.warnings.append(f"set {j.index} not pooled: {str(exc).splitlines()[0]}")
+                continue
+            infos = opened.infos
+        first_info = first_info or infos[0]
+        verdict = set_verdict(br, options)
+        if verdict is not None:
+            entry.untrusted[j.index] = list(verdict)
         brackets.append((br.frames, br.times, br.valid_all))
         pooled.append(j.index)
+    good = [k for k, i in enumerate(pooled) if i not in entry.untrusted]
+    if good and len(good) < len(pooled):
+        # A set whose times cannot be trusted would bend the camera's curve: the good sets alone shape it.
+        for i in pooled:
+            if i in entry.untrusted:
+                entry.warnings.append(f"set {i} not pooled: {UNTRUSTED} (its findings say why)")
+        brackets, pooled = [brackets[k] for k in good], [pooled[k] for k in good]
     if not brackets:
         entry.error = "no set of this camera and ISO could be read to calibrate its response"
         return entry
@@ -211,10 +227,86 @@ def _solve_pool(entry: ResponseEntry, usable: List[SetJob], options: BatchOption
     entry.sets = pooled
     entry.warnings += list(resp.warnings)
     saved = dict(entry.payload)
-    saved["calibration"] = {"key": key, "group": group, "pooled_sets": pooled, "warnings": entry.warnings}
+    saved["calibration"] = {"key": key, "group": group, "pooled_sets": pooled, "warnings": entry.warnings,
+                            "untrusted": {str(i): v for i, v in sorted(entry.untrusted.items())}}
     _atomic_json(path, saved)
     logger.info("%s: response calibrated from sets %s -> %s", group, pooled, path)
     return entry
+
+
+# ------------------------------------------------------------------------ trust
+def set_verdict(bracket, options: BatchOptions):
+    """``(verdict, span)`` when a set's exposure metadata cannot be trusted (what
+    ``hdrcl calibrate`` of its frames would warn, :func:`hdrcl.core.calibrate.metadata_verdict`,
+    and the span in decades of its own curve), else None. ``bracket``: its sampling grid."""
+    from hdrcl.core.calibrate import metadata_verdict
+
+    try:
+        verdict, span = metadata_verdict(bracket, samples=options.samples, smoothness=options.smoothness,
+                                         weight=options.weight, seed=options.seed,
+                                         fit_exposures=options.fit_exposures,
+                                         exposure_tolerance=options.exposure_tolerance)
+    except HdrclError as exc:  # nothing to measure: the pool's solve or the merge says so
+        logger.debug("trust check: %s", exc)
+        return None
+    return None if verdict is None else (verdict, round(span, 4))
+
+
+def _restore_trust(entry: ResponseEntry, calib: dict) -> None:
+    """The pooled sets and the untrusted ones of a saved calibration (a loaded curve)."""
+    pooled = calib.get("pooled_sets")
+    if isinstance(pooled, list) and pooled and all(isinstance(i, int) for i in pooled):
+        entry.sets = list(pooled)
+    for k, v in (calib.get("untrusted") or {}).items() if isinstance(calib.get("untrusted"), dict) else ():
+        if str(k).isdigit() and isinstance(v, list) and len(v) == 2 and isinstance(v[0], str) \
+                and isinstance(v[1], (int, float)):
+            entry.untrusted[int(k)] = [v[0], float(v[1])]
+
+
+def _sets_text(indices) -> str:
+    idx = sorted(indices)
+    return ("set " if len(idx) == 1 else "sets ") + ", ".join(str(i) for i in idx)
+
+
+def trust_findings(entry: "ResponseEntry | None", job: SetJob, grid=None,
+                   options: "BatchOptions | None" = None) -> list:
+    """The findings on a set's exposure metadata (:class:`hdrcl.core.findings.Finding`,
+    check ``exposure``), as its merge with its group's curve is to report them.
+
+    A set the pool checked carries its verdict on ``entry``; one the pool's sample left
+    out is checked now, on the merge's sampling ``grid``. A set whose metadata cannot be
+    trusted is a ``note`` when the curve comes from good sets of its camera (its exposures
+    are then measured through that curve), a ``check`` when there is none (the curve is
+    its own, or that of sets no better). Given and cached curves are not asked about.
+    """
+    from hdrcl.core.exposure.fit import PREFER_GOOD
+    from hdrcl.core.findings import CHECK, NOTE, Finding
+
+    if entry is None or entry.source not in ("calibrated", "loaded"):
+        return []
+    v = entry.untrusted.get(job.index)
+    if v is None and job.index not in entry.sets and grid is not None and options is not None:
+        v = set_verdict(grid, options)  # a set the pool's sample left out
+    if v is None:
+        return []
+    verdict, span = v
+    reason = verdict[:-len(PREFER_GOOD)] if verdict.endswith(PREFER_GOOD) else verdict
+    name = f"set {job.index} ({os.path.splitext(os.path.basename(job.output))[0]})"
+    from hdrcl.core.bracket import read_infos
+    from hdrcl.core.sources import times_source
+
+    where = times_source(job.files, read_infos(job.files))  # the list the times came from, if any
+    listed = os.path.basename(where) if where else None
+    good = [i for i in entry.sets if i not in entry.untrusted]
+    if good and job.index not in entry.sets:
+        curve = os.path.basename(entry.file) if entry.file else entry.group
+        return [Finding("exposure", f"{name}: {reason}; merged with the pooled response of {_sets_text(good)} "
+                        f"of this camera ({curve}) instead, its exposures measured through it",
+                        severity=NOTE, file=listed, figure=span)]
+    times = f"the exposure times in {listed}" if listed else "the exposure times"
+    return [Finding("exposure", f"{name}: {reason}; no good set of this camera in this batch to take a "
+                    f"response from: check {times} or give --response from a good set of this camera",
+                    severity=CHECK, file=listed, figure=span)]
 
 
 def _cached(group: str, cache: str, first_info) -> "ResponseEntry | None":
@@ -269,6 +361,9 @@ def _prepare_responses(plan: _Plan, out_dir: str, options: BatchOptions, respons
     out = {}
     for g in needed:
         first = plan.firsts.get(plan.groups[g][0])
+        if len(plan.groups[g]) > 1 and first is not None and _camera_label(first) == "unknown camera":
+            logger.info("%s: %s name no camera in their EXIF and share size and bit depth: one camera, one "
+                        "response", g, _sets_text(plan.groups[g]))
         folder = cache_for(first, cache)
         if folder is not None:
             out[g] = _cached(g, folder, first)
@@ -281,9 +376,9 @@ def _prepare_responses(plan: _Plan, out_dir: str, options: BatchOptions, respons
 
 def cache_for(first_info, cache):
     """The ``--response-cache`` folder for a group whose first frame is ``first_info``,
-    or None: a group whose frames name no camera is grouped by its folder, and a folder's
-    name says nothing about the camera (another shoot's "set01" may be another camera's),
-    so it is calibrated each time and saved beside the outputs, never cached."""
+    or None: a group whose frames name no camera is one camera only within its shoot (by
+    size and bit depth; another shoot's converted frames may be another camera's), so it
+    is calibrated each time and saved beside the outputs, never cached."""
     if cache is None or first_info is None or _camera_label(first_info) == "unknown camera":
         return None
     return cache

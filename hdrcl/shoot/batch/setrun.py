@@ -279,6 +279,15 @@ class SetMerge(MergeJob):
         super().__init__(inputs, opts.merge, response_source_of(entry, job, opened.infos, opts), job.output,
                          Extras(chain=opts.luminance_chain()))
         self.kept = None
+        self.entry = entry
+
+    def respond(self) -> None:
+        super().respond()
+        # What calibrate would say of the set's exposure metadata (its group's pool asked).
+        from hdrcl.shoot.batch.pooling import trust_findings
+
+        for finding in trust_findings(self.entry, self.step.job, self.grid, self.opts):
+            self.find(finding)
 
     def fuse(self) -> None:
         from hdrcl.report.preview import AreaAverage
