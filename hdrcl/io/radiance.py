@@ -138,8 +138,22 @@ def read_radiance(path, *, require_float: bool = False) -> tuple:
             raise InputError(f"{name}: not a usable radiance map ({bad} NaN or infinite sample(s))")
     divisor = stored_scale(metadata, exposure_line)
     if divisor != 1.0:
-        pixels = (pixels.astype(np.float64) / divisor).astype(np.float32)
+        with np.errstate(over="ignore", invalid="ignore"):
+            scaled = (pixels.astype(np.float64) / divisor).astype(np.float32)
+        _check_scaled(name, pixels, scaled, divisor, rgbe)
+        pixels = scaled
     return pixels, metadata
+
+
+def _check_scaled(name: str, stored: np.ndarray, scaled: np.ndarray, divisor: float, rgbe: bool) -> None:
+    """Refuse a map whose stored scale (``EXPOSURE=``, ``hdrcl:referenceExposure``) takes
+    finite samples beyond float32 (``EXPOSURE=1e-38``): the finiteness check above ran on
+    the stored values, and an infinite radiance would reach every figure made of it."""
+    bad = int(np.count_nonzero(np.isfinite(stored) & ~np.isfinite(scaled)))
+    if bad:
+        what = "its EXPOSURE= lines" if rgbe else "its stored scale (hdrcl:referenceExposure x halfScale)"
+        raise InputError(f"{name}: {what} ({divisor:.6g} in all) take {bad} sample(s) beyond the largest float "
+                         f"(3.4e38); not a usable radiance map (check the header)")
 
 
 def _is_rgbe(name: str) -> bool:

@@ -50,6 +50,7 @@ from hdrcl.errors import InputError, UsageError
 logger = logging.getLogger(__name__)
 
 __all__ = ["GlareSource", "GlareResult", "glare_metrics", "glare_of_file", "ViewSpec", "parse_glare_view",
+           "check_luminance",
            "calibration_from_measurement", "calibrate_luminance_file",
            "DEFAULT_THRESHOLD", "PEAK_LIMIT", "SEARCH_ANGLE"]
 
@@ -290,6 +291,7 @@ def glare_metrics(lum: np.ndarray, view: ViewSpec, *, threshold: float = DEFAULT
     if not (threshold > 0 and math.isfinite(threshold)):
         raise UsageError(f"--threshold: expected a positive factor (<= 100) or luminance (> 100), not {threshold:g}")
     lum = np.asarray(lum, np.float64)
+    check_luminance(lum)
     h, w = lum.shape
     dirs, omega = pixel_geometry(h, w, view)
     vdir = _frame(view)[0]
@@ -363,7 +365,23 @@ def read_luminance_map(path) -> Tuple[np.ndarray, Optional[str]]:
                              "--reference-patch or the luminance options (--lens-circle ...)")
         rgb = rgb * white
     lum = rgb[..., 0] if rgb.shape[2] == 1 else rgb @ RADIANCE_CIE
+    check_luminance(lum, name)
     return lum, view
+
+
+def check_luminance(lum: np.ndarray, where: str = "luminance map") -> None:
+    """Refuse (:class:`InputError`, exit 3) a map with negative or non-finite luminance:
+    no light is negative, and every figure here (Ev, the average, DGP) sums it; a map
+    whose luminances are all negative gave Ev -30.7 lx and an average of -16.7 cd/m2."""
+    lum = np.asarray(lum)
+    bad = ~np.isfinite(lum)
+    if bad.any():
+        raise InputError(f"{where}: not a usable luminance map ({int(bad.sum())} NaN or infinite luminance(s))")
+    neg = lum < 0
+    if neg.any():
+        raise InputError(f"{where}: not a usable luminance map ({int(neg.sum())} of {lum.size} pixel(s) have negative "
+                         f"luminance, down to {float(lum.min()):.4g} cd/m2); light is not negative: check how it "
+                         "was made (a calibration, a subtraction)")
 
 
 def glare_of_file(path, *, view: Optional[str] = None, threshold: float = DEFAULT_THRESHOLD) -> GlareResult:
@@ -415,7 +433,7 @@ def calibration_from_measurement(path, *, illuminance: Optional[float] = None, l
             raise UsageError("--luminance: needs --patch COLUMN,ROW,RADIUS (the measured spot on the map)")
         cx, cy, r = _parse_patch(patch)
         rows, cols = np.mgrid[0:lum.shape[0], 0:lum.shape[1]]
-        disc = (cols + 0.5 - cx) ** 2 + (rows + 0.5 - cy) ** 2 <= r * r
+        disc = np.hypot(cols + 0.5 - cx, rows + 0.5 - cy) <= r  # no squares: 1e200 would overflow to inf
         if not disc.any():
             raise UsageError(f"--patch: {patch} holds no pixel centre of the {lum.shape[1]}x{lum.shape[0]} map")
         value = float(np.mean(lum[disc]))
@@ -432,6 +450,11 @@ def calibration_from_measurement(path, *, illuminance: Optional[float] = None, l
         except (ValueError, TypeError, AttributeError):
             previous = 1.0
     k = previous * measured / value
+    from hdrcl.io.radcal import check_factor_range
+
+    # refused where it is made: merge --calibration-factor would refuse it (a K of 3.62e298
+    # from --illuminance 1e300)
+    check_factor_range(k, f"{flag} {measured:g} (calibration factor {previous:g} x measured / map {value:.6g})")
     return {"calibration_factor": k, "measured": measured, "map_value": value, "quantity": what,
             "previous_factor": previous}
 
