@@ -171,3 +171,67 @@ def test_command_refuses_relative_map_with_exit_3(tmp_path):
     write_radiance(tmp_path / "rel.exr", np.ones((8, 8, 3), np.float32), metadata={"referenceExposure": 0.5})
     r = CliRunner().invoke(main, ["falsecolor", str(tmp_path / "rel.exr"), "-o", str(tmp_path / "fc.png")])
     assert r.exit_code == 3 and "rel.exr: not a luminance map" in r.output
+
+
+def _ramp_map(path):
+    lum = np.geomspace(1.0, 2e4, 64 * 64).reshape(64, 64)
+    lum[0, 0] = 144.6
+    write_radiance(path, np.repeat((lum / 179.0)[..., None], 3, axis=2).astype(np.float32),
+                   metadata={"units": "cd/m2", "luminanceChain": '{"calibrationFactor": 1.0}'})
+    return lum
+
+
+def test_log_scale_of_400_decades_puts_144_cd_near_the_middle(tmp_path):
+    """--min 1e-200 --max 1e200: max / min overflowed, the decades were inf and every pixel
+    got the top colour; 144.6 cd/m2 sits at v = 0.505."""
+    v = fc.colour_index(np.array([144.6, 1e-300, 1e199]), "log", 1e-200, 1e200)
+    assert v[0] == pytest.approx((math.log10(144.6) - 200) / 400 + 1, rel=1e-12) and v[1] == 0.0
+    assert v[2] == pytest.approx(0.9975)
+    _ramp_map(tmp_path / "m.hdr")
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r = CliRunner().invoke(main, ["falsecolor", str(tmp_path / "m.hdr"), "-o", str(tmp_path / "fc.png"),
+                                      "--scale", "log", "--min", "1e-200", "--max", "1e200"])
+    assert r.exit_code == 0, r.output
+    img = _read_png(tmp_path / "fc.png")
+    top = (fc.display_codes(fc.palette(np.array([1.0])))[0]).astype(int)
+    mid = (fc.display_codes(fc.palette(np.array([0.505])))[0]).astype(int)
+    assert np.abs(img[0, 0, :3].astype(int) - mid).max() <= 1 and np.abs(img[0, 0, :3].astype(int) - top).max() > 10
+
+
+def test_multiplier_past_the_largest_float_names_the_multiplier(tmp_path):
+    """--multiplier 1e308 blamed '--max ... not inf' (never given) after a two-line NumPy warning."""
+    import warnings
+
+    _ramp_map(tmp_path / "m.hdr")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r = CliRunner().invoke(main, ["falsecolor", str(tmp_path / "m.hdr"), "-o", str(tmp_path / "fc.png"),
+                                      "--multiplier", "1e308"])
+    assert r.exit_code == 2, r.output
+    lines = r.output.strip().splitlines()
+    assert len(lines) == 1 and "--multiplier: 1e+308" in lines[0] and "m.hdr" in lines[0] and "--max" not in lines[0]
+    assert not (tmp_path / "fc.png").exists()
+    # just below the edge: drawn, scale in range
+    r = CliRunner().invoke(main, ["falsecolor", str(tmp_path / "m.hdr"), "-o", str(tmp_path / "fc.png"),
+                                  "--multiplier", "1e303"])
+    assert r.exit_code == 0, r.output
+
+
+@pytest.mark.parametrize("scale", ["linear", "log"])
+def test_subnormal_max_draws_without_numpy_warnings(tmp_path, scale):
+    """--max 1e-320 drew correctly but printed a two-line NumPy overflow warning (and with
+    --scale log the default min underflowed to 0 and was refused)."""
+    import warnings
+
+    _ramp_map(tmp_path / "m.hdr")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r = CliRunner().invoke(main, ["falsecolor", str(tmp_path / "m.hdr"), "-o", str(tmp_path / "fc.png"),
+                                      "--max", "1e-320", "--scale", scale])
+    assert r.exit_code == 0, r.output
+    img = _read_png(tmp_path / "fc.png")
+    top = (fc.display_codes(fc.palette(np.array([1.0])))[0]).astype(int)
+    assert np.abs(img[10, 10, :3].astype(int) - top).max() <= 1  # everything above max: the top colour

@@ -218,3 +218,64 @@ def test_noise_like_sources_are_joined_on_a_coarser_grid(monkeypatch, caplog):
         g = G.glare_metrics(lum, G.parse_glare_view("-vta -vh 180 -vv 180"))
     assert any("source edge pixels" in r.getMessage() for r in caplog.records)
     assert np.isfinite([g.dgp, g.dgi, g.ugr, g.vertical_illuminance]).all() and g.sources
+
+
+def _discs(h, w, discs, background=30.0):
+    """A picture in cd/m^2: ``background`` with discs (column, row, radius in pixels, luminance)."""
+    xx, yy = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    lum = np.full((h, w), background)
+    for cx, cy, r, value in discs:
+        lum[np.hypot(xx - cx, yy - cy) < r] = value
+    return lum
+
+
+def _write_hw(radiance_bin, path, lum, view):
+    h, w = lum.shape
+    rgb = np.repeat((lum / 179.0)[..., None], 3, axis=2).astype(np.float32)
+    data = subprocess.run([str(radiance_bin / "pvalue"), "-r", "-h", "-df", "-y", str(h), "+x", str(w)],
+                          input=rgb.tobytes(), capture_output=True, check=True, timeout=60).stdout
+    data = subprocess.run([str(radiance_bin / "getinfo"), "-a", f"VIEW= {view}"], input=data, capture_output=True,
+                          check=True, timeout=60).stdout
+    Path(path).write_bytes(data)
+
+
+POSITION_SCENES = {
+    # evalglare 2.x's Iwata form gave DGP 0.3184 / UGR 35.77 here, evalglare 3.06 0.3034 / 34.38
+    "a source below the sightline": (200, 200, "-vta -vh 180 -vv 180", [(130, 150, 8, 20000.0)]),
+    "straight down, far below": (200, 200, "-vta -vh 180 -vv 180", [(100.5, 185.5, 3, 50000.0)]),
+    # on the horizon 77 degrees off axis (centroids a hair below it): P 4.60 (Iwata) vs 5.92
+    "two sources on the horizon 77 degrees off axis": (200, 200, "-vta -vh 180 -vv 180",
+                                                       [(185.6, 100, 5, 20000.0), (14.4, 100, 5, 20000.0)]),
+    "a 128x64 map with a sun below the sightline near its edge": (64, 128, "-vta -vh 180 -vv 180",
+                                                                  [(120.3, 40.2, 1.5, 3e5), (30, 20, 4, 5000.0)]),
+    "a 151x97 hemispherical map, sources near its rim": (97, 151, "-vth -vh 180 -vv 180",
+                                                          [(140.2, 60.3, 2.5, 9000.0), (70, 92.5, 2, 40000.0)]),
+}
+
+
+@pytest.mark.parametrize("name", sorted(POSITION_SCENES))
+def test_position_index_below_the_sightline_equals_evalglare_3(tmp_path, radiance_bin, name):
+    """Below the line of sight evalglare 3.02+ uses the CIE 2010 position index (Guth's at
+    tau = 90 degrees), not Iwata's older 1 + 0.8 r / 1 + 1.2 r: hdrcl gives evalglare 3.06's
+    figures to its printed digits on sources below the sightline, on the horizon and near
+    the edge of the map."""
+    h, w, view, discs = POSITION_SCENES[name]
+    path = tmp_path / "p.hdr"
+    _write_hw(radiance_bin, path, _discs(h, w, discs), view)
+    want = _evalglare(radiance_bin, path)
+    got = g.glare_of_file(path)
+    assert got.vertical_illuminance == pytest.approx(want["E_v"], rel=1e-4)
+    assert abs(got.dgp - want["dgp"]) <= 0.0005, (got.dgp, want["dgp"])
+    assert abs(got.ugr - want["ugr"]) <= 0.05, (got.ugr, want["ugr"])
+    assert abs(got.dgi - want["dgi"]) <= 0.05, (got.dgi, want["dgi"])
+
+
+def test_position_index_is_continuous_across_the_sightline():
+    """Guth's form above and the CIE 2010 form below meet on the horizon (tau = 90 there)."""
+    view = g.parse_glare_view("-vta -vh 180 -vv 180")
+    for az in (10.0, 45.0, 77.0):
+        a = math.radians(az)
+        up = np.array([math.sin(a), math.cos(a) * math.cos(1e-6), math.sin(1e-6)])
+        down = np.array([math.sin(a), math.cos(a) * math.cos(1e-6), -math.sin(1e-6)])
+        p = g.position_index(np.stack([up, down]), view)
+        assert p[0] == pytest.approx(p[1], rel=1e-4)

@@ -21,7 +21,7 @@ LAYERS = [
     ("core", ["hdrcl.core"]),
     ("cl", ["hdrcl.cl"]),
     ("io", ["hdrcl.io"]),
-    ("base", ["hdrcl.errors", "hdrcl.version"]),
+    ("base", ["hdrcl.errors", "hdrcl.version", "hdrcl.env"]),
 ]
 #: Modules of the package root that are entry points, above every layer.
 TOP = {"hdrcl", "hdrcl.__main__"}
@@ -179,7 +179,8 @@ def private_imports(mods) -> list:
 
 
 #: All the command line may import of hdrcl besides itself.
-CLI_MAY_IMPORT = ("hdrcl.api", "hdrcl.core.params", "hdrcl.errors", "hdrcl.version", "hdrcl.cli")
+CLI_MAY_IMPORT = ("hdrcl.api", "hdrcl.core.params", "hdrcl.errors", "hdrcl.version", "hdrcl.env",
+                  "hdrcl.cli")
 
 
 def cli_imports(mods) -> list:

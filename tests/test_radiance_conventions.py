@@ -128,3 +128,46 @@ def test_evalglare_takes_the_chain_map_after_pcomb(absolute_merge, radiance_bin)
     head = (d / "fish.hdr").read_bytes().split(b"\n\n")[0].decode().split("\n")
     ours = float(next(x for x in head if x.startswith("VERTICAL_ILLUMINANCE=")).split("=")[1])
     assert ev == pytest.approx(ours, rel=5e-3)
+
+
+@pytest.mark.parametrize("resolution", ["-y 5 +x 7", "+y 5 +x 7", "-y 5 -x 7", "+y 5 -x 7", "+x 7 -y 5",
+                                        "-x 7 +y 5", "+x 7 +y 5", "-x 7 -y 5"])
+def test_resolution_line_orientation_as_radiance_reads_it(tmp_path, radiance_bin, resolution):
+    """A picture stored ``+Y 5 +X 7`` (bottom scanline first) or column-major is read in
+    picture order, top row first, as Radiance's ra_tiff says (its TIFF Orientation tag,
+    applied by OpenImageIO's reorient); OpenImageIO alone returns the file's scanline
+    order, and tonemap wrote such a map upside down."""
+    import OpenImageIO as oiio
+
+    from hdrcl.io.radiance import radiance_header
+
+    values = np.arange(35, dtype=np.float32) + 1.0
+    data = _run(radiance_bin, "pvalue", "-r", "-h", "-df", *resolution.split(),
+                stdin=np.repeat(values, 3).astype(np.float32).tobytes())
+    (tmp_path / "o.hdr").write_bytes(data)
+    _run(radiance_bin, "ra_tiff", "-f", tmp_path / "o.hdr", tmp_path / "o.tif")
+    want = oiio.ImageBufAlgo.reorient(oiio.ImageBuf(str(tmp_path / "o.tif"))).get_pixels(oiio.FLOAT)[..., 0]
+    got, _ = read_radiance(tmp_path / "o.hdr")
+    assert got.shape[:2] == (5, 7) and radiance_header(tmp_path / "o.hdr")[:2] == (7, 5)
+    np.testing.assert_allclose(got[..., 0], want, rtol=0.01)
+
+
+def test_tonemap_of_a_bottom_first_hdr_is_upright(tmp_path, radiance_bin):
+    """The same picture stored ``-Y`` and ``+Y``: tonemap writes the same PNG."""
+    from click.testing import CliRunner
+
+    from hdrcl.cli import main
+
+    img = np.full((24, 32, 3), 0.05, np.float32)
+    img[2:6, 3:9] = 5.0  # a bright patch near the top left
+    _picture(radiance_bin, tmp_path / "top.hdr", img)
+    data = _run(radiance_bin, "pvalue", "-r", "-h", "-df", "+y", 24, "+x", 32, stdin=img[::-1].tobytes())
+    (tmp_path / "bottom.hdr").write_bytes(data)
+    for name in ("top", "bottom"):
+        r = CliRunner().invoke(main, ["tonemap", str(tmp_path / f"{name}.hdr"), "-o", str(tmp_path / f"{name}.png")])
+        assert r.exit_code == 0, r.output
+    import OpenImageIO as oiio
+
+    a = oiio.ImageInput.open(str(tmp_path / "top.png")).read_image(0, 0, 0, 3, "uint8")
+    b = oiio.ImageInput.open(str(tmp_path / "bottom.png")).read_image(0, 0, 0, 3, "uint8")
+    assert a[3, 5].max() > a[20, 20].max() and np.array_equal(a, b)

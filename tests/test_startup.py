@@ -106,10 +106,14 @@ def test_opencl_off_still_wins(fresh):
     assert backend.get_processor("fusion", work=10 ** 9) is None
 
 
-def test_a_bad_threshold_is_said_and_ignored(fresh, records):
+def test_a_bad_threshold_is_refused_naming_it(fresh, records):
+    """hdrcl.env's one rule (issue 34): a value the variable does not take is a UsageError
+    (it used to warn and go on with the default)."""
+    from hdrcl.errors import UsageError
+
     fresh.setenv("HDRCL_SMALL_WORK", "lots")
-    assert backend.small_work() == backend.SMALL_WORK
-    assert any("HDRCL_SMALL_WORK" in r.getMessage() and r.levelno == logging.WARNING for r in records)
+    with pytest.raises(UsageError, match="HDRCL_SMALL_WORK='lots'"):
+        backend.small_work()
     fresh.setenv("HDRCL_SMALL_WORK", "2e6")
     assert backend.small_work() == 2_000_000
 

@@ -26,19 +26,16 @@ logger = logging.getLogger(__name__)
 _warned = set()
 
 
-def _flag(name: str) -> Optional[bool]:
-    v = os.environ.get(name)
-    if v is None or v.strip() == "":
-        return None
-    return v.strip().lower() not in ("0", "false", "no", "off")
-
-
 def opencl_required() -> bool:
-    return bool(_flag("HDRCL_REQUIRE_OPENCL"))
+    from hdrcl.env import flag  # the one rule of every HDRCL_* variable (exit 2 on a value it does not take)
+
+    return flag("HDRCL_REQUIRE_OPENCL")
 
 
 def opencl_enabled() -> bool:
-    return _flag("HDRCL_OPENCL") is not False
+    from hdrcl.env import flag
+
+    return flag("HDRCL_OPENCL")
 
 
 def _warn_once(msg: str) -> None:
@@ -60,17 +57,10 @@ SMALL_WORK = 600_000
 def small_work() -> int:
     """The threshold in force: ``HDRCL_SMALL_WORK`` (an integer; 0 turns the small-job
     path off), else :data:`SMALL_WORK`."""
-    v = (os.environ.get("HDRCL_SMALL_WORK") or "").strip().replace("_", "")
-    if not v:
-        return SMALL_WORK
-    try:
-        n = float(v)
-        if n != n or n < 0:
-            raise ValueError(v)
-        return int(min(n, 1 << 62))
-    except ValueError:
-        _warn_once(f"HDRCL_SMALL_WORK={v!r} is not a number of pixel-samples: using {SMALL_WORK}")
-        return SMALL_WORK
+    from hdrcl.env import number
+
+    n = number("HDRCL_SMALL_WORK")
+    return SMALL_WORK if n is None else int(min(n, 1 << 62))
 
 
 def _info_once(key: str, msg: str) -> None:

@@ -149,7 +149,9 @@ _COMPILER_ENV_PREFIXES = ("POCL_", "CL_CONFIG_")
 
 def program_cache_dir() -> Optional[str]:
     """The folder of cached program binaries, or None when HDRCL_PROGRAM_CACHE=0."""
-    if (os.environ.get("HDRCL_PROGRAM_CACHE") or "1").strip().lower() in ("0", "no", "false", "off"):
+    from hdrcl.env import flag
+
+    if not flag("HDRCL_PROGRAM_CACHE"):
         return None
     return os.path.join(cache_root(), "programs")
 

@@ -31,6 +31,8 @@ import sys
 import tempfile
 from typing import Dict, List, Optional
 
+from hdrcl.env import flag as env_flag
+
 #: Platform names of the CPU drivers, in hdrcl's order of preference when no GPU builds
 #: the kernels. Intel's runtime first: it builds on every x86-64 processor and its fusion
 #: kernel was faster than the PyPI PoCL's where both work (docs/install.md, "Which OpenCL
@@ -97,7 +99,9 @@ def _system_icds() -> Dict[str, str]:
 def cache_root() -> str:
     """hdrcl's cache folder: ``HDRCL_CACHE_DIR``, else ``$XDG_CACHE_HOME/hdrcl``, else
     ``~/.cache/hdrcl`` (the OpenCL vendors list, built kernel binaries)."""
-    own = os.environ.get("HDRCL_CACHE_DIR")
+    from hdrcl.env import text
+
+    own = text("HDRCL_CACHE_DIR")
     if own:
         return own
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
@@ -157,7 +161,7 @@ def prepare_icd_environment() -> Dict[str, Optional[str]]:
             st["vendors"] = os.environ.get("OCL_ICD_VENDORS")
             if st["set_by"] == "user":
                 st["note"] = "OCL_ICD_VENDORS/OCL_ICD_FILENAMES set by the user: left as they are"
-        elif (os.environ.get("HDRCL_ICD_SETUP") or "1").strip().lower() in ("0", "no", "false", "off"):
+        elif not env_flag("HDRCL_ICD_SETUP"):
             st["note"] = "HDRCL_ICD_SETUP=0: the ICD loader's own search is used"
         elif not sys.platform.startswith("linux"):
             st["note"] = "not Linux: the ICD loader's own search is used"
@@ -190,7 +194,9 @@ def cpu_driver_order() -> List[str]:
     ``HDRCL_CPU_DRIVERS`` (comma-separated short or platform names, e.g. ``pocl,intel-cpu``)
     first, then :data:`CPU_DRIVER_PREFERENCE`."""
     order: List[str] = []
-    for item in (os.environ.get("HDRCL_CPU_DRIVERS") or "").split(","):
+    from hdrcl.env import text
+
+    for item in (text("HDRCL_CPU_DRIVERS") or "").split(","):
         name = DRIVER_ALIASES.get(item.strip().lower(), item.strip())
         if name and name not in order:
             order.append(name)

@@ -6,7 +6,6 @@ top-level ``kernels/`` folder.
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 from hdrcl.errors import HdrclError
@@ -17,7 +16,9 @@ def kernel_dir() -> Path:
 
     ``HDRCL_KERNEL_DIR`` overrides the search (for kernel development).
     """
-    env = os.environ.get("HDRCL_KERNEL_DIR")
+    from hdrcl.env import text
+
+    env = text("HDRCL_KERNEL_DIR")
     here = Path(__file__).resolve().parent.parent  # the hdrcl package
     for cand in ([Path(env)] if env else []) + [here / "kernels", here.parent / "kernels"]:
         if (cand / "fusion.cl").is_file():

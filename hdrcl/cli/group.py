@@ -330,9 +330,14 @@ def main(ctx, max_pixels):
     Exit codes: 0 success, 1 processing failed, 2 usage error, 3 unreadable or
     inconsistent input, 130 interrupted, 143 terminated.
     Environment: PYOPENCL_CTX picks the device (or --device); HDRCL_OPENCL=0 uses the
-    slower NumPy path; HDRCL_MAX_PIXELS bounds the pixels of one frame (--max-pixels).
+    slower NumPy path; HDRCL_MAX_PIXELS bounds the pixels of one frame (--max-pixels);
+    HDRCL_MEMORY_MB the decoded frames held in memory. A variable set to a value it
+    does not take is a usage error (exit 2); docs/cli.md lists them all.
     """
     ctx.ensure_object(dict)
+    from hdrcl.env import check_all
+
+    check_all()  # every HDRCL_* variable, one rule: a value it does not take is exit 2 (docs/cli.md)
     if max_pixels is not None:  # the environment carries it to batch workers too
         os.environ["HDRCL_MAX_PIXELS"] = str(max_pixels)
     _setup_logging()

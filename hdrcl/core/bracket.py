@@ -169,11 +169,9 @@ def memory_budget() -> int:
     Above it, the report measures the decimated sampling grid instead. (Merging never
     holds whole frames, except with ``--align``: calibration streams.)
     """
-    try:
-        mb = float(os.environ.get("HDRCL_MEMORY_MB", "1024"))
-    except ValueError:
-        raise UsageError(f"HDRCL_MEMORY_MB must be a number of megabytes, not {os.environ['HDRCL_MEMORY_MB']!r}")
-    return int(mb * (1 << 20))
+    from hdrcl.env import number
+
+    return int(number("HDRCL_MEMORY_MB") * (1 << 20))
 
 
 def _with_ignore(frames, valid, rgb):

@@ -97,7 +97,9 @@ def decode_ahead(paths: Sequence, infos, open_reader: Callable, stop=None) -> bo
     registry's lock, so a set read after a cancel is never decoded ahead."""
     from hdrcl.io.framecache import MEMORY_SHARE_DIVISOR, memory_budget_bytes
 
-    if infos is None or not paths or os.environ.get("HDRCL_DECODE_AHEAD", "").strip() == "0":
+    from hdrcl.env import flag
+
+    if infos is None or not paths or not flag("HDRCL_DECODE_AHEAD"):
         return False
     first = infos[0]
     nch = 3 if first.nchannels >= 3 else 1

@@ -31,24 +31,20 @@ MEMORY_SHARE_DIVISOR = 4
 
 def memory_budget_bytes() -> int:
     """This process's share of ``HDRCL_MEMORY_MB`` in bytes (default
-    :data:`DEFAULT_MEMORY_MB`, divided between a batch's worker processes); an unusable
-    value falls back to the default here (the CLI refuses it up front)."""
-    try:
-        mb = float(os.environ.get("HDRCL_MEMORY_MB", DEFAULT_MEMORY_MB))
-    except ValueError:
-        mb = DEFAULT_MEMORY_MB
-    if not (mb > 0 and np.isfinite(mb)):
-        mb = DEFAULT_MEMORY_MB
-    try:
-        share = max(1, int(os.environ.get("HDRCL_MEMORY_SHARE", "1")))
-    except ValueError:
-        share = 1
+    :data:`DEFAULT_MEMORY_MB`, divided between a batch's worker processes); a value the
+    variable does not take (``abc``, 0) is a UsageError naming it (:mod:`hdrcl.env`: the
+    CLI checks every variable up front, a script gets the same error here)."""
+    from hdrcl.env import number
+
+    mb = number("HDRCL_MEMORY_MB")
+    share = number("HDRCL_MEMORY_SHARE")
     return int(mb * (1 << 20) / share)
 
 
 def _scratch_dir() -> str:
-    d = os.environ.get("HDRCL_SCRATCH_DIR")
-    return d if d and os.path.isdir(d) else tempfile.gettempdir()
+    from hdrcl.env import text
+
+    return text("HDRCL_SCRATCH_DIR") or tempfile.gettempdir()
 
 
 class FrameCache:

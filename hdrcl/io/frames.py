@@ -455,18 +455,9 @@ def max_pixels() -> int:
     """Pixels one frame may have (``HDRCL_MAX_PIXELS``, or ``hdrcl --max-pixels``;
     default one gigapixel). Checked from the header, before anything is decoded, so a
     small file that inflates to an enormous image is refused at once."""
-    from hdrcl.errors import UsageError
+    from hdrcl.env import number
 
-    text = os.environ.get("HDRCL_MAX_PIXELS", "").strip()
-    if not text:
-        return DEFAULT_MAX_PIXELS
-    try:
-        value = int(float(text))
-    except (ValueError, OverflowError):
-        value = 0
-    if value < 1:
-        raise UsageError(f"HDRCL_MAX_PIXELS must be a positive number of pixels, not {text!r}")
-    return value
+    return number("HDRCL_MAX_PIXELS")
 
 
 def check_pixel_limit(info: FrameInfo) -> None:

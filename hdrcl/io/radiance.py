@@ -43,7 +43,10 @@ def radiance_header(path) -> tuple:
     inp = open_input(name)
     try:
         spec = inp.spec()
-        return int(spec.width), int(spec.height), len(_pick_channels(spec, name))
+        width, height = int(spec.width), int(spec.height)
+        if _is_rgbe(name) and rgbe_orientation(name)[1] == "X":  # columns as scanlines
+            width, height = height, width
+        return width, height, len(_pick_channels(spec, name))
     finally:
         inp.close()
 
@@ -124,6 +127,7 @@ def read_radiance(path, *, require_float: bool = False) -> tuple:
     if data.ndim == 2:
         data = data[:, :, None]
     if rgbe:
+        data = to_picture_order(data, rgbe_orientation(name))
         data = rgbe_centre(data)
         header = hdr_header(name)
         exposure_line = header["exposure"]
@@ -138,8 +142,56 @@ def read_radiance(path, *, require_float: bool = False) -> tuple:
             raise InputError(f"{name}: not a usable radiance map ({bad} NaN or infinite sample(s))")
     divisor = stored_scale(metadata, exposure_line)
     if divisor != 1.0:
-        pixels = (pixels.astype(np.float64) / divisor).astype(np.float32)
+        with np.errstate(over="ignore", invalid="ignore"):
+            scaled = (pixels.astype(np.float64) / divisor).astype(np.float32)
+        _check_scaled(name, pixels, scaled, divisor, rgbe)
+        pixels = scaled
     return pixels, metadata
+
+
+def _check_scaled(name: str, stored: np.ndarray, scaled: np.ndarray, divisor: float, rgbe: bool) -> None:
+    """Refuse a map whose stored scale (``EXPOSURE=``, ``hdrcl:referenceExposure``) takes
+    finite samples beyond float32 (``EXPOSURE=1e-38``): the finiteness check above ran on
+    the stored values, and an infinite radiance would reach every figure made of it."""
+    bad = int(np.count_nonzero(np.isfinite(stored) & ~np.isfinite(scaled)))
+    if bad:
+        what = "its EXPOSURE= lines" if rgbe else "its stored scale (hdrcl:referenceExposure x halfScale)"
+        raise InputError(f"{name}: {what} ({divisor:.6g} in all) take {bad} sample(s) beyond the largest float "
+                         f"(3.4e38); not a usable radiance map (check the header)")
+
+
+def rgbe_orientation(path) -> str:
+    """The resolution line's axes of a Radiance picture, e.g. ``-Y+X`` (the standard: top
+    scanline first, left to right) or ``+Y+X`` (bottom scanline first); ``-Y+X`` when the
+    line cannot be read (the decoder then refuses the file)."""
+    with open(os.fspath(path), "rb") as fh:
+        head = fh.read(1 << 20)  # the header and the resolution line (headers are a few kB)
+    _, _, rest = head.partition(b"\n\n")
+    words = rest.split(b"\n", 1)[0].split()
+    if len(words) == 4 and all(len(w) == 2 and w[:1] in b"+-" and w[1:] in b"XY" for w in words[::2]) \
+            and words[0][1:] != words[2][1:]:
+        return (words[0] + words[2]).decode("ascii")
+    return "-Y+X"
+
+
+def to_picture_order(data: np.ndarray, orientation: str) -> np.ndarray:
+    """Scanlines as a file stores them (what OpenImageIO returns: ``(first axis, second
+    axis, C)``) put in picture order, top row first, left to right, as Radiance's
+    resolution line says (``+Y``: the first scanline is the bottom; ``-X``: right to
+    left; ``X`` first: the scanlines are columns). OpenImageIO ignores the line, so a
+    ``+Y 64 +X 64`` file was tone mapped upside down; ``ra_tiff``'s Orientation tag is
+    the oracle (tests/test_radiance_conventions.py)."""
+    if orientation == "-Y+X":
+        return data
+    if orientation[1] == "X":  # column-major: the scanlines are columns
+        data = np.swapaxes(data, 0, 1)
+    ysign = orientation[0] if orientation[1] == "Y" else orientation[2]
+    xsign = orientation[2] if orientation[1] == "Y" else orientation[0]
+    if ysign == "+":
+        data = data[::-1]
+    if xsign == "-":
+        data = data[:, ::-1]
+    return np.ascontiguousarray(data)
 
 
 def _is_rgbe(name: str) -> bool:

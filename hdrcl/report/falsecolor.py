@@ -123,8 +123,9 @@ def nice_max(value: float) -> float:
     k = math.floor(math.log10(value))
     for m in (1.0, 2.0, 5.0, 10.0):
         if m * 10.0 ** k >= value * (1 - 1e-12):
-            return m * 10.0 ** k
-    return 10.0 ** (k + 1)
+            # near the largest float (a --multiplier of 1e308) the rounded value overflows
+            return m * 10.0 ** k if math.isfinite(m * 10.0 ** k) else value
+    return value
 
 
 def default_limits(lum: np.ndarray, scale: str) -> Tuple[float, float]:
@@ -134,7 +135,8 @@ def default_limits(lum: np.ndarray, scale: str) -> Tuple[float, float]:
         return (0.0, 1.0) if scale == "linear" else (1e-4, 1.0)
     if scale == "linear":
         return 0.0, nice_max(float(np.percentile(pos, 99)))
-    hi = 10.0 ** math.ceil(math.log10(float(pos.max())) - 1e-12)
+    top = math.ceil(math.log10(float(pos.max())) - 1e-12)
+    hi = 10.0 ** top if top <= 308 else float(pos.max())
     decades = int(np.clip(math.ceil(math.log10(hi / float(np.percentile(pos, 1))) - 1e-12), 1, 8))
     return hi / 10.0 ** decades, hi
 
@@ -149,7 +151,7 @@ def scale_limits(lum: np.ndarray, scale: str, lo: Optional[float], hi: Optional[
     hi = float(hi)
     if not (hi > 0 and math.isfinite(hi)):
         raise UsageError(f"--max: expected a positive luminance in cd/m2, not {hi:g}")
-    lo = (dlo if dlo < hi else (0.0 if scale == "linear" else hi / 1e4)) if lo is None else float(lo)
+    lo = (dlo if dlo < hi else (0.0 if scale == "linear" else max(hi / 1e4, 5e-324))) if lo is None else float(lo)
     if not (math.isfinite(lo) and lo < hi and (lo > 0 or scale == "linear") and lo >= 0):
         raise UsageError(f"--min: expected 0 <= min < max ({hi:g}) (min > 0 for --scale log), not {lo:g}")
     return lo, hi
@@ -162,11 +164,23 @@ def colour_index(lum: np.ndarray, scale: str, lo: float, hi: float) -> np.ndarra
     good = np.isfinite(lum) & (lum > 0)
     safe = np.where(good, lum, 1.0)
     if scale == "log":
-        decades = math.log10(hi / lo)
-        v = np.where(safe / hi > 10.0 ** -decades, np.log10(safe / hi) / decades + 1.0, 0.0)
+        # in logarithms: max / min of 1e200 / 1e-200 overflowed, and every pixel got the top colour
+        decades = log_decades(lo, hi)
+        x = np.log10(safe) - math.log10(hi)
+        v = np.where(x > -decades, x / decades + 1.0, 0.0)
     else:
-        v = np.maximum((safe - lo) / (hi - lo), 0.0)
-    return np.where(good, v, 0.0)
+        with np.errstate(over="ignore"):  # a --max of 1e-320 (subnormal) takes v past the largest float
+            v = np.maximum((safe - lo) / (hi - lo), 0.0)
+    return np.where(good, np.minimum(v, V_LIMIT), 0.0)
+
+
+#: ``v`` is capped here (far above 1, the top of the scale): no infinity reaches the palette.
+V_LIMIT = 1e6
+
+
+def log_decades(lo: float, hi: float) -> float:
+    """``log10(max / min)`` computed as a difference (no overflow for 1e-200 .. 1e200)."""
+    return math.log10(hi) - math.log10(lo)
 
 
 def _clip(x):
@@ -270,7 +284,7 @@ def legend(height: int, scale: str, lo: float, hi: float, text_scale: int = 2, *
         rows = np.arange(y0, y1)
         v = 1.0 - (rows - top + 0.5) / (ndivs * step)
         pane[y0:y1, 4:24] = palette(v, name)[:, None, :]
-        value = lo + imap * (hi - lo) if scale == "linear" else hi * 10.0 ** ((imap - 1) * math.log10(hi / lo))
+        value = lo + imap * (hi - lo) if scale == "linear" else 10.0 ** (math.log10(hi) + (imap - 1) * log_decades(lo, hi))
         _stamp(pane, text_mask(_label(value), text_scale), (y0 + y1) // 2 - 2 * text_scale, 28)
     return pane
 
@@ -302,6 +316,20 @@ def render(lum: np.ndarray, *, scale: str = "linear", lo: Optional[float] = None
     return display_codes(np.concatenate([canvas, pane], axis=1)), (lo, hi)
 
 
+def scaled_luminance(lum: np.ndarray, multiplier: float, path="map") -> np.ndarray:
+    """``lum x multiplier``, refused (UsageError naming ``--multiplier``) where a finite
+    luminance would become infinite (``--multiplier 1e308`` blamed a ``--max`` never given,
+    after a raw NumPy warning)."""
+    with np.errstate(over="ignore"):
+        out = lum * multiplier
+    over = np.isfinite(lum) & ~np.isfinite(out)
+    if over.any():
+        raise UsageError(f"--multiplier: {multiplier:g} takes {int(over.sum())} luminance(s) of {os.fspath(path)} (up "
+                         f"to {float(np.max(lum[over])):.4g} cd/m2) past the largest number (1.8e308); use a "
+                         "smaller multiplier")
+    return out
+
+
 def falsecolor_file(path, output, *, scale: str = "linear", lo: Optional[float] = None,
                     hi: Optional[float] = None, palette_name: str = "def", contour: Optional[str] = None,
                     ndivs: int = DEFAULT_DIVISIONS, show_extrema: bool = False, multiplier: float = 1.0,
@@ -314,7 +342,7 @@ def falsecolor_file(path, output, *, scale: str = "linear", lo: Optional[float] 
         raise UsageError(f"--multiplier: expected a positive factor, not {multiplier:g}")
     if palette_name not in PALETTES:
         raise UsageError(f"--palette: '{palette_name}' is not one of {', '.join(PALETTES)}")
-    lum = read_luminance(path) * multiplier
+    lum = scaled_luminance(read_luminance(path), multiplier, path)
     picture, limits = render(lum, scale=scale, lo=lo, hi=hi, palette_name=palette_name, contour=contour,
                              ndivs=ndivs, show_extrema=show_extrema, label=label)
     write_ldr(output, picture, metadata={"falsecolor": f"{scale} {limits[0]:g}..{limits[1]:g} {label}, "

@@ -159,10 +159,18 @@ def _rmse_levels(real: np.ndarray, rendered: np.ndarray, valid, low: int, high: 
 
 
 #: Threads that solve the leave-one-out curves at once (the fusions take turns):
-#: ``HDRCL_REPORT_THREADS`` (a positive integer), else the cores, at most 4.
-_ENV_THREADS = os.environ.get("HDRCL_REPORT_THREADS", "")
-LOO_THREADS = int(_ENV_THREADS) if _ENV_THREADS.isdigit() and int(_ENV_THREADS) > 0 else \
-    max(1, min(4, os.cpu_count() or 1))
+#: ``HDRCL_REPORT_THREADS`` (a positive integer), else the cores, at most 4; read when a
+#: report runs (None), so a bad value is refused then, not at import (:mod:`hdrcl.env`).
+LOO_THREADS = None
+
+
+def _loo_threads() -> int:
+    from hdrcl.env import number
+
+    if LOO_THREADS is not None:
+        return LOO_THREADS
+    n = number("HDRCL_REPORT_THREADS")
+    return n if n is not None else max(1, min(4, os.cpu_count() or 1))
 
 
 def leave_one_out_all(bracket: Bracket, interior_only: bool = True, **kw) -> List[LeaveOneOut]:
@@ -176,7 +184,7 @@ def leave_one_out_all(bracket: Bracket, interior_only: bool = True, **kw) -> Lis
         s = grid_stride(*bracket.frames[0].shape[:2])
         kw["grid"] = Bracket(frames=[np.ascontiguousarray(f[::s, ::s]) for f in bracket.frames], times=bracket.times,
                              valid=[None if v is None else np.ascontiguousarray(v[::s, ::s]) for v in bracket.valid])
-    threads = min(LOO_THREADS, len(idx))
+    threads = min(_loo_threads(), len(idx))
     if threads <= 1:
         return [leave_one_out(bracket, k, **kw) for k in idx]
     from concurrent.futures import ThreadPoolExecutor

@@ -22,7 +22,8 @@ Buildings 38(7); evalglare 2.x/3.x as Radiance ships it, ``src/util/evalglare.c`
   solid-angle weighted mean, its solid angle the sum, its position the mean pixel
   weighted by luminance times solid angle (evalglare 3; truncated to a pixel, as
   evalglare does) and the position index
-  Guth's (IES handbook form) above the line of sight, Iwata's below, at most 16.
+  Guth's (IES handbook form) above the line of sight; below it the CIE 2010 form of
+  evalglare 3.02+ (Guth's with tau = 90 degrees, :data:`BELOW_SIGHT_STRETCH`), at most 16.
 * **Background luminance** (CIE): ``Lb = (Ev - Edir) / PI``, ``Edir`` the sources'
   ``sum L cos(theta) omega``.
 * **Metrics.** ``DGP = 5.87e-5 Ev + 0.092 log10(1 + sum Ls^2 ws / (Ev^1.87 P^2)) + 0.159``
@@ -49,6 +50,7 @@ from hdrcl.errors import InputError, UsageError
 logger = logging.getLogger(__name__)
 
 __all__ = ["GlareSource", "GlareResult", "glare_metrics", "glare_of_file", "ViewSpec", "parse_glare_view",
+           "check_luminance",
            "calibration_from_measurement", "calibrate_luminance_file",
            "DEFAULT_THRESHOLD", "PEAK_LIMIT", "SEARCH_ANGLE"]
 
@@ -181,8 +183,24 @@ def pixel_geometry(height: int, width: int, view: ViewSpec):
     return dirs, np.where(good & (omega < 2 * math.pi), omega, 0.0)
 
 
+#: Below the line of sight evalglare 3 (since 3.02, after Iwata and Osterhaus, CIE 2010) uses
+#: Guth's formula with tau = 90 degrees at an angle whose vertical tangent is stretched by
+#: this factor: ``sigma' = atan(hypot(tan_h, K tan_v))``. Fitted to evalglare 3.06's printed
+#: position indices of one-pixel sources below the sightline (straight down 14..77 degrees,
+#: off axis 30..80 degrees): within 8e-4 relative (tests/test_glare.py).
+BELOW_SIGHT_STRETCH = 1.149
+
+
+def _guth(sigma_deg: np.ndarray, tau_deg) -> np.ndarray:
+    tau = tau_deg
+    return np.exp((35.2 - 0.31889 * tau - 1.22 * np.exp(-2.0 * tau / 9.0)) / 1000.0 * sigma_deg
+                  + (21.0 + 0.26667 * tau - 0.002963 * tau * tau) / 1e5 * sigma_deg * sigma_deg)
+
+
 def position_index(dirs: np.ndarray, view: ViewSpec) -> np.ndarray:
-    """Guth's position index (IES) above the line of sight, Iwata's below; at most 16
+    """Guth's position index (IES) above the line of sight; below it the CIE 2010 form
+    evalglare 3.02+ uses (Guth's with tau = 90 degrees, :data:`BELOW_SIGHT_STRETCH`; the
+    older Iwata form ``1 + 0.8 r`` / ``1 + 1.2 r`` of evalglare 2.x is gone); at most 16
     (evalglare's ``get_posindex``, default model)."""
     vdir, hvec, vvec = _frame(view)
     up = np.asarray(view.vup, np.float64) / np.linalg.norm(view.vup)
@@ -194,16 +212,10 @@ def position_index(dirs: np.ndarray, view: ViewSpec) -> np.ndarray:
         hv /= np.linalg.norm(hv, axis=-1, keepdims=True)
         tau = np.degrees(np.arccos(np.clip(hv @ up, -1.0, 1.0)))
     tau = np.where(np.isfinite(tau), tau, 0.0)
-    phi = np.arcsin(np.clip(d @ vvec, -1.0, 1.0))  # above (+) or below (-) the line of sight
-    teta = np.arcsin(np.clip(d @ hvec, -1.0, 1.0))
-    phi = np.where(phi == 0, 1e-5, phi)
-    teta = np.where(teta == 0, 1e-4, teta)
-    guth = np.exp((35.2 - 0.31889 * tau - 1.22 * np.exp(-2.0 * tau / 9.0)) / 1000.0 * sigma
-                  + (21.0 + 0.26667 * tau - 0.002963 * tau * tau) / 1e5 * sigma * sigma)
-    r = np.sqrt(np.tan(phi) ** 2 + np.tan(teta) ** 2)
-    fact = np.where(r > 0.6, 1.2, 0.8)
-    iwata = 1.0 + fact * np.minimum(r, 3.0)
-    return np.minimum(np.where(phi < 0, iwata, guth), 16.0)
+    below = (d @ vvec) < 0  # below the line of sight
+    guth = _guth(sigma, tau)
+    sigma_below = np.degrees(np.arctan2(np.hypot(d @ hvec, BELOW_SIGHT_STRETCH * (d @ vvec)), cos_s))
+    return np.minimum(np.where(below, _guth(sigma_below, 90.0), guth), 16.0)
 
 
 #: Source edge pixels compared pairwise at most (:func:`_clusters`); real maps have a few
@@ -279,6 +291,7 @@ def glare_metrics(lum: np.ndarray, view: ViewSpec, *, threshold: float = DEFAULT
     if not (threshold > 0 and math.isfinite(threshold)):
         raise UsageError(f"--threshold: expected a positive factor (<= 100) or luminance (> 100), not {threshold:g}")
     lum = np.asarray(lum, np.float64)
+    check_luminance(lum)
     h, w = lum.shape
     dirs, omega = pixel_geometry(h, w, view)
     vdir = _frame(view)[0]
@@ -352,7 +365,23 @@ def read_luminance_map(path) -> Tuple[np.ndarray, Optional[str]]:
                              "--reference-patch or the luminance options (--lens-circle ...)")
         rgb = rgb * white
     lum = rgb[..., 0] if rgb.shape[2] == 1 else rgb @ RADIANCE_CIE
+    check_luminance(lum, name)
     return lum, view
+
+
+def check_luminance(lum: np.ndarray, where: str = "luminance map") -> None:
+    """Refuse (:class:`InputError`, exit 3) a map with negative or non-finite luminance:
+    no light is negative, and every figure here (Ev, the average, DGP) sums it; a map
+    whose luminances are all negative gave Ev -30.7 lx and an average of -16.7 cd/m2."""
+    lum = np.asarray(lum)
+    bad = ~np.isfinite(lum)
+    if bad.any():
+        raise InputError(f"{where}: not a usable luminance map ({int(bad.sum())} NaN or infinite luminance(s))")
+    neg = lum < 0
+    if neg.any():
+        raise InputError(f"{where}: not a usable luminance map ({int(neg.sum())} of {lum.size} pixel(s) have negative "
+                         f"luminance, down to {float(lum.min()):.4g} cd/m2); light is not negative: check how it "
+                         "was made (a calibration, a subtraction)")
 
 
 def glare_of_file(path, *, view: Optional[str] = None, threshold: float = DEFAULT_THRESHOLD) -> GlareResult:
@@ -404,7 +433,7 @@ def calibration_from_measurement(path, *, illuminance: Optional[float] = None, l
             raise UsageError("--luminance: needs --patch COLUMN,ROW,RADIUS (the measured spot on the map)")
         cx, cy, r = _parse_patch(patch)
         rows, cols = np.mgrid[0:lum.shape[0], 0:lum.shape[1]]
-        disc = (cols + 0.5 - cx) ** 2 + (rows + 0.5 - cy) ** 2 <= r * r
+        disc = np.hypot(cols + 0.5 - cx, rows + 0.5 - cy) <= r  # no squares: 1e200 would overflow to inf
         if not disc.any():
             raise UsageError(f"--patch: {patch} holds no pixel centre of the {lum.shape[1]}x{lum.shape[0]} map")
         value = float(np.mean(lum[disc]))
@@ -421,6 +450,11 @@ def calibration_from_measurement(path, *, illuminance: Optional[float] = None, l
         except (ValueError, TypeError, AttributeError):
             previous = 1.0
     k = previous * measured / value
+    from hdrcl.io.radcal import check_factor_range
+
+    # refused where it is made: merge --calibration-factor would refuse it (a K of 3.62e298
+    # from --illuminance 1e300)
+    check_factor_range(k, f"{flag} {measured:g} (calibration factor {previous:g} x measured / map {value:.6g})")
     return {"calibration_factor": k, "measured": measured, "map_value": value, "quantity": what,
             "previous_factor": previous}
 

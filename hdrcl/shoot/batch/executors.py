@@ -142,7 +142,9 @@ def dask_client(scheduler):
         raise UsageError("--scheduler needs Dask: pip install 'hdrcl[dask]'") from None
     if isinstance(scheduler, distributed.Client):
         return scheduler, False
-    timeout = os.environ.get("HDRCL_DASK_TIMEOUT", "30s")
+    from hdrcl.env import text
+
+    timeout = text("HDRCL_DASK_TIMEOUT")
     try:
         return distributed.Client(str(scheduler), timeout=timeout, set_as_default=False), True
     except (OSError, TimeoutError) as exc:
