@@ -193,11 +193,13 @@ def test_handheld_merge_with_deghost_and_crop(memorial_handheld_files, cl_device
 
 
 @pytest.mark.parametrize("culprit", ["noise", "other scene"])
-def test_unalignable_frame_is_refused_by_name(memorial_handheld_files, memorial, culprit, cl_device):
+def test_unalignable_frame_is_left_out_by_name(memorial_handheld_files, memorial, culprit, cl_device):
+    """A frame that cannot be aligned is left out, named by a finding that needs a check
+    (the rest still make a bracket); alone with the reference it is refused by name
+    (``tests/test_align_unaligned.py``)."""
     import imageio.v3 as iio
 
     import hdrcl
-    from hdrcl.errors import InputError
     from hdrcl.io.ldr import write_ldr
 
     files, times, mats, d = memorial_handheld_files
@@ -210,10 +212,12 @@ def test_unalignable_frame_is_refused_by_name(memorial_handheld_files, memorial,
         img = np.concatenate([other[:, :512]] * 2, axis=0)[:768]
     write_ldr(str(bad), img)
     paths[1] = str(bad)
-    out = d / f"refused-{culprit.replace(' ', '-')}.exr"
-    with pytest.raises(InputError, match=bad.name):
-        hdrcl.merge_files(paths, out, times=times, ignore_color=(0, 0, 255), align=True)
-    assert not out.exists()
+    out = d / f"left-out-{culprit.replace(' ', '-')}.exr"
+    res = hdrcl.merge_files(paths, out, times=times, ignore_color=(0, 0, 255), align=True)
+    assert out.exists()
+    (f,) = [f for f in res.findings if f.check == "alignment" and f.severity == "check"]
+    assert f.file == bad.name and "left out" in f.message
+    assert bad.name not in [a["file"] for a in res.alignment] and len(res.alignment) == len(paths) - 1
 
 
 def test_align_model_is_checked(memorial_handheld_files):

@@ -128,7 +128,7 @@ class MergeJob(Timed):
             self.source = BracketReader(self.inputs.paths, self.inputs.infos)
             return
         from hdrcl.core.bracket import _with_ignore
-        from hdrcl.core.align.handheld import align_bracket
+        from hdrcl.core.align.handheld import align_bracket, without
         from hdrcl.core.pipeline import ArraySource
 
         o = self.options
@@ -138,8 +138,11 @@ class MergeJob(Timed):
         valid = _with_ignore(frames, valid, o.ignore_color)
         with self.timed("align"):
             al = align_bracket(frames, valid, self.times, o.device, o.crop, o.align_model, self.inputs.paths,
-                               inplace=True)
+                               inplace=True, find=self.find)
         del frames, valid
+        if al.left_out:  # frames that cannot be aligned: merged without them (a finding names each)
+            self.inputs = without(self.inputs, al.left_out)
+            self.times = self.nominal = np.asarray(self.inputs.times, np.float64)
         self.shifts, self.crop_box, self.alignment = al.shifts, al.crop, al.alignment
         if self.crop_box is not None:
             y0, y1, x0, x1 = self.crop_box

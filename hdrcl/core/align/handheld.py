@@ -40,16 +40,19 @@ from __future__ import annotations
 import logging
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
 from hdrcl.core.align import register as R
+from hdrcl.core.align import unaligned as U
 from hdrcl.core.align import warp as W
 from hdrcl.core.align.trust import (  # noqa: F401 (the rules, here as before)
     AGREE_PX, CLEAR_GAIN_FRAC, CLEAR_GAIN_PX, FEW_SAMPLES, HELD_OUT_RADIUS, HOMOGRAPHY_GAIN_PX, MAX_RESIDUAL_PX,
-    MAX_ROTATION, MIN_MEASURABLE, MIN_ZNCC, SCALE_RANGE, SKIP_PX, SNAP_PX, motion_px, register_chained)
+    INHERITED, LEFT_OUT, MAX_ROTATION, MIN_MEASURABLE, MIN_ZNCC, SCALE_RANGE, SKIP_PX, SNAP_PX, Unaligned,
+    motion_px, register_chained)
+from hdrcl.core.align.unaligned import without  # noqa: F401 (the API here)
 from hdrcl.core.align.warping import _warper, _Warps, apply_alignment, warp_one  # noqa: F401 (the API here)
 from hdrcl.errors import InputError, UsageError
 
@@ -80,13 +83,15 @@ def check_model(model) -> str:
 class Aligned:
     """What :func:`align_bracket` made: frames and masks as merged, the whole-pixel
     shifts (``(dy, dx)`` of each frame's centre), the crop box (or None) and one
-    :func:`describe` dict per frame."""
+    :func:`describe` dict per frame merged; the frames left out (indices as given:
+    :func:`hdrcl.core.align.unaligned.without` drops them from a merge's inputs)."""
 
     frames: List[np.ndarray]
     valid: List[Optional[np.ndarray]]
     shifts: List[tuple]
     crop: Optional[tuple]
     alignment: List[dict]
+    left_out: List[int] = field(default_factory=list)  # indices (as given) of the frames not merged
 
 
 def describe(name: str, model: str, m: np.ndarray, residual: float, h: int, w: int, anchor: str) -> dict:
@@ -158,9 +163,13 @@ def _snap(m: np.ndarray, h: int, w: int) -> Optional[np.ndarray]:
 
 
 def estimate(frames: Sequence[np.ndarray], ref: int, model: str, device=None, names=None, valid=None,
-             on_final=None):
+             on_final=None, events: Optional[list] = None, leave_out: bool = False):
     """Matrices (reference -> frame), chosen models, residuals and anchors per frame
-    (``frames`` ordered by exposure). Raises InputError for a frame that cannot be aligned.
+    (``frames`` ordered by exposure). Raises InputError for a frame that cannot be aligned
+    and does not stand still (:mod:`hdrcl.core.align.unaligned`), unless ``leave_out``:
+    then such a frame is left out (model ``left out``) while at least two frames remain.
+    ``events`` (a list) receives what did not align as fitted
+    (:class:`hdrcl.core.align.unaligned.Event`).
 
     ``on_final(j, matrix)``, when given, is called for each frame (but the reference) as
     soon as its matrix is final: once the bracket is known not to be static (a frame
@@ -188,6 +197,7 @@ def estimate(frames: Sequence[np.ndarray], ref: int, model: str, device=None, na
     out = [("reference", np.eye(3), 0.0, ref)] * n
     pending: List[int] = []
     moving = [model != "auto"]  # _static leaves the fits as they are
+    events = [] if events is None else events
 
     def final(j: int) -> None:
         if on_final is None:
@@ -202,11 +212,24 @@ def estimate(frames: Sequence[np.ndarray], ref: int, model: str, device=None, na
     for j in sorted(range(n), key=lambda k: (abs(k - ref), k)):
         if j == ref:
             continue
-        anchor, kind, f, r, why = register_chained(reg, out, links, mats, j, ref, model, names)
+        try:
+            anchor, kind, f, r, why = register_chained(reg, out, links, mats, j, ref, model, names)
+        except Unaligned as exc:  # unmoved, or left out (hdrcl.core.align.unaligned)
+            ev = U.settle(reg, exc, j, STATIC_PX)
+            if ev.kind == LEFT_OUT and not leave_out:
+                raise
+            events.append(ev)
+            a = ev.anchor
+            if ev.kind == LEFT_OUT:
+                out[j] = (LEFT_OUT, mats[a], float("nan"), a)
+                continue
+            mats[j], out[j], links[j] = mats[a], ("none", mats[a], ev.figure, a), links[a] + 1
+            final(j)
+            continue
         if why is not None:
-            logger.warning("%s: %s; it takes the motion of %s", names[j], why, names[anchor])
+            events.append(U.Event(j, anchor, INHERITED, why))
             mats[j] = mats[anchor]
-            out[j] = ("inherited", mats[anchor], float("nan"), anchor)
+            out[j] = (INHERITED, mats[anchor], float("nan"), anchor)
             final(j)
             continue
         m = f.matrix @ mats[anchor]
@@ -219,24 +242,25 @@ def estimate(frames: Sequence[np.ndarray], ref: int, model: str, device=None, na
         links[j] = links[anchor] + 1
         logger.info("align: %s: %s against %s, residual %.3f px", names[j], kind, names[anchor], r)
         final(j)
+    U.check_kept(events, n)
     return _static(out, h, w, vmask) if model == "auto" else out, aligner
 
 
 def _static(fits, h: int, w: int, valid=None):
     """``fits`` as they are, or, when no frame moved more than :data:`STATIC_PX`
     (:func:`motion_px`: a tripod), every frame left as it is: model ``none``, identity,
-    and as residual the motion measured and not undone."""
+    and as residual the motion measured and not undone (frames left out stay out)."""
     valid = valid or [None] * len(fits)
-    motion = [motion_px(m, h, w, v) for (_, m, _, _), v in zip(fits, valid)]
+    motion = [0.0 if k == LEFT_OUT else motion_px(m, h, w, v) for (k, m, _, _), v in zip(fits, valid)]
     if max(motion) > STATIC_PX:
         return fits
     logger.info("align: no frame moved more than %.2f px: the frames are merged as they are", STATIC_PX)
-    return [(k if k == "reference" else "none", np.eye(3), r if k == "reference" else max(r, d), a)
-            for (k, _, r, a), d in zip(fits, motion)]
+    return [(k if k in ("reference", LEFT_OUT) else "none", np.eye(3),
+             r if k in ("reference", LEFT_OUT) else max(r, d), a) for (k, _, r, a), d in zip(fits, motion)]
 
 
 def align_bracket(frames, valid, times, device=None, crop: bool = False, model: str = "auto",
-                  names: Optional[Sequence[str]] = None, inplace: bool = False) -> Aligned:
+                  names: Optional[Sequence[str]] = None, inplace: bool = False, find=None) -> Aligned:
     """Register every frame to the middle exposure and warp it there (module docstring).
 
     ``frames``/``valid`` are in any order; ``times`` orders them. ``names`` (file paths)
@@ -246,6 +270,12 @@ def align_bracket(frames, valid, times, device=None, crop: bool = False, model: 
     and a replaced frame's memory is reused for the next frame's warp (no fresh pages to
     fault in: measured 0.35-0.9 s less for 6 frames of 24 MP), so the caller must hold
     no other reference to the frames it passes.
+
+    ``find``: a callable taking each :class:`hdrcl.core.findings.Finding` of the
+    alignment (a frame left out, unmoved or inherited: :mod:`hdrcl.core.align.unaligned`).
+    Only with it is a frame that cannot be aligned left out (``Aligned.left_out``, its
+    frame, mask and record dropped from the result) rather than refused; without it the
+    findings are logged as warnings.
     """
     model = check_model(model)
     n = len(frames)
@@ -264,9 +294,12 @@ def align_bracket(frames, valid, times, device=None, crop: bool = False, model: 
                    for i in range(n)]
         return Aligned(out_f, out_v, [(0, 0)] * n, (0, h, 0, w) if crop else None, records)
     warps = _Warps(out_f, out_v, order, _warper(get_aligner(device)), inplace)
+    events: list = []
+    ordered = [names[i] for i in order]
     try:
-        fits, _ = estimate([frames[i] for i in order], ref, model, device, [names[i] for i in order],
-                           [valid[i] for i in order], on_final=warps.submit)
+        fits, _ = estimate([frames[i] for i in order], ref, model, device, ordered,
+                           [valid[i] for i in order], on_final=warps.submit, events=events,
+                           leave_out=find is not None)
     except BaseException:
         # The warps already started end before the error is raised; theirs (a device
         # fault on the worker) is logged, not raised over it: the refusal naming the frame
@@ -277,20 +310,33 @@ def align_bracket(frames, valid, times, device=None, crop: bool = False, model: 
             logger.debug("align: a warp failed while alignment stopped: %s", exc)
         raise
     warps.finish()
+    static = all(f[0] in ("reference", "none", LEFT_OUT) for f in fits)
+    for fd in U.findings(events, ordered, static):
+        if find is None:
+            logger.warning("%s", fd.message)
+        else:
+            find(fd)
+    left = sorted(order[pos] for pos, f in enumerate(fits) if f[0] == LEFT_OUT)
     shifts: List[tuple] = [(0, 0)] * n
     records: List[dict] = [{}] * n
     for pos, i in enumerate(order):
         kind, m, r, anchor = fits[pos]
-        warps.submit(pos, m)  # those not warped yet (the reference, a static bracket): here
+        if kind != LEFT_OUT:
+            warps.submit(pos, m)  # those not warped yet (the reference, a static bracket): here
         rec = describe(names[i], kind, m, r, h, w, names[order[anchor]])
         records[i] = rec
         shifts[i] = (int(round(rec["shift_px"][0])), int(round(rec["shift_px"][1])))
-    box = W.crop_box((h, w), [f[1] for f in fits]) if crop else None
+    if left:  # merged without them: every per-frame list in step
+        keep = [i for i in range(n) if i not in left]
+        out_f, out_v = [out_f[i] for i in keep], [out_v[i] for i in keep]
+        shifts, records = [shifts[i] for i in keep], [records[i] for i in keep]
+    mats = [f[1] for f in fits if f[0] != LEFT_OUT]
+    box = W.crop_box((h, w), mats) if crop else None
     if box is not None:
         if box[1] <= box[0] or box[3] <= box[2]:
             raise InputError(f"{names[order[0]]}: the aligned frames share no common area to crop to")
         out_f, out_v = W.crop_frames(out_f, out_v, box)
-    return Aligned(out_f, out_v, shifts, box, records)
+    return Aligned(out_f, out_v, shifts, box, records, left)
 
 
 def alignment_meta(shifts, alignment) -> dict:

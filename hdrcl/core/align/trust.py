@@ -52,6 +52,26 @@ SCALE_RANGE = (0.8, 1.25)
 MAX_ROTATION = 20.0
 #: The fitted models (what ``auto`` chooses among).
 MODEL_KINDS = ("shift", "similarity", "homography")
+#: Frames the chain of registrations passes over: not measured (:data:`INHERITED`) or
+#: not merged (:data:`LEFT_OUT`, :mod:`hdrcl.core.align.unaligned`).
+INHERITED, LEFT_OUT = "inherited", "left out"
+SKIPPED = (INHERITED, LEFT_OUT)
+#: A frame sharing at least this share of the estimation level's pixels (well exposed in
+#: both, at the whole-pixel start) with its neighbour has plenty to be measured by: a fit
+#: that ends with few samples lost its way (a mirror image, another scene, a frame beyond
+#: the start's reach), the frame is not dark. (Memorial's dark frames on their pedestal
+#: share 7 %; a count such as :data:`FEW_SAMPLES` would call them plenty.)
+PLENTY_FRAC = 0.25
+
+
+class Unaligned(InputError):
+    """A frame that has plenty to be registered on and yet cannot be aligned to
+    ``anchor`` (its index in exposure order): ``cause`` says why. The message is the
+    one-line refusal naming the frame."""
+
+    def __init__(self, frame: str, anchor_name: str, anchor: int, cause: str):
+        super().__init__(f"{frame}: cannot be aligned to {anchor_name}: {cause}")
+        self.frame, self.anchor_name, self.anchor, self.cause = frame, anchor_name, anchor, cause
 
 
 def _degenerate(m: np.ndarray, h: int, w: int) -> Optional[str]:
@@ -189,7 +209,7 @@ def register_chained(reg, out, links, mats, j: int, ref: int, model: str, names)
     step = 1 if j < ref else -1
 
     def measured(k):
-        while out[k][0] == "inherited":
+        while out[k][0] in SKIPPED:
             k += step
         return k
 
@@ -214,6 +234,13 @@ def register_chained(reg, out, links, mats, j: int, ref: int, model: str, names)
     return alt if apart > SKIP_PX and res(alt) < res(got) else got
 
 
+def shared_at_start(reg, anchor: int, j: int, m0: np.ndarray) -> int:
+    """Pixels of the estimation level well exposed in ``anchor`` and, brought there by
+    the whole-pixel start ``m0``, in frame ``j``: what a fit could use."""
+    la, lj = reg.levels(anchor)[0], reg.levels(j)[0]
+    return int(np.count_nonzero(la.ok & R.joint_ok(lj, m0, la.scale)))
+
+
 def register(reg, anchor: int, j: int, model: str, names):
     """``(model, fit, residual, why)`` of frame ``j`` against ``anchor``. ``why`` (not
     None) says why a frame with few usable pixels cannot be measured (it then takes the
@@ -233,7 +260,7 @@ def register(reg, anchor: int, j: int, model: str, names):
     if f.samples >= FEW_SAMPLES and np.isfinite(r):
         why = _refusal(f, r, f.matrix, h, w)
         if why:
-            raise InputError(f"{names[j]}: cannot be aligned to {names[anchor]}: {why}")
+            raise Unaligned(names[j], names[anchor], anchor, why)
         return kind, f, r, None
     va, vb = (reg.valid[k][0] if reg.valid[k] is not None else None for k in (anchor, j))
     est = RC.tile_estimate(reg.levels(anchor)[0], va, reg.levels(j)[0], vb, m0)
@@ -266,7 +293,15 @@ def register(reg, anchor: int, j: int, model: str, names):
         why = _refusal(f, r, f.matrix, h, w) or (
             "its residual cannot be measured (no textured tile) and no second estimate confirms the fit"
             if est is None else f"a second estimate (block matching) puts it {gap:.1f} px away")
-        raise InputError(f"{names[j]}: cannot be aligned to {names[anchor]}: {why}")
+        raise Unaligned(names[j], names[anchor], anchor, why)
+    shared = shared_at_start(reg, anchor, j, m0)
+    if shared >= PLENTY_FRAC * reg.levels(anchor)[0].ok.size:
+        # Not a dark frame: it shares plenty where it started, and the fit lost it.
+        why = _refusal(f, r, f.matrix, h, w) or (
+            f"the fit keeps {f.samples} of the {shared} well-exposed pixels it shares with it at the start, and "
+            + ("no second estimate confirms it" if est is None else
+               f"a second estimate (block matching) puts it {gap:.1f} px away"))
+        raise Unaligned(names[j], names[anchor], anchor, why)
     if est is None:
         return kind, f, r, (f"too few well-exposed pixels shared with {names[anchor]} ({f.samples} samples) "
                             "to align it, and no second estimate to confirm a fit")

@@ -255,7 +255,8 @@ class DeferredResponse(ResponseSource):
     def solve(self, merge, grid):
         from hdrcl.shoot.batch.pooling import solve_deferred
 
-        return solve_deferred(self.entry, self.job, self.infos, (grid.frames, grid.times, grid.valid_all), self.opts)
+        return solve_deferred(self.entry, self.job, merge.inputs.infos, (grid.frames, grid.times, grid.valid_all),
+                              self.opts)
 
 
 def response_source_of(entry, job: SetJob, infos, options) -> ResponseSource:
@@ -344,8 +345,9 @@ class SetMerge(MergeJob):
         job, opened = self.step.job, self.step.opened
         if self.kept is not None:
             return self.kept.bracket(job.files, opened.infos, opened.times, self.opts.ignore_color)
-        return Bracket(frames=list(self.source.frames), times=np.asarray(opened.times, np.float64),
-                       valid=list(self.source.valid), paths=list(job.files), infos=list(opened.infos))
+        inp = self.inputs  # the frames merged: an alignment may have left some out
+        return Bracket(frames=list(self.source.frames), times=np.asarray(inp.times, np.float64),
+                       valid=list(self.source.valid), paths=list(inp.paths), infos=list(inp.infos))
 
     def set_result(self, res) -> SetResult:
         """The batch's record of the merged set."""
@@ -413,7 +415,7 @@ def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context, radiance=None) 
                 valid = with_ignore(frames, valid, opts.ignore_color)
         finally:
             merge.close()
-        bracket = Bracket(frames=frames, times=merge.inputs.times, valid=valid, paths=list(job.files),
+        bracket = Bracket(frames=frames, times=merge.inputs.times, valid=valid, paths=list(merge.inputs.paths),
                           infos=merge.inputs.infos, grid=stride > 1)
         rad = radiance if radiance is not None else read_radiance(job.output)[0]
         small = downscale(rad, opts.preview_size if job.preview is not None else REPORT_IMAGE_SIZE)
