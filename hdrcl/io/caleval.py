@@ -13,8 +13,9 @@ pixels at once and by Radiance's own rules (``calexpr.c``, ``caldefn.c``, ``calf
   of ``select``'s range gives 0 and marks it ("select(): domain error"); every library
   function (``sin``, ``if``, ``select``, ``ri`` ...) and ``^`` whose arguments marked a
   pixel gives 0 there and leaves the mark for the library functions around it
-  (``sin(x/0 + 1)`` is 0, ``f(x/0)`` with ``f(a) = a + 1`` is 1). One warning per cause and
-  file line, not one per pixel as ``rcalc`` prints them;
+  (``sin(x/0 + 1)`` is 0, ``f(x/0)`` with ``f(a) = a + 1`` is 1); each of them clears the
+  marks when it starts, so ``max(x/0, sin(x))`` is ``sin(x)``, as rcalc gives it. One
+  warning per cause and file line, not one per pixel as ``rcalc`` prints them;
 * NumPy's NaN and infinities where Radiance's C library gives them (``(-8)^(1/3)`` is NaN,
   as ``rcalc`` prints ``-nan``); with ``trace`` the first operation that made a number
   not finite is described (:attr:`Evaluation.cause`) for the callers' error messages.
@@ -193,30 +194,22 @@ class Evaluation:
             self.err[idx[np.broadcast_to(mask, idx.shape)]] = True
         self.events += 1
 
-    def _clear(self, idx):
-        """Save and clear the marks of ``idx`` (``libfunc``'s ``errno = 0``)."""
-        if self.err is None:
-            return None
-        saved = self.err[idx] if idx is not None else self.err.copy()
-        if not saved.any():
-            return None
-        if idx is None:
-            self.err[:] = False
-        else:
-            self.err[idx] = False
-        return saved
+    def _clear(self, idx) -> int:
+        """``libfunc``'s and ``epow``'s ``errno = 0`` on entry (the earlier marks are not
+        restored after: rcalc gives ``max(x/0, sin(x))`` = sin(x)); the event count."""
+        if self.err is not None:
+            if idx is None:
+                self.err[:] = False
+            else:
+                self.err[idx] = False
+        return self.events
 
-    def _finish(self, node, name, idx, events, saved, value):
-        """``libfunc``'s end: 0 where the arguments marked the pixel; the marks stay."""
+    def _finish(self, idx, events, value):
+        """``libfunc``'s end: 0 where its arguments marked the pixel; the marks stay."""
         if self.events != events:
             inner = self.err if idx is None else self.err[idx]
             if inner.any():
                 value = np.where(inner, 0.0, value)
-        if saved is not None:
-            if idx is None:
-                self.err |= saved
-            else:
-                self.err[idx] |= saved
         return value
 
     # -- nodes -----------------------------------------------------------------------------
@@ -224,6 +217,8 @@ class Evaluation:
         """A generator computing ``node`` on the pixels ``idx``, or a :class:`Value`."""
         k = node.kind
         if k == "num":
+            if self.trace and node.kids and not math.isfinite(node.value):
+                return self.ev(node.kids[0], idx, frame)  # a folded constant: which operation made it so
             return Value(node.value)
         if k == "var":
             name = node.value
@@ -236,6 +231,8 @@ class Evaluation:
             if name in ("xres", "yres"):
                 return Value(self.xres if name == "xres" else self.yres)
             return self.variable(name, idx, node.line)
+        if k == "alias":
+            return self.ev(node.kids[0], idx, frame)
         if k == "neg":
             return self.negate(node, idx, frame)
         if k == "call":
@@ -276,7 +273,7 @@ class Evaluation:
             return r
         self._mark(idx, zero)
         count = int(np.count_nonzero(np.broadcast_to(zero, (self._len(idx),))))
-        self._warn(node, "/", f"division by zero in {_short(node)} at {count} of {self._len(idx)} pixels: 0 "
+        self._warn(node, "/", f"division by zero in {_short(node)} at {count} of {self.n} pixels: 0 "
                               f"there, and 0 for the library functions around it, as Radiance "
                               f"(rcalc prints 'Division by zero')")
         if np.ndim(zero) == 0:
@@ -290,13 +287,13 @@ class Evaluation:
 
     def power(self, node, idx, frame):
         """``epow``: 0 where its arguments marked the pixel ("Illegal power")."""
-        saved, events = self._clear(idx), self.events
+        events = self._clear(idx)
         a = np.asarray((yield self.ev(node.kids[0], idx, frame)), np.float64)
         b = np.asarray((yield self.ev(node.kids[1], idx, frame)), np.float64)
         r = np.power(a, b)
         if self.trace:
             self._explain(node, r, (a, b), _pow_cause(a, b))
-        return self._finish(node, "^", idx, events, saved, r)
+        return self._finish(idx, events, r)
 
     def variable(self, name, idx, line):
         d = self.defs.get(name)
@@ -355,7 +352,7 @@ class Evaluation:
     def library(self, node, idx, frame):
         """A library function with ``libfunc``'s rules (arguments computed inside it)."""
         name, kids = node.value, node.kids
-        saved, events = self._clear(idx), self.events
+        events = self._clear(idx)
         if name == "if":
             c = np.asarray((yield self.ev(kids[0], idx, frame)), np.float64) > 0
             if np.ndim(c) == 0 or c.all() or not c.any():
@@ -383,7 +380,7 @@ class Evaluation:
                 r = np.minimum.reduce(np.broadcast_arrays(*vals)) if len(vals) > 1 else vals[0]
             else:
                 r = np.maximum.reduce(np.broadcast_arrays(*vals)) if len(vals) > 1 else vals[0]
-        return self._finish(node, name, idx, events, saved, r)
+        return self._finish(idx, events, r)
 
     def select(self, node, idx, frame):
         """``l_select``: index ``floor(n + 0.5)``; 0 gives the count; outside 0..count the
@@ -400,7 +397,7 @@ class Evaluation:
         bad = ~((n >= 0) & (n <= len(choices)))
         if bad.any():
             self._mark(idx, bad)
-            self._warn(node, "select", f"select() index out of 0..{len(choices)} at {int(bad.sum())} of {size} "
+            self._warn(node, "select", f"select() index out of 0..{len(choices)} at {int(bad.sum())} of {self.n} "
                                        f"pixels (e.g. {_fmt(n[bad][0])}): 0 there, and 0 for the library "
                                        f"functions around it, as Radiance (rcalc prints 'select(): domain "
                                        f"error'); check the index expression")
@@ -448,7 +445,7 @@ class Evaluation:
 
 
 def _short(node, limit: int = 60) -> str:
-    text = node.text()
+    text = node.text(True)
     return text if len(text) <= limit else text[:limit - 3] + "..."
 
 

@@ -65,24 +65,32 @@ BUILTINS = caleval.LIBRARY
 
 @dataclass(frozen=True)
 class Node:
-    """An expression node: ``kind`` is ``num``, ``var``, ``call``, ``neg`` or an
-    operator ``+ - * / ^``; ``line`` is where it starts in the file."""
+    """An expression node: ``kind`` is ``num``, ``var``, ``call``, ``neg``, an operator
+    ``+ - * / ^`` or ``alias`` (evaluated as its first kid, written as its second: ``E^1``);
+    a ``num`` with a kid is a constant folded as Radiance folds it, written as the kid;
+    ``line`` is where it starts in the file."""
 
     kind: str
     value: object = None  # the number, or the name
     kids: Tuple["Node", ...] = ()
     line: int = 0
 
-    def text(self) -> str:
-        """The expression written back (fully parenthesised: for digests and messages);
-        iterative, so a 100000-term sum is written too."""
+    def text(self, readable: bool = False) -> str:
+        """The expression written back, fully parenthesised, for digests (``repr`` of the
+        numbers) or ``readable`` for messages (``(-8)^(1/3)``); iterative, so a
+        100000-term sum is written too."""
         out, stack = [], [self]
         while stack:
             n = stack.pop()
             if isinstance(n, str):
                 out.append(n)
+            elif n.kind == "num" and n.kids:  # a folded constant: written as it was
+                stack.append(n.kids[0])
+            elif n.kind == "alias":  # evaluated as kids[0], written as kids[1]
+                stack.append(n.kids[1])
             elif n.kind == "num":
-                out.append(repr(float(n.value)))
+                v = float(n.value)
+                out.append(repr(v) if not readable else f"({v:.12g})" if v < 0 else f"{v:.12g}")
             elif n.kind == "var":
                 out.append(str(n.value))
             elif n.kind == "call":
@@ -173,6 +181,9 @@ class _Parser:
         self.toks, self.i, self.path, self.params = toks, 0, path, ()
         self.cv: Dict[int, tuple] = {}  # (node, value) of each constant node, by id (kept alive)
         self.const_vars: Dict[str, float] = {}  # 'name : constant' definitions read so far
+        # functions the file defines (its own abs(), sq() are not library functions to fold)
+        self.functions = {t[1] for i, t in enumerate(toks[:-1]) if t[0] == "name" and toks[i + 1][1] == "("
+                          and (i == 0 or toks[i - 1][1] == ";")}
 
     @property
     def tok(self):
@@ -275,7 +286,7 @@ class _Parser:
             kid = yield self.e5(depth)
             if sign == "+":
                 return kid
-            if kid.kind == "num":
+            if kid.kind == "num" and not kid.kids:
                 return self.make("num", -kid.value, (), kid.line)
             return kid.kids[0] if kid.kind == "neg" else self.make("neg", None, (kid,), line)
         return (yield self.e5(depth))
@@ -319,26 +330,32 @@ def _constant(parser, node: Node) -> Node:
         return node
     if k == "var":
         if node.value in parser.const_vars and node.value not in parser.params:
-            cv[id(node)] = (node, parser.const_vars[node.value])
+            out = Node("num", parser.const_vars[node.value], (node,), node.line)
+            cv[id(out)] = (out, out.value)
+            return out
         return node
     vals = [cv.get(id(kid), (None, None))[1] for kid in node.kids]
     const = all(v is not None for v in vals)
     if k == "/" and vals[1] == 0.0:
         what = "division by zero in a constant expression" if const else "division by the constant 0"
         why = "bad constant expression" if const else "divide by zero constant"
-        raise InputError(f"{parser.path}, line {node.line}: {what} at '{_clip(node.text())}' "
+        raise InputError(f"{parser.path}, line {node.line}: {what} at '{_clip(node.text(True))}' "
                          f"(Radiance refuses it: '{why}')")
-    if const and (k != "call" or node.value in _LIB_CONST):
+    if const and (k != "call" or (node.value in _LIB_CONST and node.value not in parser.functions)):
         if k == "call" and node.value == "select":
             n = math.floor(vals[0] + 0.5) if math.isfinite(vals[0]) else -1
             if not 0 <= n < len(vals):
                 raise InputError(f"{parser.path}, line {node.line}: select() index {vals[0]:g} out of "
-                                 f"0..{len(vals) - 1} in a constant expression at '{_clip(node.text())}' "
+                                 f"0..{len(vals) - 1} in a constant expression at '{_clip(node.text(True))}' "
                                  f"(Radiance refuses it: 'bad constant expression')")
-            cv[id(node)] = (node, float(len(vals) - 1) if n == 0 else vals[n])
+            value = float(len(vals) - 1) if n == 0 else vals[n]
         else:
-            cv[id(node)] = (node, _fold(node, vals))
-        return node
+            value = _fold(node, vals)
+        # folded as Radiance folds it (no library call at run time, which would clear the
+        # errno marks), the original kept for the digest's text and to explain a NaN
+        out = Node("num", value, (node,), node.line)
+        cv[id(out)] = (out, value)
+        return out
     a, b = (vals + [None, None])[:2]
     value = None
     if k == "*" and (a == 0.0 or b == 0.0):
@@ -349,12 +366,12 @@ def _constant(parser, node: Node) -> Node:
         if b == 0.0 or a == 1.0:
             value = 1.0
         elif b == 1.0:
-            return node.kids[0]
+            return Node("alias", None, (node.kids[0], node), node.line)  # E, written as E^1 still
         elif a == 0.0:
             value = a
     if value is None:
         return node
-    out = Node("num", value, (), node.line)
+    out = Node("num", value, (node,), node.line)  # written as it was (the digest's text stays)
     cv[id(out)] = (out, value)
     return out
 
@@ -433,7 +450,7 @@ class CalProgram:
             arg = node.kids[0]
             if n not in (1, 3) or arg.kind != "num" or arg.value != 1:
                 raise InputError(f"{self.path}, line {node.line}: only the one input picture exists: "
-                                 f"'{name}(1)' or '{name}(1,dx,dy)', not '{_clip(node.text())}'")
+                                 f"'{name}(1)' or '{name}(1,dx,dy)', not '{_clip(node.text(True))}'")
             return
         wanted = {"if": (3, 3), "atan2": (2, 2), "select": (2, 10 ** 6), "min": (1, 10 ** 6),
                   "max": (1, 10 ** 6)}.get(name, (1, 1) if name in _FUNCS1 else None)

@@ -120,9 +120,21 @@ def _factor_map(prog, path: str, xres: int, yres: int, what: str, full: bool = T
     return np.stack([one[o] for o, _ in _OUT], axis=-1)
 
 
+def _not_finite(prog, path: str, what: str, n: int) -> InputError:
+    """The error for factors that are not finite numbers, naming the operation that made
+    them so (``(-8)^(1/3)`` is NaN in Radiance too: rcalc prints nan), not the position."""
+    cause = prog.why_not_finite([o for o, _ in _OUT], xres=n, yres=n, inputs=(1.0, 1.0, 1.0))
+    why = f", line {cause.split('line ', 1)[1]}" if cause else ": its factors are not finite numbers"
+    noun = what if what.endswith("factor") else f"{what} factor"
+    return InputError(f"{path}{why} (Radiance computes the same: rcalc prints nan or inf); the {noun} "
+                      f"must be a finite positive number")
+
+
 def _constant_factors(path: str, what: str) -> Tuple[float, float, float]:
     prog = calexpr.parse_file(path)
     f = _factor_map(prog, path, 8, 8, what, full=False)
+    if not np.all(np.isfinite(f)):
+        raise _not_finite(prog, path, what, 8)
     if not np.all(f == f[:1, :1]):
         raise InputError(f"{path}: a {what} .cal file is one factor per channel; this one depends on "
                          f"the pixel position (x, y)")
@@ -160,6 +172,8 @@ def read_vignetting(path) -> Vignetting:
     if geo.get("radius") is not None and not geo["radius"] > 0:
         raise InputError(f"{path}: the vignetting radius must be positive, not {geo['radius']:g}")
     f = _factor_map(prog, path, probe, probe, "vignetting", full=False)
+    if not np.any(np.isfinite(f)):
+        raise _not_finite(prog, path, "vignetting", probe)
     if np.all(f == f[:1, :1]):
         raise InputError(f"{path}: not a vignetting .cal file: its factors do not depend on the pixel "
                          f"position (x, y) (a neutral density or calibration factor file?)")
