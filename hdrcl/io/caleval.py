@@ -91,50 +91,53 @@ def _sub(idx, mask):
     return np.flatnonzero(mask) if idx is None else idx[mask]
 
 
-def _empty(idx) -> bool:
-    return idx is not None and idx.size == 0
+class _Store:
+    """Values per pixel as they were first computed: ``full`` (any shape that broadcasts to
+    the picture's, when computed for every pixel at once) or ``vals``/``done`` by position."""
+
+    __slots__ = ("full", "flat", "vals", "done")
+
+    def __init__(self):
+        self.full = self.flat = self.vals = self.done = None
+
+    def missing(self, pos):
+        """The positions of ``pos`` (None: all) not computed yet (None: all of them)."""
+        if self.full is not None:
+            return _NONE
+        if self.done is None:
+            return pos
+        return np.flatnonzero(~self.done) if pos is None else pos[~self.done[pos]]
+
+    def store(self, size: int, pos, v) -> None:
+        if pos is None and self.done is None:
+            self.full = v
+            return
+        if self.done is None:
+            self.vals, self.done = np.zeros(size), np.zeros(size, bool)
+        self.vals[pos], self.done[pos] = v, True
+
+    def get(self, shape, pos):
+        if self.full is not None:
+            if pos is None or np.ndim(self.full) == 0:
+                return self.full
+            if self.flat is None:
+                self.flat = np.broadcast_to(self.full, shape).ravel()
+            return self.flat[pos]
+        return self.vals.reshape(shape) if pos is None else self.vals[pos]
+
+
+_NONE = np.empty(0, np.int64)
 
 
 class _Arg:
-    """A function argument, computed lazily in the caller's frame on the pixels asked."""
+    """A function argument, computed lazily in the caller's frame on the pixels asked
+    (``idx``: the call's pixels; positions in the store are relative to them)."""
 
-    __slots__ = ("node", "frame", "idx", "keep", "vals", "done", "given")
+    __slots__ = ("node", "frame", "idx", "keep", "store", "given")
 
     def __init__(self, node, frame, idx, keep, given=None):
         self.node, self.frame, self.idx, self.keep, self.given = node, frame, idx, keep, given
-        self.vals = self.done = None
-
-
-class _Memo:
-    """A global variable's values, per pixel, as they were first computed."""
-
-    __slots__ = ("const", "vals", "done")
-
-    def __init__(self):
-        self.const, self.vals, self.done = None, None, None
-
-    def missing(self, idx):
-        if self.const is not None:
-            return np.empty(0, np.int64)
-        if self.done is None:
-            return idx
-        return np.flatnonzero(~self.done) if idx is None else idx[~self.done[idx]]
-
-    def store(self, n, idx, v):
-        if idx is None and self.done is None and np.ndim(v) == 0:
-            self.const = (float(v),)
-            return
-        if self.done is None:
-            self.vals, self.done = np.zeros(n), np.zeros(n, bool)
-        if idx is None:
-            self.vals[:], self.done[:] = v, True
-        else:
-            self.vals[idx], self.done[idx] = v, True
-
-    def get(self, idx):
-        if self.const is not None:
-            return self.const[0]
-        return self.vals if idx is None else self.vals[idx]
+        self.store = _Store()
 
 
 class Evaluation:
@@ -148,11 +151,12 @@ class Evaluation:
         self.defs, self.path, self.xres, self.yres = definitions, path, float(xres), float(yres)
         self.shape = np.broadcast_shapes(np.shape(x), np.shape(y))
         self.n = int(np.prod(self.shape, dtype=np.int64))
-        self.x = np.broadcast_to(np.asarray(x, np.float64), self.shape).ravel()
-        self.y = np.broadcast_to(np.asarray(y, np.float64), self.shape).ravel()
+        # x, y and the inputs keep their shapes for whole-picture work (x is one row, y one
+        # column: a radius is computed on the broadcast, not per pixel); flattened on demand
+        self.x, self.y = np.asarray(x, np.float64), np.asarray(y, np.float64)
         self.inputs = None if inputs is None else tuple(np.asarray(c, np.float64) for c in inputs)
-        self.flat_inputs = None
-        self.memo: Dict[str, _Memo] = {}
+        self.flats: Dict[str, np.ndarray] = {}
+        self.memo: Dict[str, _Store] = {}
         self.active: set = set()
         self.err: Optional[np.ndarray] = None  # Radiance's errno, per pixel
         self.events = 0
@@ -164,17 +168,29 @@ class Evaluation:
     def value(self, node, frame=None):
         """``node`` over every pixel, shaped like ``x`` and ``y`` broadcast together."""
         v = run(self.ev(node, None, frame), self._too_deep)
-        return np.broadcast_to(np.asarray(v, np.float64), (self.n,)).reshape(self.shape)
+        return np.broadcast_to(np.asarray(v, np.float64), self.shape)
 
     def named(self, name: str):
         """The global variable ``name`` over every pixel (shaped as :meth:`value`)."""
         v = run(self.variable(name, None, 0), self._too_deep)
-        return np.broadcast_to(np.asarray(v, np.float64), (self.n,)).reshape(self.shape)
+        return np.broadcast_to(np.asarray(v, np.float64), self.shape)
 
     def function_value(self, d, values):
-        frame = {p: _Arg(None, None, None, True, given=np.broadcast_to(np.asarray(v, np.float64), self.shape).ravel())
-                 for p, v in zip(d.params, values)}
+        frame = {}
+        for p, v in zip(d.params, values):
+            full = np.broadcast_to(np.asarray(v, np.float64), self.shape)
+            frame[p] = _Arg(None, None, None, True, given=(full, full.ravel()))
         return self.value(d.body, frame)
+
+    def flat(self, key: str, value) -> np.ndarray:
+        """``value`` broadcast to the picture and flattened (once per key)."""
+        f = self.flats.get(key)
+        if f is None:
+            f = self.flats[key] = np.broadcast_to(value, self.shape).ravel()
+        return f
+
+    def shape_of(self, idx):
+        return self.shape if idx is None else idx.shape
 
     def _too_deep(self):
         raise InputError(f"{self.path}: expressions nested more than {MAX_FRAMES} deep to evaluate")
@@ -189,7 +205,7 @@ class Evaluation:
         if self.err is None:
             self.err = np.zeros(self.n, bool)
         if idx is None:
-            self.err |= np.broadcast_to(mask, (self.n,))
+            self.err |= np.broadcast_to(mask, self.shape).ravel()
         else:
             self.err[idx[np.broadcast_to(mask, idx.shape)]] = True
         self.events += 1
@@ -207,7 +223,7 @@ class Evaluation:
     def _finish(self, idx, events, value):
         """``libfunc``'s end: 0 where its arguments marked the pixel; the marks stay."""
         if self.events != events:
-            inner = self.err if idx is None else self.err[idx]
+            inner = self.err.reshape(self.shape) if idx is None else self.err[idx]
             if inner.any():
                 value = np.where(inner, 0.0, value)
         return value
@@ -225,9 +241,9 @@ class Evaluation:
             if frame is not None and name in frame:
                 return self.arg(frame[name], idx)
             if name == "x":
-                return Value(self.x if idx is None else self.x[idx])
+                return Value(self.x if idx is None else self.flat("x", self.x)[idx])
             if name == "y":
-                return Value(self.y if idx is None else self.y[idx])
+                return Value(self.y if idx is None else self.flat("y", self.y)[idx])
             if name in ("xres", "yres"):
                 return Value(self.xres if name == "xres" else self.yres)
             return self.variable(name, idx, node.line)
@@ -272,17 +288,16 @@ class Evaluation:
                 self._explain(node, r, (a, d), "overflows")
             return r
         self._mark(idx, zero)
-        count = int(np.count_nonzero(np.broadcast_to(zero, (self._len(idx),))))
+        zero = np.broadcast_to(zero, self.shape_of(idx))
+        count = int(np.count_nonzero(zero))
         self._warn(node, "/", f"division by zero in {_short(node)} at {count} of {self.n} pixels: 0 "
                               f"there, and 0 for the library functions around it, as Radiance "
                               f"(rcalc prints 'Division by zero')")
-        if np.ndim(zero) == 0:
-            return 0.0
         out = np.zeros(zero.shape)
         keep = _sub(idx, ~zero)
         if keep.size:
             a = yield self.ev(node.kids[0], keep, frame)
-            out[~zero] = np.asarray(a, np.float64) / d[~zero]
+            out[~zero] = np.asarray(a, np.float64) / np.broadcast_to(d, zero.shape)[~zero]
         return out
 
     def power(self, node, idx, frame):
@@ -303,7 +318,7 @@ class Evaluation:
             raise InputError(f"{self.path}, line {line}: undefined variable '{name}'")
         memo = self.memo.get(name)
         if memo is None:
-            memo = self.memo[name] = _Memo()
+            memo = self.memo[name] = _Store()
         need = memo.missing(idx)
         if need is None or need.size:
             if name in self.active:
@@ -312,28 +327,20 @@ class Evaluation:
             v = yield self.ev(d.body, need, None)
             self.active.discard(name)
             memo.store(self.n, need, v)
-        return memo.get(idx)
+        return memo.get(self.shape, idx)
 
     def arg(self, a: _Arg, idx):
         """An argument on the pixels ``idx`` (a subset of the call's), computed once there."""
         if a.given is not None:
-            return a.given if idx is None else a.given[idx]
+            return a.given[0] if idx is None else a.given[1][idx]
         if not a.keep:
             return (yield self.ev(a.node, idx, a.frame))
-        if a.done is None:
-            size = self.n if a.idx is None else a.idx.size
-            a.vals, a.done = np.zeros(size), np.zeros(size, bool)
-        pos = slice(None) if idx is None else (idx if a.idx is None else np.searchsorted(a.idx, idx))
-        missing = ~a.done[pos]
-        if missing.any():
-            if missing.all():
-                need, where = idx, pos
-            else:
-                need = _sub(idx, missing)
-                where = need if idx is None else pos[missing]
-            v = yield self.ev(a.node, need, a.frame)
-            a.vals[where], a.done[where] = v, True
-        return a.vals[pos]
+        pos = None if idx is None else (idx if a.idx is None else np.searchsorted(a.idx, idx))
+        need = a.store.missing(pos)
+        if need is None or need.size:
+            v = yield self.ev(a.node, need if a.idx is None or need is None else a.idx[need], a.frame)
+            a.store.store(self.n if a.idx is None else a.idx.size, need, v)
+        return a.store.get(self.shape if a.idx is None else a.idx.shape, pos)
 
     def call(self, node, idx, frame):
         d = self.defs[node.value]
@@ -346,9 +353,6 @@ class Evaluation:
         self.calls -= 1
         return v
 
-    def _len(self, idx) -> int:
-        return self.n if idx is None else int(idx.size)
-
     def library(self, node, idx, frame):
         """A library function with ``libfunc``'s rules (arguments computed inside it)."""
         name, kids = node.value, node.kids
@@ -359,6 +363,7 @@ class Evaluation:
                 taken = kids[1] if bool(np.all(c)) else kids[2]
                 r = yield self.ev(taken, idx, frame)
             else:
+                c = np.broadcast_to(c, self.shape_of(idx))
                 r = np.zeros(c.shape)
                 r[c] = yield self.ev(kids[1], _sub(idx, c), frame)
                 r[~c] = yield self.ev(kids[2], _sub(idx, ~c), frame)
@@ -387,13 +392,14 @@ class Evaluation:
         pixel is marked (EDOM) and gives 0; only the chosen argument is computed."""
         choices = node.kids[1:]
         n = np.floor(np.asarray((yield self.ev(node.kids[0], idx, frame)), np.float64) + 0.5)
-        size = self._len(idx)
-        n = np.broadcast_to(n, (size,))
+        n = np.broadcast_to(n, self.shape_of(idx))
         out = np.where(n == 0, float(len(choices)), 0.0)
         for i, k in enumerate(choices, 1):
             m = n == i
-            if m.any():
-                out[m] = yield self.ev(k, _sub(idx, m) if not m.all() else idx, frame)
+            if m.all():
+                out = np.array(np.broadcast_to((yield self.ev(k, idx, frame)), out.shape), np.float64)
+            elif m.any():
+                out[m] = yield self.ev(k, _sub(idx, m), frame)
         bad = ~((n >= 0) & (n <= len(choices)))
         if bad.any():
             self._mark(idx, bad)
@@ -412,10 +418,10 @@ class Evaluation:
             dx = yield self.ev(node.kids[1], idx, frame)
             dy = yield self.ev(node.kids[2], idx, frame)
             chans = self._shifted(idx, dx, dy)
+        elif idx is None:
+            chans = self.inputs
         else:
-            if self.flat_inputs is None:
-                self.flat_inputs = tuple(np.broadcast_to(ch, self.shape).ravel() for ch in self.inputs)
-            chans = tuple(ch if idx is None else ch[idx] for ch in self.flat_inputs)
+            chans = tuple(self.flat("rgb"[i], ch)[idx] for i, ch in enumerate(self.inputs))
         if c is None:
             return LUMA[0] * chans[0] + LUMA[1] * chans[1] + LUMA[2] * chans[2]
         return chans[c]
@@ -424,8 +430,8 @@ class Evaluation:
         dx, dy = (np.nan_to_num(np.asarray(v, np.float64), nan=0.0, posinf=0.0, neginf=0.0) for v in (dx, dy))
         h, w = int(self.yres), int(self.xres)
         full = [np.broadcast_to(ch, (h, w)) for ch in self.inputs]
-        x = self.x if idx is None else self.x[idx]
-        y = self.y if idx is None else self.y[idx]
+        x = self.x if idx is None else self.flat("x", self.x)[idx]
+        y = self.y if idx is None else self.flat("y", self.y)[idx]
         xx = np.clip(x + np.floor(dx + 0.5), 0, w - 1).astype(np.int64)
         yy = np.clip(y + np.floor(dy + 0.5), 0, h - 1).astype(np.int64)
         xx, yy = np.broadcast_arrays(xx, yy)
