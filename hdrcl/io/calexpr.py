@@ -51,7 +51,7 @@ from hdrcl.errors import InputError
 from hdrcl.io import caleval
 from hdrcl.io.caleval import LUMA
 
-__all__ = ["CalProgram", "parse", "parse_file", "Node", "LUMA", "call_function", "geometry_constants"]
+__all__ = ["CalProgram", "parse", "parse_file", "Node", "LUMA", "call_function", "decode"]
 
 MAX_TEXT = 1 << 20
 MAX_DEPTH = 20000  # parentheses, calls and ^ nested in one expression (rcalc reads 20000, crashes at 100000)
@@ -545,50 +545,3 @@ def parse_file(path) -> CalProgram:
     if len(data) > MAX_TEXT:
         raise InputError(f"{path}: a .cal file of more than {MAX_TEXT} bytes")
     return parse(decode(data, path), path)
-
-
-def geometry_constants(prog: CalProgram) -> Dict[str, float]:
-    """The constants a file compares pixel positions with: ``xc`` of ``x - C``, ``yc`` of
-    ``y - C`` and ``radius`` of ``... / R`` over an expression of ``x`` and ``y``
-    (None where the file has none or writes them with ``xres``/``yres``)."""
-    found: Dict[str, Optional[float]] = {}
-
-    def constant(node: Node) -> Optional[float]:
-        """The value of a subexpression of numbers and + - * / alone, else None."""
-        if node.kind == "num":
-            return float(node.value)
-        if node.kind == "neg":
-            v = constant(node.kids[0])
-            return None if v is None else -v
-        if node.kind in ("+", "-", "*", "/"):
-            a, b = constant(node.kids[0]), constant(node.kids[1])
-            if a is None or b is None or (node.kind == "/" and b == 0):
-                return None if node.kind != "/" or a is None or b is None else 0.0
-            return {"+": a + b, "-": a - b, "*": a * b, "/": a / b if b else 0.0}[node.kind]
-        return None
-
-    def uses_xy(node: Node, seen) -> bool:
-        if node.kind == "var":
-            if node.value in ("x", "y"):
-                return True
-            d = prog.definitions.get(node.value)
-            if d is not None and node.value not in seen:
-                return uses_xy(d.body, seen | {node.value})
-        return any(uses_xy(k, seen) for k in node.kids)
-
-    def walk(node: Node) -> None:
-        if node.kind == "-" and node.kids[0].kind == "var" and constant(node.kids[1]) is not None:
-            name = {"x": "xc", "y": "yc"}.get(node.kids[0].value)
-            if name:
-                found.setdefault(name, constant(node.kids[1]))
-        if node.kind == "/" and constant(node.kids[1]) is not None and uses_xy(node.kids[0], frozenset()):
-            found.setdefault("radius", constant(node.kids[1]))
-        for k in node.kids:
-            walk(k)
-
-    try:
-        for d in prog.definitions.values():
-            walk(d.body)
-    except RecursionError:  # definitions chained thousands deep: no geometry to compare
-        return {}
-    return found
