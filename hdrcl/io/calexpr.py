@@ -4,7 +4,9 @@ vectorised NumPy evaluator (Radiance's ``calexpr.c`` / ``caldefn.c`` / ``calfunc
 The language (everything else is refused with one line naming the file, the line and
 the token; :class:`~hdrcl.errors.InputError`, exit code 3):
 
-* statements ``name = expr;`` and ``name : expr;`` (a constant; evaluated alike here),
+* statements ``name = expr;`` and ``name : expr;`` (a constant: folded where its value is
+  constant, as Radiance folds it; one that depends on ``x``, ``y`` is evaluated per pixel
+  here, where Radiance keeps the first pixel's value and warns),
   functions ``f(a, b) = expr;``; the last ``;`` may be left out, empty statements are
   skipped; a later definition of a name replaces the earlier one;
 * ``+ - * /`` (left associative), ``^`` (right associative, ``2^3^2 = 512``), a unary
@@ -22,16 +24,16 @@ the token; :class:`~hdrcl.errors.InputError`, exit code 3):
 * names: a letter, then letters, digits, ``_`` and ``.``;
 * built-in functions ``sqrt exp log log10 sin cos tan asin acos atan atan2 floor ceil
   if select min max``, user functions calling themselves (``fact(n) = if(n - 1.5,
-  n * fact(n - 1), 1)``, to :data:`~hdrcl.io.caleval.MAX_CALLS` deep), and ``abs`` and ``sq`` (not in pcomb's library: hdrcl accepts them
-  as Radiance's ``rayinit.cal`` defines them; a file's own ``sq(x)=x*x;`` takes
-  precedence); ``if(c, a, b)`` is ``a`` where ``c > 0``;
+  n * fact(n - 1), 1)``, to :data:`~hdrcl.io.caleval.MAX_CALLS` deep), and ``abs`` and
+  ``sq`` (not in pcomb's library: hdrcl accepts them as Radiance's ``rayinit.cal`` defines
+  them; a file's own ``sq(x)=x*x;`` takes precedence); ``if(c, a, b)`` is ``a`` where ``c > 0``;
   ``select(n, a1, a2, ...)`` is ``a_round(n)`` (``select(0, ...)`` the count);
 * constants ``PI`` and ``WE`` (179, Radiance's white efficacy), pcomb's variables ``x``,
   ``y`` (pixel column and row, integers, ``y = 0`` the BOTTOM row), ``xres``, ``yres``
   and inputs ``ri(1) gi(1) bi(1) li(1)`` (``li`` = ``0.265 ri + 0.670 gi + 0.065 bi``,
   Radiance's luminance; only input 1: one picture), also at an offset ``ri(1, dx, dy)``
-  (the pixel at ``x + round(dx), y + round(dy)``, edges repeated, as pcomb); outputs ``ro go bo`` (or ``lo`` for
-  all three; 0 when none is defined, as pcomb).
+  (the pixel at ``x + round(dx), y + round(dy)``, edges repeated, as pcomb); outputs
+  ``ro go bo`` (or ``lo`` for all three; 0 when none is defined, as pcomb).
 
 Evaluation is over whole arrays at once, each branch of ``if``/``select`` on the pixels
 that take it (:mod:`hdrcl.io.caleval`). The parser runs on an explicit stack (no Python
