@@ -36,7 +36,7 @@ import logging
 import math
 import os
 from dataclasses import dataclass
-from typing import Optional, Tuple
+from typing import Dict, Optional, Tuple
 
 import numpy as np
 
@@ -48,7 +48,7 @@ logger = logging.getLogger(__name__)
 __all__ = ["Vignetting", "RadialProjection", "read_projection", "read_vignetting", "read_nd_filter", "read_calibration_factor",
            "vignetting_option", "nd_filter_option", "calibration_factor_option", "check_factor_range",
            "calibration_factor_text", "write_calibration_factor",
-           "SCENE_RANGE"]
+           "SCENE_RANGE", "geometry_constants"]
 
 MAX_POWER = 8
 #: Luminances (cd/m^2) a calibrated map must be able to hold: starlit ground to above the sun's disc.
@@ -120,9 +120,21 @@ def _factor_map(prog, path: str, xres: int, yres: int, what: str, full: bool = T
     return np.stack([one[o] for o, _ in _OUT], axis=-1)
 
 
+def _not_finite(prog, path: str, what: str, n: int) -> InputError:
+    """The error for factors that are not finite numbers, naming the operation that made
+    them so (``(-8)^(1/3)`` is NaN in Radiance too: rcalc prints nan), not the position."""
+    cause = prog.why_not_finite([o for o, _ in _OUT], xres=n, yres=n, inputs=(1.0, 1.0, 1.0))
+    why = f", line {cause.split('line ', 1)[1]}" if cause else ": its factors are not finite numbers"
+    noun = what if what.endswith("factor") else f"{what} factor"
+    return InputError(f"{path}{why} (Radiance computes the same: rcalc prints nan or inf); the {noun} "
+                      f"must be a finite positive number")
+
+
 def _constant_factors(path: str, what: str) -> Tuple[float, float, float]:
     prog = calexpr.parse_file(path)
     f = _factor_map(prog, path, 8, 8, what, full=False)
+    if not np.all(np.isfinite(f)):
+        raise _not_finite(prog, path, what, 8)
     if not np.all(f == f[:1, :1]):
         raise InputError(f"{path}: a {what} .cal file is one factor per channel; this one depends on "
                          f"the pixel position (x, y)")
@@ -155,11 +167,13 @@ def read_vignetting(path) -> Vignetting:
     """The vignetting correction of a .cal file (factors that depend on ``x``, ``y``)."""
     path = os.fspath(path)
     prog = calexpr.parse_file(path)
-    geo = calexpr.geometry_constants(prog)
+    geo = geometry_constants(prog)
     probe = int(round(2 * geo["radius"])) if geo.get("radius") and 2 <= 2 * geo["radius"] <= 4096 else 64
     if geo.get("radius") is not None and not geo["radius"] > 0:
         raise InputError(f"{path}: the vignetting radius must be positive, not {geo['radius']:g}")
     f = _factor_map(prog, path, probe, probe, "vignetting", full=False)
+    if not np.any(np.isfinite(f)):
+        raise _not_finite(prog, path, "vignetting", probe)
     if np.all(f == f[:1, :1]):
         raise InputError(f"{path}: not a vignetting .cal file: its factors do not depend on the pixel "
                          f"position (x, y) (a neutral density or calibration factor file?)")
@@ -213,6 +227,53 @@ def read_projection(path) -> RadialProjection:
     if not np.all(np.isfinite(rs[:-1])) or np.any(rs[:-1] < 0):
         raise InputError(f"{path}: rad(r) does not give a finite, non-negative radius for every r in 0..0.5")
     return proj
+
+
+def geometry_constants(prog: calexpr.CalProgram) -> Dict[str, float]:
+    """The constants a file compares pixel positions with: ``xc`` of ``x - C``, ``yc`` of
+    ``y - C`` and ``radius`` of ``... / R`` over an expression of ``x`` and ``y``
+    (None where the file has none or writes them with ``xres``/``yres``)."""
+    found: Dict[str, Optional[float]] = {}
+
+    def constant(node) -> Optional[float]:
+        """The value of a subexpression of numbers and + - * / alone, else None."""
+        if node.kind == "num":
+            return float(node.value)
+        if node.kind == "neg":
+            v = constant(node.kids[0])
+            return None if v is None else -v
+        if node.kind in ("+", "-", "*", "/"):
+            a, b = constant(node.kids[0]), constant(node.kids[1])
+            if a is None or b is None or (node.kind == "/" and b == 0):
+                return None if node.kind != "/" or a is None or b is None else 0.0
+            return {"+": a + b, "-": a - b, "*": a * b, "/": a / b if b else 0.0}[node.kind]
+        return None
+
+    def uses_xy(node, seen) -> bool:
+        if node.kind == "var":
+            if node.value in ("x", "y"):
+                return True
+            d = prog.definitions.get(node.value)
+            if d is not None and node.value not in seen:
+                return uses_xy(d.body, seen | {node.value})
+        return any(uses_xy(k, seen) for k in node.kids)
+
+    def walk(node) -> None:
+        if node.kind == "-" and node.kids[0].kind == "var" and constant(node.kids[1]) is not None:
+            name = {"x": "xc", "y": "yc"}.get(node.kids[0].value)
+            if name:
+                found.setdefault(name, constant(node.kids[1]))
+        if node.kind == "/" and constant(node.kids[1]) is not None and uses_xy(node.kids[0], frozenset()):
+            found.setdefault("radius", constant(node.kids[1]))
+        for k in node.kids:
+            walk(k)
+
+    try:
+        for d in prog.definitions.values():
+            walk(d.body)
+    except RecursionError:  # definitions chained thousands deep: no geometry to compare
+        return {}
+    return found
 
 
 def calibration_factor_text(k: float, comment: str = "") -> str:
