@@ -216,8 +216,9 @@ def test_masks_are_honoured(field):
     valid[3][:5, :5] = True
     fit = estimate_exposures(moved, wrong, resp, valid=valid, names=NAMES)
     assert not fit.measured[3] and not fit.flagged.any() and fit.used[3] == wrong[3]
-    assert any(n.startswith("f3.png: too few pixels") and "metadata (" in n and "is kept" in n
-               for n in fit.notes)
+    # an end frame with nothing measurable contradicts nothing: said at -v only (issue 34: a
+    # phone batch printed one such warning per frame)
+    assert not any("too few pixels" in n for n in fit.notes)
 
 
 def test_few_frames_take_the_median_scale(field):

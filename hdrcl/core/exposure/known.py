@@ -33,6 +33,8 @@ from hdrcl.core.response import SPAN_BODY, Response
 from hdrcl.core.weights import weight_values
 from hdrcl.errors import UsageError
 
+logger = logging.getLogger(__name__)
+
 #: A pair of frames is measured only when it shares at least this many pixel-channel
 #: samples in the curve's body (:data:`hdrcl.core.response.SPAN_BODY`), both valid.
 MIN_OVERLAP = 200
@@ -495,13 +497,24 @@ def _explain(fit: KnownCurveFit, names, labels) -> None:
                 notes.append(f"{names[i]} and {names[j]} are at the same exposure (the pixels say "
                              f"{format_time(np.exp(used_lt[i]))}; the metadata says {said[i]} and {said[j]})")
     if m_idx.size:  # with nothing measured there is nothing to compare a frame with
-        for k in np.flatnonzero(~fit.measured):
-            if fit.pixels[k] < MIN_OVERLAP:
-                why = (f"too few pixels in the curve's body (codes {SPAN_BODY[0]}..{SPAN_BODY[1]}) "
-                       f"to measure its exposure ({int(fit.pixels[k])})")
-            else:
-                why = "shares too few well-exposed pixels with the other frames to measure its exposure"
-            notes.append(f"{names[k]}: {why}; its metadata ({said[k]}) is kept")
+        # One line per cause for the set, not one per frame (a phone batch printed dozens).
+        few = [k for k in np.flatnonzero(~fit.measured) if fit.pixels[k] < MIN_OVERLAP]
+        apart = [k for k in np.flatnonzero(~fit.measured) if fit.pixels[k] >= MIN_OVERLAP]
+        # A frame with next to nothing in the curve's body (a bracket's darkest or brightest
+        # end) contradicts nothing: its label is used, said at -v only (not a warning).
+        body = f"the curve's body (codes {SPAN_BODY[0]}..{SPAN_BODY[1]})"
+        if few:
+            logger.info("%s: too few pixels in %s to measure %s (at most %d); %s metadata is kept",
+                        _list_names([names[k] for k in few]), body,
+                        "its exposure" if len(few) == 1 else f"the exposures of {len(few)} frames",
+                        int(max(fit.pixels[k] for k in few)), "its" if len(few) == 1 else "their")
+        if len(apart) == 1:
+            k = apart[0]
+            notes.append(f"{names[k]}: shares too few well-exposed pixels with the other frames to measure its "
+                         f"exposure; its metadata ({said[k]}) is kept")
+        elif apart:
+            notes.append(f"{_list_names([names[k] for k in apart])}: share too few well-exposed pixels with the "
+                         f"other frames to measure their exposures ({len(apart)} frames); their metadata is kept")
     else:
         notes.append(f"{fit.scale_note}; the metadata is kept for all {nominal.size} frames")
 
