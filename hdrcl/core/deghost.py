@@ -70,6 +70,11 @@ class GhostModel:
     bias: np.ndarray
     spread: np.ndarray
     threshold: float = THRESHOLD
+    #: ``(P, C, BINS)``: the median residual per bin of the code *read* (None: zeros).
+    #: What a frame's estimate is corrected by where it stands in for the fused value
+    #: (:func:`replace`): binned by the predicted code, as ``bias`` is, the bins near
+    #: the floor would hold only the readings the noise lifted above it.
+    read_bias: Optional[np.ndarray] = None
 
 
 def reference_index(times: Sequence[float], choice: Union[None, str, int] = None) -> int:
@@ -150,6 +155,7 @@ def learn(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.n
     p, c = len(frames), tables.shape[0]
     rs = [[] for _ in range(c)]
     bs = [[] for _ in range(c)]
+    zs = [[] for _ in range(c)]
     with np.errstate(divide="ignore"):
         ln_f = np.log(np.where(fused > 0, fused, np.nan))
     mono = reference.monotone_tables(tables)
@@ -159,9 +165,11 @@ def learn(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.n
         r = ln_e - ln_f
         ok &= np.isfinite(r)
         b = _predicted_bins(ln_f0, log_t[j], mono)
+        zb = _bins(z, tables.shape[1])
         for ch in range(c):
             rs[ch].append(r[..., ch][ok[..., ch]])
             bs[ch].append(b[..., ch][ok[..., ch]])
+            zs[ch].append(zb[..., ch][ok[..., ch]])
     pooled = [_bin_stats(np.concatenate(rs[ch]), np.concatenate(bs[ch]), None) for ch in range(c)]
     bias = np.empty((p, c, BINS))
     spread = np.empty((p, c, BINS))
@@ -169,7 +177,13 @@ def learn(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.n
         for j in range(p):
             bias[j, ch], spread[j, ch] = _bin_stats(rs[ch][j], bs[ch][j], pooled[ch])
     spread = np.maximum(spread, MIN_SPREAD)
-    return GhostModel(bias=bias, spread=spread, threshold=threshold)
+    read_bias = np.zeros((p, c, BINS))
+    for ch in range(c):
+        pooled_read = _bin_stats(np.concatenate(rs[ch]), np.concatenate(zs[ch]), None)
+        for j in range(p):
+            read_bias[j, ch] = _bin_stats(rs[ch][j], zs[ch][j], pooled_read)[0]
+    read_bias = np.where(np.isfinite(read_bias), read_bias, 0.0)
+    return GhostModel(bias=bias, spread=spread, threshold=threshold, read_bias=read_bias)
 
 
 def _bin_stats(r, b, fallback):
@@ -195,8 +209,9 @@ def _bin_stats(r, b, fallback):
 
 
 #: Rows of context a strip needs on each side for :func:`find` to give exactly the
-#: whole image's mask: 1 (envelope) + 2 (opening) + GROW (dilation).
-CONTEXT = 3 + GROW
+#: whole image's weights: 1 (envelope) + 2 (opening) + GROW (dilation) + GROW (the
+#: feathered edge: :func:`feather`).
+CONTEXT = 3 + 2 * GROW
 
 
 def _stack(parts):
@@ -207,7 +222,8 @@ def _stack(parts):
 def find(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.ndarray,
          valid: Optional[Sequence[Optional[np.ndarray]]], fused: np.ndarray, model: GhostModel,
          above=None, below=None) -> np.ndarray:
-    """Ghost mask ``(H, W)`` of a strip or image (frames in exposure order).
+    """Ghost weights ``(H, W)`` float32 in [0, 1] of a strip or image (frames in exposure
+    order): the mask is where they are above 0 (:func:`feather`).
 
     A frame that measures a pixel within its working range marks it when its estimate,
     less the learnt bias of its bin, lies outside the fused radiance's 3x3 envelope
@@ -252,38 +268,88 @@ def find(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.nd
         tol = np.maximum(model.threshold * model.spread[j, chan, b], FLOOR)
         raw |= (ok & (fu > 0) & ((x > hi + tol) | (x < lo - tol))).any(axis=2)
     if not raw.any():
-        return np.zeros(fused.shape[:2], bool)
+        return np.zeros(fused.shape[:2], np.float32)
     mask = ndimage.binary_opening(raw, structure=np.ones((3, 3), bool))
     if GROW:
         mask = ndimage.binary_dilation(mask, iterations=GROW)
-    return mask[top:top + rows]
+    return feather(mask)[top:top + rows]
 
 
-def replace(radiance: np.ndarray, frames, log_times, tables, ghost: np.ndarray, valid, ref: int) -> int:
+def feather(mask: np.ndarray) -> np.ndarray:
+    """Weight of the deghosted value per pixel of a grown mask: 1 inside, falling
+    linearly over its outer :data:`GROW` rings (1/(GROW+1) on the outermost, 0 outside).
+
+    A hard switch from the fused value to one frame's leaves a step wherever the two
+    differ a little (curve error, noise); over the grown rings, which hold static
+    pixels next to the moving object, the two are blended instead."""
+    from scipy import ndimage
+
+    out = mask.astype(np.float32)
+    inner = mask
+    for _ in range(GROW):
+        inner = ndimage.binary_erosion(inner, border_value=1)
+        out += inner
+    return out / np.float32(GROW + 1)
+
+
+def _corrected(frames, log_times, tables, valid, j, model):
+    """Frame ``j``'s estimate less the learnt bias of the bin of the code it reads, so it
+    agrees with the fused map on a static scene (a curve wrong in the toe or shoulder
+    otherwise makes one frame's estimate darker or brighter than the fused one)."""
+    z, ln_e, ok = _estimates(frames, log_times, tables, valid, j)
+    if model is not None and model.read_bias is not None:
+        chan = np.arange(tables.shape[0])
+        ln_e = ln_e - model.read_bias[j, chan, _bins(z, tables.shape[1])]
+    return z, ln_e, ok
+
+
+def replace(radiance: np.ndarray, frames, log_times, tables, ghost: np.ndarray, valid, ref: int,
+            model: Optional[GhostModel] = None) -> int:
     """Give ghost pixels the reference exposure's own estimate (in place).
+
+    ``ghost`` holds :func:`find`'s weights (or a bool mask): ``ln E = a ln E_ref + (1 - a)
+    ln E_fused``. The estimate is corrected by ``model``'s learnt bias for the code read (``read_bias``).
+    Where the reference is out of its working range the nearest exposure that measures
+    the pixel stands in (longer for dark, shorter for bright); where none does, the
+    fused value is kept but clamped into the interval the reference's code proves
+    (its reading of code z says ``g(z-1) <= ln E + ln dt <= g(z+1)``): an under-exposed
+    reading is no measurement, yet it does say the moving object is not there.
 
     Returns the number of ghost pixel-channels no single frame could serve.
     """
-    if not ghost.any():
+    alpha = np.asarray(ghost, np.float32)
+    sel2 = alpha > 0
+    if not sel2.any():
         return 0
     levels = tables.shape[1]
-    rz, r_ln, r_ok = _estimates(frames, log_times, tables, valid, ref)
-    sel = ghost[..., None] & np.ones(r_ok.shape[-1:], bool)
-    done = sel & r_ok
-    radiance[done] = np.exp(r_ln[done])
+    nch = radiance.shape[-1]
+    sel = np.broadcast_to(sel2[..., None], radiance.shape)
+    with np.errstate(divide="ignore"):
+        ln_fused = np.log(np.where(radiance > 0, radiance, np.nan))
+    rz, r_ln, r_ok = _corrected(frames, log_times, tables, valid, ref, model)
+    target = np.where(sel & r_ok, r_ln, np.nan)
     todo = sel & ~r_ok
     dark = rz < levels // 2
-    ends = (rz > 0) & (rz < levels - 1)
     for step, side in ((1, dark), (-1, ~dark)):  # longer exposures for dark, shorter for bright
         j = ref + step
         while 0 <= j < len(frames) and (todo & side).any():
-            _, ln_e, ok = _estimates(frames, log_times, tables, valid, j)
+            _, ln_e, ok = _corrected(frames, log_times, tables, valid, j, model)
             use = todo & side & ok
-            radiance[use] = np.exp(ln_e[use])
+            target[use] = ln_e[use]
             todo &= ~use
             j += step
-    # No frame measures it in its working range: the reference's own reading, unless
-    # clipped, still beats a blend with the moving object.
-    last = todo & ends
-    radiance[last] = np.exp(r_ln[last])
-    return int(np.count_nonzero(todo & ~ends))
+    if todo.any():
+        mono = np.maximum.accumulate(tables, axis=1)
+        chan = np.arange(nch)
+        lo = mono[chan, np.maximum(rz - 1, 0)] - log_times[ref]
+        hi = mono[chan, np.minimum(rz + 1, levels - 1)] - log_times[ref]
+        if model is not None and model.read_bias is not None:
+            b = model.read_bias[ref, chan, _bins(rz, levels)]
+            lo, hi = lo - b, hi - b
+        lo = np.where(rz > 0, lo, -np.inf)
+        hi = np.where(rz < levels - 1, hi, np.inf)
+        target[todo] = np.clip(ln_fused[todo], lo[todo], hi[todo])
+    have = sel & np.isfinite(target) & np.isfinite(ln_fused)
+    a = np.broadcast_to(alpha[..., None], radiance.shape)[have]
+    radiance[have] = np.exp(a * target[have] + (1 - a) * ln_fused[have])
+    return int(np.count_nonzero(todo))
