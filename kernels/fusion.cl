@@ -481,3 +481,67 @@ __kernel void fuse_fix(FRAMES_PARAM,
     }
     mask[i] = flags;
 }
+
+/* ---- Deghosting: the departures (hdrcl.core.deghost.departures is the twin) ----------
+ * One work item per pixel of a strip (with its context rows): 1 in `raw` where some
+ * frame p and channel c, with fused > 0 and a code z in zlo..zhi (valid), give
+ *     x = tab[c][z] - lt[p] - bias[p][c][b]
+ * outside the fused value's 3x3 envelope of ln (edges repeated) by more than
+ * tol[p][c][b]; b, the bin of the code the fused value predicts, counts the `edges`
+ * (the curve one code below each bin's first code) under ln fused + lt[p].
+ *   frames  P planes of rows x width x NCH codes, `plane` elements apart
+ *   valid   P planes of rows x width (1 = valid) when has_valid, else unread
+ *   fused   rows x width x NCH float32 radiance (before replacement)
+ *   tab     NCH x LEVELS g (ln); lt P ln dt; edges NCH x (BINS - 1) ln
+ *   bias, tol  P x NCH x BINS ln
+ *   raw     rows x width uchar out */
+#ifndef BINS
+#define BINS 16
+#endif
+__kernel void ghost_raw(__global const PIXEL_T *frames, const int plane, __global const uchar *valid,
+                        const int has_valid, __global const float *fused, __global const float *tab,
+                        __global const float *lt, __global const float *edges, __global const float *bias,
+                        __global const float *tol, __global uchar *raw, const int rows, const int width,
+                        const int nframes, const int zlo, const int zhi)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= width || y >= rows)
+        return;
+    const int i = y * width + x;
+    float lnf[NCH], lo[NCH], hi[NCH];
+    for (int c = 0; c < NCH; c++) {
+        lnf[c] = log(fmax(fused[i * NCH + c], 1e-30f));
+        lo[c] = lnf[c];
+        hi[c] = lnf[c];
+    }
+    for (int dy = -1; dy <= 1; dy++) {
+        const int yy = clamp(y + dy, 0, rows - 1);
+        for (int dx = -1; dx <= 1; dx++) {
+            const int k = (yy * width + clamp(x + dx, 0, width - 1)) * NCH;
+            for (int c = 0; c < NCH; c++) {
+                const float v = log(fmax(fused[k + c], 1e-30f));
+                lo[c] = fmin(lo[c], v);
+                hi[c] = fmax(hi[c], v);
+            }
+        }
+    }
+    uchar hit = 0;
+    for (int p = 0; p < nframes && !hit; p++) {
+        if (has_valid && !valid[(size_t)p * rows * width + i])
+            continue;
+        for (int c = 0; c < NCH; c++) {
+            const int z = frames[(size_t)p * plane + (size_t)i * NCH + c];
+            if (z < zlo || z > zhi || !(fused[i * NCH + c] > 0.0f))
+                continue;
+            const float xf = lnf[c] + lt[p];
+            int b = 0;
+            for (int q = 0; q < BINS - 1; q++)
+                b += edges[c * (BINS - 1) + q] < xf;
+            const int k = (p * NCH + c) * BINS + b;
+            const float xv = tab[c * LEVELS + z] - lt[p] - bias[k];
+            if (xv > hi[c] + tol[k] || xv < lo[c] - tol[k])
+                hit = 1;
+        }
+    }
+    raw[i] = hit;
+}

@@ -150,3 +150,24 @@ def test_feathered_edge_and_read_bias(cl_device):
     dg.replace(rad, frames, [0.0], tables, np.array([[1.0, 0.5]], np.float32), None, 0, model)
     want = np.log(101.0) - 0.5
     np.testing.assert_allclose(np.log(rad[0, :, 0]), [want, 0.5 * want + 0.5 * np.log(50.0)], rtol=1e-5)
+
+
+def test_ghost_kernel_matches_twin(cl_device):
+    """``ghost_raw`` (kernels/fusion.cl) marks the pixels its NumPy twin
+    (:func:`hdrcl.core.deghost.departures`) marks, with invalid pixels, on an odd size."""
+    from hdrcl.cl.backend import get_processor
+    from hdrcl.core import deghost as dg
+    from hdrcl.core import reference
+    from hdrcl.core.pipeline import fusion_tables
+
+    sc, resp = _night(-0.3, 0.4)
+    frames = [f[:151, :227] for f in sc.frames]
+    valid = [None, np.arange(151 * 227).reshape(151, 227) % 7 != 0, None, None, None]
+    lt = np.log(sc.times)
+    tables, wts = fusion_tables(resp, np.uint8, 3)
+    model = dg.learn(frames, lt, tables, wts, valid)
+    fused = reference.fuse(frames, lt, tables, wts, valid)[0].astype(np.float32)
+    twin = dg.departures(frames, lt, tables, valid, fused, model)
+    knl = get_processor("fusion").ghost_departures(frames, valid, fused, dg.ghost_tables(lt, tables, model))
+    assert twin.sum() > 50
+    assert (twin != knl).sum() <= 2  # float32 against float64 at the threshold

@@ -105,9 +105,12 @@ def reference_index(times: Sequence[float], choice: Union[None, str, int] = None
 def _estimates(frames, log_times, tables, valid, j):
     levels = tables.shape[1]
     lo, hi = MARGIN * (levels - 1), (1 - MARGIN) * (levels - 1)
-    chan = np.arange(tables.shape[0])
-    z = frames[j].astype(np.int64)
-    ln_e = tables[chan, z] - log_times[j]
+    z = frames[j]
+    # one table per channel, indexed by the codes as they are (no int64 copy of the frame)
+    ln_e = np.empty(z.shape, np.float64)
+    for ch in range(tables.shape[0]):
+        ln_e[..., ch] = tables[ch][z[..., ch]]
+    ln_e -= log_times[j]
     ok = (z >= lo) & (z <= hi)
     if valid is not None and valid[j] is not None:
         ok &= valid[j][..., None]
@@ -115,7 +118,7 @@ def _estimates(frames, log_times, tables, valid, j):
 
 
 def _bins(z, levels):
-    return np.minimum(z * BINS // levels, BINS - 1)
+    return np.minimum(z.astype(np.int64) * BINS // levels, BINS - 1)
 
 
 def _predicted_bins(ln_f, log_time, mono):
@@ -128,6 +131,24 @@ def _predicted_bins(ln_f, log_time, mono):
     for ch in range(mono.shape[0]):
         out[..., ch] = np.searchsorted(mono[ch], ln_f[..., ch] + log_time)
     return _bins(np.clip(out, 0, levels - 1), levels)
+
+
+def _predicted_bins_at(ln_f, log_time, mono, ch):
+    """:func:`_predicted_bins` of samples ``ln_f`` (1-D) of channels ``ch``: the bin is
+    the number of bin starts whose code the curve reaches below ``ln_f + log_time``
+    (bin q starts at code ceil(q L / BINS); the code read is at or past it exactly when
+    the curve one code below it is under the value), 15 comparisons instead of a search
+    of L codes."""
+    levels = mono.shape[1]
+    starts = -(-np.arange(1, BINS) * levels // BINS)  # ceil(q L / BINS)
+    edges = mono[:, starts - 1]  # (C, BINS - 1)
+    x = ln_f + log_time
+    out = np.zeros(x.shape, np.int64)
+    for c in range(mono.shape[0]):
+        sel = ch == c
+        if sel.any():
+            out[sel] = np.searchsorted(edges[c], x[sel], side="left")
+    return out
 
 
 def learn(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.ndarray, weights: np.ndarray,
@@ -219,9 +240,67 @@ def _stack(parts):
     return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
+def ghost_tables(log_times, tables: np.ndarray, model: GhostModel) -> dict:
+    """The tables :func:`departures` reads, as the kernel takes them (float32): ``tab``
+    (C, L) g, ``lt`` (P,) ln dt, ``edges`` (C, BINS - 1) the running maximum of g one code
+    below each bin's first code, ``bias`` and ``tol`` (P, C, BINS; ``tol`` =
+    max(threshold x spread, FLOOR)), and the working range ``zlo``..``zhi`` (codes)."""
+    from hdrcl.core import reference
+
+    levels = tables.shape[1]
+    starts = -(-np.arange(1, BINS) * levels // BINS)
+    f32 = lambda a: np.ascontiguousarray(a, np.float32)  # noqa: E731
+    return {"tab": f32(tables), "lt": f32(log_times), "edges": f32(reference.monotone_tables(tables)[:, starts - 1]),
+            "bias": f32(model.bias), "tol": f32(np.maximum(model.threshold * model.spread, FLOOR)),
+            "zlo": int(np.ceil(MARGIN * (levels - 1))), "zhi": int(np.floor((1 - MARGIN) * (levels - 1)))}
+
+
+def departures(frames, log_times, tables, valid, fused, model: GhostModel) -> np.ndarray:
+    """Raw ghost mask ``(H, W)`` bool (kernel: ``ghost_raw`` in ``kernels/fusion.cl``).
+
+    Pixel i is marked when, for some frame j and channel c with ``fused > 0`` and a
+    code ``z`` in the working range (valid, ``MARGIN`` from either end)::
+
+        x = g_c(z) - ln dt_j - bias[j, c, b],   b = the bin of the code predicted
+            from ln F (the fused value), :func:`_predicted_bins`
+        x > max_3x3(ln F) + tol[j, c, b]  or  x < min_3x3(ln F) - tol[j, c, b]
+
+    with ``tol = max(threshold x spread, FLOOR)`` and the envelope over the 3x3
+    neighbourhood (edges repeated).
+    """
+    from scipy import ndimage
+
+    from hdrcl.core import reference
+
+    with np.errstate(divide="ignore"):
+        ln_f = np.log(np.maximum(fused, 1e-30))
+    hi = ndimage.maximum_filter(ln_f, size=(3, 3, 1), mode="nearest")
+    lo = ndimage.minimum_filter(ln_f, size=(3, 3, 1), mode="nearest")
+    raw = np.zeros(fused.shape[:2], bool)
+    mono = reference.monotone_tables(tables)
+    live = fused > 0
+    for j in range(len(frames)):
+        z, ln_e, ok = _estimates(frames, log_times, tables, valid, j)
+        # Screen: a sample can depart only if it does by FLOOR with its bin's bias at the
+        # most favourable; the bins and spreads are then looked up for those alone (the
+        # same test as on every sample, at a fraction of the cost).
+        bmin, bmax = model.bias[j].min(axis=1), model.bias[j].max(axis=1)
+        cand = ok & live & ((ln_e - bmin > hi + FLOOR) | (ln_e - bmax < lo - FLOOR))
+        idx = np.nonzero(cand)
+        if not idx[0].size:
+            continue
+        ch = idx[2]
+        b = _predicted_bins_at(ln_f[idx], log_times[j], mono, ch)
+        x = ln_e[idx] - model.bias[j, ch, b]
+        tol = np.maximum(model.threshold * model.spread[j, ch, b], FLOOR)
+        hit = (x > hi[idx] + tol) | (x < lo[idx] - tol)
+        raw[idx[0][hit], idx[1][hit]] = True
+    return raw
+
+
 def find(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.ndarray,
          valid: Optional[Sequence[Optional[np.ndarray]]], fused: np.ndarray, model: GhostModel,
-         above=None, below=None) -> np.ndarray:
+         above=None, below=None, processor=None) -> np.ndarray:
     """Ghost weights ``(H, W)`` float32 in [0, 1] of a strip or image (frames in exposure
     order): the mask is where they are above 0 (:func:`feather`).
 
@@ -233,11 +312,11 @@ def find(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.nd
 
     ``above`` and ``below`` are ``(frames, valid, fused)`` of up to :data:`CONTEXT`
     neighbouring rows from the strips before and after (unreplaced fused values), so a
-    strip's mask equals the whole image's.
+    strip's mask equals the whole image's. ``processor``, an OpenCL fusion processor,
+    finds the departures with its kernel (``ghost_raw`` of ``kernels/fusion.cl``),
+    otherwise :func:`departures`, its twin, does.
     """
     from scipy import ndimage
-
-    from hdrcl.core import reference
 
     top = 0 if above is None else above[2].shape[0]
     rows = fused.shape[0]
@@ -254,19 +333,10 @@ def find(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.nd
         vv = [_stack([part(above, j), np.ones(fused.shape[:2], bool) if valid[j] is None else valid[j],
                       part(below, j)]) for j in range(p)]
     fu = _stack([None if above is None else above[2], fused, None if below is None else below[2]])
-    chan = np.arange(tables.shape[0])
-    with np.errstate(divide="ignore"):
-        ln_f = np.log(np.maximum(fu, 1e-30))
-    hi = ndimage.maximum_filter(ln_f, size=(3, 3, 1), mode="nearest")
-    lo = ndimage.minimum_filter(ln_f, size=(3, 3, 1), mode="nearest")
-    raw = np.zeros(fu.shape[:2], bool)
-    mono = reference.monotone_tables(tables)
-    for j in range(p):
-        z, ln_e, ok = _estimates(fr, log_times, tables, vv, j)
-        b = _predicted_bins(ln_f, log_times[j], mono)
-        x = ln_e - model.bias[j, chan, b]
-        tol = np.maximum(model.threshold * model.spread[j, chan, b], FLOOR)
-        raw |= (ok & (fu > 0) & ((x > hi + tol) | (x < lo - tol))).any(axis=2)
+    if processor is not None:
+        raw = processor.ghost_departures(fr, vv, fu, ghost_tables(log_times, tables, model))
+    else:
+        raw = departures(fr, log_times, tables, vv, fu, model)
     if not raw.any():
         return np.zeros(fused.shape[:2], np.float32)
     mask = ndimage.binary_opening(raw, structure=np.ones((3, 3), bool))
@@ -318,22 +388,26 @@ def replace(radiance: np.ndarray, frames, log_times, tables, ghost: np.ndarray, 
     Returns the number of ghost pixel-channels no single frame could serve.
     """
     alpha = np.asarray(ghost, np.float32)
-    sel2 = alpha > 0
-    if not sel2.any():
+    ys, xs = np.nonzero(alpha > 0)
+    if not ys.size:
         return 0
+    # Only the ghost pixels are gathered, worked on and put back: the cost follows the
+    # mask, not the image.
+    fr = [f[ys, xs] for f in frames]
+    vv = None if valid is None else [None if v is None else v[ys, xs] for v in valid]
+    px = radiance[ys, xs].astype(np.float64)
     levels = tables.shape[1]
     nch = radiance.shape[-1]
-    sel = np.broadcast_to(sel2[..., None], radiance.shape)
     with np.errstate(divide="ignore"):
-        ln_fused = np.log(np.where(radiance > 0, radiance, np.nan))
-    rz, r_ln, r_ok = _corrected(frames, log_times, tables, valid, ref, model)
-    target = np.where(sel & r_ok, r_ln, np.nan)
-    todo = sel & ~r_ok
+        ln_fused = np.log(np.where(px > 0, px, np.nan))
+    rz, r_ln, r_ok = _corrected(fr, log_times, tables, vv, ref, model)
+    target = np.where(r_ok, r_ln, np.nan)
+    todo = ~r_ok
     dark = rz < levels // 2
     for step, side in ((1, dark), (-1, ~dark)):  # longer exposures for dark, shorter for bright
         j = ref + step
-        while 0 <= j < len(frames) and (todo & side).any():
-            _, ln_e, ok = _corrected(frames, log_times, tables, valid, j, model)
+        while 0 <= j < len(fr) and (todo & side).any():
+            _, ln_e, ok = _corrected(fr, log_times, tables, vv, j, model)
             use = todo & side & ok
             target[use] = ln_e[use]
             todo &= ~use
@@ -341,15 +415,17 @@ def replace(radiance: np.ndarray, frames, log_times, tables, ghost: np.ndarray, 
     if todo.any():
         mono = np.maximum.accumulate(tables, axis=1)
         chan = np.arange(nch)
-        lo = mono[chan, np.maximum(rz - 1, 0)] - log_times[ref]
-        hi = mono[chan, np.minimum(rz + 1, levels - 1)] - log_times[ref]
+        rzi = rz.astype(np.int64)
+        lo = mono[chan, np.maximum(rzi - 1, 0)] - log_times[ref]
+        hi = mono[chan, np.minimum(rzi + 1, levels - 1)] - log_times[ref]
         if model is not None and model.read_bias is not None:
             b = model.read_bias[ref, chan, _bins(rz, levels)]
             lo, hi = lo - b, hi - b
-        lo = np.where(rz > 0, lo, -np.inf)
-        hi = np.where(rz < levels - 1, hi, np.inf)
+        lo = np.where(rzi > 0, lo, -np.inf)
+        hi = np.where(rzi < levels - 1, hi, np.inf)
         target[todo] = np.clip(ln_fused[todo], lo[todo], hi[todo])
-    have = sel & np.isfinite(target) & np.isfinite(ln_fused)
-    a = np.broadcast_to(alpha[..., None], radiance.shape)[have]
-    radiance[have] = np.exp(a * target[have] + (1 - a) * ln_fused[have])
+    have = np.isfinite(target) & np.isfinite(ln_fused)
+    a = np.broadcast_to(alpha[ys, xs][:, None], px.shape)
+    px[have] = np.exp(a[have] * target[have] + (1 - a[have]) * ln_fused[have])
+    radiance[ys, xs] = px
     return int(np.count_nonzero(todo))
