@@ -263,7 +263,8 @@ def ghost_departures(proc: "FusionProcessor", frames, valid, fused: np.ndarray, 
         raise TypeError(f"frames must be uint8 or uint16, not {dtype}")
     levels = tables["tab"].shape[1]
     nbins = tables["bias"].shape[2]
-    opts = (f"-DPIXEL_T={_PIXEL_T[dtype]}", f"-DNCH={c}", f"-DLEVELS={levels}", f"-DBINS={nbins}")
+    opts = (f"-DPIXEL_T={_PIXEL_T[dtype]}", f"-DNCH={c}", f"-DLEVELS={levels}", f"-DBINS={nbins}",
+            f"-DFLOOR={float(tables['floor']):.9g}f")
     knl = ctx.kernel("fusion", "ghost_raw", opts)
     mf = cl.mem_flags
     ro = mf.READ_ONLY | mf.COPY_HOST_PTR
@@ -279,7 +280,7 @@ def ghost_departures(proc: "FusionProcessor", frames, valid, fused: np.ndarray, 
     rb = cl.Buffer(ctx.context, mf.WRITE_ONLY, raw.nbytes)
     knl(q, (round_up(w, 16), round_up(h, 4)), (16, 4), buf(packed), np.int32(h * w * c), vb, np.int32(has_valid),
         buf(np.asarray(fused, np.float32)), buf(tables["tab"]), buf(tables["lt"]), buf(tables["edges"]),
-        buf(tables["bias"]), buf(tables["tol"]), rb, np.int32(h), np.int32(w), np.int32(len(frames)),
+        buf(tables["bias"]), buf(tables["tol"]), buf(tables["screen"]), rb, np.int32(h), np.int32(w), np.int32(len(frames)),
         np.int32(tables["zlo"]), np.int32(tables["zhi"]))
     cl.enqueue_copy(q, raw, rb, is_blocking=True)
     return raw.view(bool)

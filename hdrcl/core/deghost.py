@@ -244,7 +244,8 @@ def ghost_tables(log_times, tables: np.ndarray, model: GhostModel) -> dict:
     """The tables :func:`departures` reads, as the kernel takes them (float32): ``tab``
     (C, L) g, ``lt`` (P,) ln dt, ``edges`` (C, BINS - 1) the running maximum of g one code
     below each bin's first code, ``bias`` and ``tol`` (P, C, BINS; ``tol`` =
-    max(threshold x spread, FLOOR)), and the working range ``zlo``..``zhi`` (codes)."""
+    max(threshold x spread, FLOOR)), ``screen`` (P, C, 2) the least and largest bias over
+    the bins, ``floor`` (FLOOR) and the working range ``zlo``..``zhi`` (codes)."""
     from hdrcl.core import reference
 
     levels = tables.shape[1]
@@ -252,6 +253,7 @@ def ghost_tables(log_times, tables: np.ndarray, model: GhostModel) -> dict:
     f32 = lambda a: np.ascontiguousarray(a, np.float32)  # noqa: E731
     return {"tab": f32(tables), "lt": f32(log_times), "edges": f32(reference.monotone_tables(tables)[:, starts - 1]),
             "bias": f32(model.bias), "tol": f32(np.maximum(model.threshold * model.spread, FLOOR)),
+            "screen": f32(np.stack([model.bias.min(axis=2), model.bias.max(axis=2)], axis=-1)), "floor": FLOOR,
             "zlo": int(np.ceil(MARGIN * (levels - 1))), "zhi": int(np.floor((1 - MARGIN) * (levels - 1)))}
 
 
@@ -337,12 +339,19 @@ def find(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.nd
         raw = processor.ghost_departures(fr, vv, fu, ghost_tables(log_times, tables, model))
     else:
         raw = departures(fr, log_times, tables, vv, fu, model)
-    if not raw.any():
-        return np.zeros(fused.shape[:2], np.float32)
-    mask = ndimage.binary_opening(raw, structure=np.ones((3, 3), bool))
+    rows_hit, cols_hit = np.flatnonzero(raw.any(axis=1)), np.flatnonzero(raw.any(axis=0))
+    out = np.zeros(raw.shape, np.float32)
+    if not rows_hit.size:
+        return out[top:top + rows]
+    # The morphology in the departures' bounding box with a margin the mask cannot reach
+    # (the same result as on the whole strip; ghosts are usually a small part of it).
+    m = GROW + 3
+    win = (slice(max(rows_hit[0] - m, 0), rows_hit[-1] + m + 1), slice(max(cols_hit[0] - m, 0), cols_hit[-1] + m + 1))
+    mask = ndimage.binary_opening(raw[win], structure=np.ones((3, 3), bool))
     if GROW:
         mask = ndimage.binary_dilation(mask, iterations=GROW)
-    return feather(mask)[top:top + rows]
+    out[win] = feather(mask)
+    return out[top:top + rows]
 
 
 def feather(mask: np.ndarray) -> np.ndarray:
