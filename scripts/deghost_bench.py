@@ -109,7 +109,6 @@ def ensure_big(work, mp, seed) -> tuple:
     h = int(round(np.sqrt(mp * 1e6 * 3 / 4) / 2))
     w = int(round(h * 4 / 3))
     folder = os.path.join(work, f"night_{mp:g}mp_{seed}")
-    sc_times = None
     paths = [os.path.join(folder, f"f{k}.tif") for k in range(5)]
     meta = os.path.join(folder, "times.json")
     if not os.path.isfile(meta):
@@ -125,7 +124,6 @@ def ensure_big(work, mp, seed) -> tuple:
             out.close()
         with open(meta, "w") as fh:
             json.dump({"times": [float(t) for t in sc.times]}, fh)
-        sc_times = sc.times
     with open(meta) as fh:
         sc_times = json.load(fh)["times"]
     from hdrcl.core.synthetic import Camera

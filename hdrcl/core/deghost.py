@@ -16,8 +16,11 @@ static pixels of the same radiance, where it is a minority, and cannot teach the
 that its own departure is normal. Ghost pixels take the reference frame's own
 estimate (the middle exposure by default); where the reference itself is out of its
 working range at a ghost pixel (per channel), the nearest exposure on the side that
-measures it (longer for dark, shorter for bright) stands in; where none does, the
-fused value is kept and the pixel-channel is counted as unresolved.
+measures it (longer for dark, shorter for bright) stands in, its estimate corrected by
+the set's learnt bias for the code it reads; where none does, the fused value is kept,
+clamped into what the reference's code proves, and the pixel-channel is counted as
+unresolved. The grown rings blend the two values (:func:`feather`), so the mask's edge
+leaves no step.
 
 A departure counts only outside the fused radiance's 3x3 envelope (edges that a
 one-pixel misregistration or blur smears are not motion), the raw mask is opened
