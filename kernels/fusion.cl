@@ -481,3 +481,87 @@ __kernel void fuse_fix(FRAMES_PARAM,
     }
     mask[i] = flags;
 }
+
+/* ---- Deghosting: the departures (hdrcl.core.deghost.departures is the twin) ----------
+ * One work item per pixel of a strip (with its context rows): 1 in `raw` where some
+ * frame p and channel c, with fused > 0 and a code z in zlo..zhi (valid), give
+ *     x = tab[c][z] - lt[p] - bias[p][c][b]
+ * outside the fused value's 3x3 envelope of ln (edges repeated) by more than
+ * tol[p][c][b]; b, the bin of the code the fused value predicts, counts the `edges`
+ * (the curve one code below each bin's first code) under ln fused + lt[p].
+ *   frames  P planes of rows x width x NCH codes, `plane` elements apart
+ *   valid   P planes of rows x width (1 = valid) when has_valid, else unread
+ *   fused   rows x width x NCH float32 radiance (before replacement)
+ *   tab     NCH x LEVELS g (ln); lt P ln dt; edges NCH x (BINS - 1) ln
+ *   bias, tol  P x NCH x BINS ln
+ *   screen  P x NCH x 2: the smallest and largest bias over the bins (ln)
+ *   raw     rows x width uchar out */
+#ifndef BINS
+#define BINS 16
+#endif
+#ifndef FLOOR
+#define FLOOR 0.25f
+#endif
+__kernel void ghost_raw(__global const PIXEL_T *frames, const int plane, __global const uchar *valid,
+                        const int has_valid, __global const float *fused, __global const float *tab,
+                        __global const float *lt, __global const float *edges, __global const float *bias,
+                        __global const float *tol, __global const float *screen, __global uchar *raw, const int rows, const int width,
+                        const int nframes, const int zlo, const int zhi)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= width || y >= rows)
+        return;
+    const int i = y * width + x;
+    float lnf[NCH], lo[NCH], hi[NCH];
+    for (int c = 0; c < NCH; c++) {
+        lo[c] = fused[i * NCH + c];
+        hi[c] = lo[c];
+    }
+    /* the envelope of the values, then its logarithm (log is increasing): 3 logs a channel */
+    for (int dy = -1; dy <= 1; dy++) {
+        const int yy = clamp(y + dy, 0, rows - 1);
+        for (int dx = -1; dx <= 1; dx++) {
+            const int k = (yy * width + clamp(x + dx, 0, width - 1)) * NCH;
+            for (int c = 0; c < NCH; c++) {
+                lo[c] = fmin(lo[c], fused[k + c]);
+                hi[c] = fmax(hi[c], fused[k + c]);
+            }
+        }
+    }
+    for (int c = 0; c < NCH; c++) {
+        lnf[c] = log(fmax(fused[i * NCH + c], 1e-30f));
+        lo[c] = log(fmax(lo[c], 1e-30f));
+        hi[c] = log(fmax(hi[c], 1e-30f));
+    }
+    uchar hit = 0;
+    for (int p = 0; p < nframes && !hit; p++) {
+        if (has_valid && !valid[(size_t)p * rows * width + i])
+            continue;
+        for (int c = 0; c < NCH; c++) {
+            const int z = frames[(size_t)p * plane + (size_t)i * NCH + c];
+            if (z < zlo || z > zhi || !(fused[i * NCH + c] > 0.0f))
+                continue;
+            const float e = tab[c * LEVELS + z] - lt[p];
+            /* screen (as the twin): no bin's bias and tolerance can make it depart */
+            if (e - screen[(p * NCH + c) * 2] <= hi[c] + FLOOR && e - screen[(p * NCH + c) * 2 + 1] >= lo[c] - FLOOR)
+                continue;
+            const float xf = lnf[c] + lt[p];
+            __global const float *ed = edges + c * (BINS - 1);
+            int b = 0, n = BINS - 1;  /* edges below xf, by bisection (edges non-decreasing) */
+            while (n > 0) {
+                const int hf = n >> 1;
+                if (ed[b + hf] < xf) {
+                    b += hf + 1;
+                    n -= hf + 1;
+                } else {
+                    n = hf;
+                }
+            }
+            const int k = (p * NCH + c) * BINS + b;
+            const float xv = e - bias[k];
+            if (xv > hi[c] + tol[k] || xv < lo[c] - tol[k])
+                hit = 1;
+        }
+    }
+    raw[i] = hit;
+}

@@ -12,7 +12,8 @@ import pytest
 import hdrcl
 from hdrcl.core import synthetic as s
 from hdrcl.core.exposure.fit import fit_exposures
-from hdrcl.core.exposure.known import KnownCurveFit, estimate_exposures, untrusted_metadata
+from hdrcl.core.exposure.known import KnownCurveFit, estimate_exposures
+from hdrcl.core.exposure.verdict import untrusted_metadata
 from hdrcl.core.fusion import fuse_frames
 from hdrcl.core.response import Response, knot_positions
 from hdrcl.errors import UsageError

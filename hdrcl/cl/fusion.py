@@ -209,6 +209,10 @@ class FusionProcessor(OpenCLProcessor):
 
     source = "fusion"
 
+    def ghost_departures(self, frames, valid, fused, tables: dict) -> np.ndarray:
+        """See :func:`ghost_departures`."""
+        return ghost_departures(self, frames, valid, fused, tables)
+
     def plan(self, nframes, width, nch, dtype, log_times, tables, weights, has_valid) -> FusionPlan:
         return FusionPlan(self, nframes, width, nch, dtype, log_times, tables, weights, has_valid)
 
@@ -244,6 +248,42 @@ class FusionProcessor(OpenCLProcessor):
                             [None if v is None else v[r0:r1] for v in valid] if has_valid else None,
                             out[r0:r1], None if clip_mask is None else clip_mask[r0:r1])
         return out, plan.result_counts()
+
+
+def ghost_departures(proc: "FusionProcessor", frames, valid, fused: np.ndarray, tables: dict) -> np.ndarray:
+    """Raw ghost mask ``(H, W)`` bool of frames ``(H, W, C)`` (exposure order), ``valid``
+    (list of ``(H, W)`` bool or None, or None) and the fused ``(H, W, C)`` radiance, by
+    ``ghost_raw`` of ``kernels/fusion.cl``; ``tables`` as
+    :func:`hdrcl.core.deghost.ghost_tables` gives them (its twin is
+    :func:`hdrcl.core.deghost.departures`)."""
+    ctx, q = proc.ctx, proc.queue
+    h, w, c = fused.shape
+    dtype = np.dtype(frames[0].dtype)
+    if dtype not in _PIXEL_T:
+        raise TypeError(f"frames must be uint8 or uint16, not {dtype}")
+    levels = tables["tab"].shape[1]
+    nbins = tables["bias"].shape[2]
+    opts = (f"-DPIXEL_T={_PIXEL_T[dtype]}", f"-DNCH={c}", f"-DLEVELS={levels}", f"-DBINS={nbins}",
+            f"-DFLOOR={float(tables['floor']):.9g}f")
+    knl = ctx.kernel("fusion", "ghost_raw", opts)
+    mf = cl.mem_flags
+    ro = mf.READ_ONLY | mf.COPY_HOST_PTR
+
+    def buf(a):
+        return cl.Buffer(ctx.context, ro, hostbuf=np.ascontiguousarray(a))
+
+    packed = np.stack([np.ascontiguousarray(f) for f in frames])
+    has_valid = valid is not None and any(v is not None for v in valid)
+    vb = buf(np.stack([np.ones((h, w), np.uint8) if v is None else v.astype(np.uint8) for v in valid])
+             if has_valid else np.zeros(4, np.uint8))
+    raw = np.empty((h, w), np.uint8)
+    rb = cl.Buffer(ctx.context, mf.WRITE_ONLY, raw.nbytes)
+    knl(q, (round_up(w, 16), round_up(h, 4)), (16, 4), buf(packed), np.int32(h * w * c), vb, np.int32(has_valid),
+        buf(np.asarray(fused, np.float32)), buf(tables["tab"]), buf(tables["lt"]), buf(tables["edges"]),
+        buf(tables["bias"]), buf(tables["tol"]), buf(tables["screen"]), rb, np.int32(h), np.int32(w), np.int32(len(frames)),
+        np.int32(tables["zlo"]), np.int32(tables["zhi"]))
+    cl.enqueue_copy(q, raw, rb, is_blocking=True)
+    return raw.view(bool)
 
 
 def profile_kernel(proc: FusionProcessor, frames, log_times, tables, weights, repeats: int = 3) -> float:

@@ -114,7 +114,7 @@ def calibrate(
         {"file": os.path.basename(n), "nominal": float(t), "fitted": None if fitted is None else float(f),
          "used": float(u)}
         for n, t, f, u in zip(names, br.times, fitted if fitted is not None else br.times, used)]
-    from hdrcl.core.exposure.known import untrusted_metadata
+    from hdrcl.core.exposure.verdict import untrusted_metadata
 
     doubt = untrusted_metadata(resp, fit, names)
     report_span(resp, warn=warn and doubt is None)
@@ -196,7 +196,7 @@ def metadata_verdict(bracket: Bracket, *, samples: Optional[int] = None, smoothn
                      exposure_tolerance: Optional[float] = None):
     """What :func:`calibrate` would say of a set's exposure metadata, said by nobody:
     ``(verdict, span)``, the verdict of
-    :func:`hdrcl.core.exposure.known.untrusted_metadata` (None when nothing says the
+    :func:`hdrcl.core.exposure.verdict.untrusted_metadata` (None when nothing says the
     metadata is wrong) and the span in decades (codes 10..245) of the set's own curve.
 
     A batch asks it of every set it pools (:mod:`hdrcl.shoot.batch.pooling`), so that a

@@ -16,8 +16,11 @@ static pixels of the same radiance, where it is a minority, and cannot teach the
 that its own departure is normal. Ghost pixels take the reference frame's own
 estimate (the middle exposure by default); where the reference itself is out of its
 working range at a ghost pixel (per channel), the nearest exposure on the side that
-measures it (longer for dark, shorter for bright) stands in; where none does, the
-fused value is kept and the pixel-channel is counted as unresolved.
+measures it (longer for dark, shorter for bright) stands in, its estimate corrected by
+the set's learnt bias for the code it reads; where none does, the fused value is kept,
+clamped into what the reference's code proves, and the pixel-channel is counted as
+unresolved. The grown rings blend the two values (:func:`feather`), so the mask's edge
+leaves no step.
 
 A departure counts only outside the fused radiance's 3x3 envelope (edges that a
 one-pixel misregistration or blur smears are not motion), the raw mask is opened
@@ -70,6 +73,11 @@ class GhostModel:
     bias: np.ndarray
     spread: np.ndarray
     threshold: float = THRESHOLD
+    #: ``(P, C, BINS)``: the median residual per bin of the code *read* (None: zeros).
+    #: What a frame's estimate is corrected by where it stands in for the fused value
+    #: (:func:`replace`): binned by the predicted code, as ``bias`` is, the bins near
+    #: the floor would hold only the readings the noise lifted above it.
+    read_bias: Optional[np.ndarray] = None
 
 
 def reference_index(times: Sequence[float], choice: Union[None, str, int] = None) -> int:
@@ -100,9 +108,12 @@ def reference_index(times: Sequence[float], choice: Union[None, str, int] = None
 def _estimates(frames, log_times, tables, valid, j):
     levels = tables.shape[1]
     lo, hi = MARGIN * (levels - 1), (1 - MARGIN) * (levels - 1)
-    chan = np.arange(tables.shape[0])
-    z = frames[j].astype(np.int64)
-    ln_e = tables[chan, z] - log_times[j]
+    z = frames[j]
+    # one table per channel, indexed by the codes as they are (no int64 copy of the frame)
+    ln_e = np.empty(z.shape, np.float64)
+    for ch in range(tables.shape[0]):
+        ln_e[..., ch] = tables[ch][z[..., ch]]
+    ln_e -= log_times[j]
     ok = (z >= lo) & (z <= hi)
     if valid is not None and valid[j] is not None:
         ok &= valid[j][..., None]
@@ -110,7 +121,7 @@ def _estimates(frames, log_times, tables, valid, j):
 
 
 def _bins(z, levels):
-    return np.minimum(z * BINS // levels, BINS - 1)
+    return np.minimum(z.astype(np.int64) * BINS // levels, BINS - 1)
 
 
 def _predicted_bins(ln_f, log_time, mono):
@@ -123,6 +134,24 @@ def _predicted_bins(ln_f, log_time, mono):
     for ch in range(mono.shape[0]):
         out[..., ch] = np.searchsorted(mono[ch], ln_f[..., ch] + log_time)
     return _bins(np.clip(out, 0, levels - 1), levels)
+
+
+def _predicted_bins_at(ln_f, log_time, mono, ch):
+    """:func:`_predicted_bins` of samples ``ln_f`` (1-D) of channels ``ch``: the bin is
+    the number of bin starts whose code the curve reaches below ``ln_f + log_time``
+    (bin q starts at code ceil(q L / BINS); the code read is at or past it exactly when
+    the curve one code below it is under the value), 15 comparisons instead of a search
+    of L codes."""
+    levels = mono.shape[1]
+    starts = -(-np.arange(1, BINS) * levels // BINS)  # ceil(q L / BINS)
+    edges = mono[:, starts - 1]  # (C, BINS - 1)
+    x = ln_f + log_time
+    out = np.zeros(x.shape, np.int64)
+    for c in range(mono.shape[0]):
+        sel = ch == c
+        if sel.any():
+            out[sel] = np.searchsorted(edges[c], x[sel], side="left")
+    return out
 
 
 def learn(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.ndarray, weights: np.ndarray,
@@ -150,6 +179,7 @@ def learn(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.n
     p, c = len(frames), tables.shape[0]
     rs = [[] for _ in range(c)]
     bs = [[] for _ in range(c)]
+    zs = [[] for _ in range(c)]
     with np.errstate(divide="ignore"):
         ln_f = np.log(np.where(fused > 0, fused, np.nan))
     mono = reference.monotone_tables(tables)
@@ -159,9 +189,11 @@ def learn(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.n
         r = ln_e - ln_f
         ok &= np.isfinite(r)
         b = _predicted_bins(ln_f0, log_t[j], mono)
+        zb = _bins(z, tables.shape[1])
         for ch in range(c):
             rs[ch].append(r[..., ch][ok[..., ch]])
             bs[ch].append(b[..., ch][ok[..., ch]])
+            zs[ch].append(zb[..., ch][ok[..., ch]])
     pooled = [_bin_stats(np.concatenate(rs[ch]), np.concatenate(bs[ch]), None) for ch in range(c)]
     bias = np.empty((p, c, BINS))
     spread = np.empty((p, c, BINS))
@@ -169,7 +201,13 @@ def learn(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.n
         for j in range(p):
             bias[j, ch], spread[j, ch] = _bin_stats(rs[ch][j], bs[ch][j], pooled[ch])
     spread = np.maximum(spread, MIN_SPREAD)
-    return GhostModel(bias=bias, spread=spread, threshold=threshold)
+    read_bias = np.zeros((p, c, BINS))
+    for ch in range(c):
+        pooled_read = _bin_stats(np.concatenate(rs[ch]), np.concatenate(zs[ch]), None)
+        for j in range(p):
+            read_bias[j, ch] = _bin_stats(rs[ch][j], zs[ch][j], pooled_read)[0]
+    read_bias = np.where(np.isfinite(read_bias), read_bias, 0.0)
+    return GhostModel(bias=bias, spread=spread, threshold=threshold, read_bias=read_bias)
 
 
 def _bin_stats(r, b, fallback):
@@ -195,8 +233,9 @@ def _bin_stats(r, b, fallback):
 
 
 #: Rows of context a strip needs on each side for :func:`find` to give exactly the
-#: whole image's mask: 1 (envelope) + 2 (opening) + GROW (dilation).
-CONTEXT = 3 + GROW
+#: whole image's weights: 1 (envelope) + 2 (opening) + GROW (dilation) + GROW (the
+#: feathered edge: :func:`feather`).
+CONTEXT = 3 + 2 * GROW
 
 
 def _stack(parts):
@@ -204,10 +243,71 @@ def _stack(parts):
     return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
+def ghost_tables(log_times, tables: np.ndarray, model: GhostModel) -> dict:
+    """The tables :func:`departures` reads, as the kernel takes them (float32): ``tab``
+    (C, L) g, ``lt`` (P,) ln dt, ``edges`` (C, BINS - 1) the running maximum of g one code
+    below each bin's first code, ``bias`` and ``tol`` (P, C, BINS; ``tol`` =
+    max(threshold x spread, FLOOR)), ``screen`` (P, C, 2) the least and largest bias over
+    the bins, ``floor`` (FLOOR) and the working range ``zlo``..``zhi`` (codes)."""
+    from hdrcl.core import reference
+
+    levels = tables.shape[1]
+    starts = -(-np.arange(1, BINS) * levels // BINS)
+    f32 = lambda a: np.ascontiguousarray(a, np.float32)  # noqa: E731
+    return {"tab": f32(tables), "lt": f32(log_times), "edges": f32(reference.monotone_tables(tables)[:, starts - 1]),
+            "bias": f32(model.bias), "tol": f32(np.maximum(model.threshold * model.spread, FLOOR)),
+            "screen": f32(np.stack([model.bias.min(axis=2), model.bias.max(axis=2)], axis=-1)), "floor": FLOOR,
+            "zlo": int(np.ceil(MARGIN * (levels - 1))), "zhi": int(np.floor((1 - MARGIN) * (levels - 1)))}
+
+
+def departures(frames, log_times, tables, valid, fused, model: GhostModel) -> np.ndarray:
+    """Raw ghost mask ``(H, W)`` bool (kernel: ``ghost_raw`` in ``kernels/fusion.cl``).
+
+    Pixel i is marked when, for some frame j and channel c with ``fused > 0`` and a
+    code ``z`` in the working range (valid, ``MARGIN`` from either end)::
+
+        x = g_c(z) - ln dt_j - bias[j, c, b],   b = the bin of the code predicted
+            from ln F (the fused value), :func:`_predicted_bins`
+        x > max_3x3(ln F) + tol[j, c, b]  or  x < min_3x3(ln F) - tol[j, c, b]
+
+    with ``tol = max(threshold x spread, FLOOR)`` and the envelope over the 3x3
+    neighbourhood (edges repeated).
+    """
+    from scipy import ndimage
+
+    from hdrcl.core import reference
+
+    with np.errstate(divide="ignore"):
+        ln_f = np.log(np.maximum(fused, 1e-30))
+    hi = ndimage.maximum_filter(ln_f, size=(3, 3, 1), mode="nearest")
+    lo = ndimage.minimum_filter(ln_f, size=(3, 3, 1), mode="nearest")
+    raw = np.zeros(fused.shape[:2], bool)
+    mono = reference.monotone_tables(tables)
+    live = fused > 0
+    for j in range(len(frames)):
+        z, ln_e, ok = _estimates(frames, log_times, tables, valid, j)
+        # Screen: a sample can depart only if it does by FLOOR with its bin's bias at the
+        # most favourable; the bins and spreads are then looked up for those alone (the
+        # same test as on every sample, at a fraction of the cost).
+        bmin, bmax = model.bias[j].min(axis=1), model.bias[j].max(axis=1)
+        cand = ok & live & ((ln_e - bmin > hi + FLOOR) | (ln_e - bmax < lo - FLOOR))
+        idx = np.nonzero(cand)
+        if not idx[0].size:
+            continue
+        ch = idx[2]
+        b = _predicted_bins_at(ln_f[idx], log_times[j], mono, ch)
+        x = ln_e[idx] - model.bias[j, ch, b]
+        tol = np.maximum(model.threshold * model.spread[j, ch, b], FLOOR)
+        hit = (x > hi[idx] + tol) | (x < lo[idx] - tol)
+        raw[idx[0][hit], idx[1][hit]] = True
+    return raw
+
+
 def find(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.ndarray,
          valid: Optional[Sequence[Optional[np.ndarray]]], fused: np.ndarray, model: GhostModel,
-         above=None, below=None) -> np.ndarray:
-    """Ghost mask ``(H, W)`` of a strip or image (frames in exposure order).
+         above=None, below=None, processor=None) -> np.ndarray:
+    """Ghost weights ``(H, W)`` float32 in [0, 1] of a strip or image (frames in exposure
+    order): the mask is where they are above 0 (:func:`feather`).
 
     A frame that measures a pixel within its working range marks it when its estimate,
     less the learnt bias of its bin, lies outside the fused radiance's 3x3 envelope
@@ -217,11 +317,11 @@ def find(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.nd
 
     ``above`` and ``below`` are ``(frames, valid, fused)`` of up to :data:`CONTEXT`
     neighbouring rows from the strips before and after (unreplaced fused values), so a
-    strip's mask equals the whole image's.
+    strip's mask equals the whole image's. ``processor``, an OpenCL fusion processor,
+    finds the departures with its kernel (``ghost_raw`` of ``kernels/fusion.cl``),
+    otherwise :func:`departures`, its twin, does.
     """
     from scipy import ndimage
-
-    from hdrcl.core import reference
 
     top = 0 if above is None else above[2].shape[0]
     rows = fused.shape[0]
@@ -238,52 +338,106 @@ def find(frames: Sequence[np.ndarray], log_times: Sequence[float], tables: np.nd
         vv = [_stack([part(above, j), np.ones(fused.shape[:2], bool) if valid[j] is None else valid[j],
                       part(below, j)]) for j in range(p)]
     fu = _stack([None if above is None else above[2], fused, None if below is None else below[2]])
-    chan = np.arange(tables.shape[0])
-    with np.errstate(divide="ignore"):
-        ln_f = np.log(np.maximum(fu, 1e-30))
-    hi = ndimage.maximum_filter(ln_f, size=(3, 3, 1), mode="nearest")
-    lo = ndimage.minimum_filter(ln_f, size=(3, 3, 1), mode="nearest")
-    raw = np.zeros(fu.shape[:2], bool)
-    mono = reference.monotone_tables(tables)
-    for j in range(p):
-        z, ln_e, ok = _estimates(fr, log_times, tables, vv, j)
-        b = _predicted_bins(ln_f, log_times[j], mono)
-        x = ln_e - model.bias[j, chan, b]
-        tol = np.maximum(model.threshold * model.spread[j, chan, b], FLOOR)
-        raw |= (ok & (fu > 0) & ((x > hi + tol) | (x < lo - tol))).any(axis=2)
-    if not raw.any():
-        return np.zeros(fused.shape[:2], bool)
-    mask = ndimage.binary_opening(raw, structure=np.ones((3, 3), bool))
+    if processor is not None:
+        raw = processor.ghost_departures(fr, vv, fu, ghost_tables(log_times, tables, model))
+    else:
+        raw = departures(fr, log_times, tables, vv, fu, model)
+    rows_hit, cols_hit = np.flatnonzero(raw.any(axis=1)), np.flatnonzero(raw.any(axis=0))
+    out = np.zeros(raw.shape, np.float32)
+    if not rows_hit.size:
+        return out[top:top + rows]
+    # The morphology in the departures' bounding box with a margin the mask cannot reach
+    # (the same result as on the whole strip; ghosts are usually a small part of it).
+    m = GROW + 3
+    win = (slice(max(rows_hit[0] - m, 0), rows_hit[-1] + m + 1), slice(max(cols_hit[0] - m, 0), cols_hit[-1] + m + 1))
+    mask = ndimage.binary_opening(raw[win], structure=np.ones((3, 3), bool))
     if GROW:
         mask = ndimage.binary_dilation(mask, iterations=GROW)
-    return mask[top:top + rows]
+    out[win] = feather(mask)
+    return out[top:top + rows]
 
 
-def replace(radiance: np.ndarray, frames, log_times, tables, ghost: np.ndarray, valid, ref: int) -> int:
+def feather(mask: np.ndarray) -> np.ndarray:
+    """Weight of the deghosted value per pixel of a grown mask: 1 inside, falling
+    linearly over its outer :data:`GROW` rings (1/(GROW+1) on the outermost, 0 outside).
+
+    A hard switch from the fused value to one frame's leaves a step wherever the two
+    differ a little (curve error, noise); over the grown rings, which hold static
+    pixels next to the moving object, the two are blended instead."""
+    from scipy import ndimage
+
+    out = mask.astype(np.float32)
+    inner = mask
+    for _ in range(GROW):
+        inner = ndimage.binary_erosion(inner, border_value=1)
+        out += inner
+    return out / np.float32(GROW + 1)
+
+
+def _corrected(frames, log_times, tables, valid, j, model):
+    """Frame ``j``'s estimate less the learnt bias of the bin of the code it reads, so it
+    agrees with the fused map on a static scene (a curve wrong in the toe or shoulder
+    otherwise makes one frame's estimate darker or brighter than the fused one)."""
+    z, ln_e, ok = _estimates(frames, log_times, tables, valid, j)
+    if model is not None and model.read_bias is not None:
+        chan = np.arange(tables.shape[0])
+        ln_e = ln_e - model.read_bias[j, chan, _bins(z, tables.shape[1])]
+    return z, ln_e, ok
+
+
+def replace(radiance: np.ndarray, frames, log_times, tables, ghost: np.ndarray, valid, ref: int,
+            model: Optional[GhostModel] = None) -> int:
     """Give ghost pixels the reference exposure's own estimate (in place).
+
+    ``ghost`` holds :func:`find`'s weights (or a bool mask): ``ln E = a ln E_ref + (1 - a)
+    ln E_fused``. The estimate is corrected by ``model``'s learnt bias for the code read (``read_bias``).
+    Where the reference is out of its working range the nearest exposure that measures
+    the pixel stands in (longer for dark, shorter for bright); where none does, the
+    fused value is kept but clamped into the interval the reference's code proves
+    (its reading of code z says ``g(z-1) <= ln E + ln dt <= g(z+1)``): an under-exposed
+    reading is no measurement, yet it does say the moving object is not there.
 
     Returns the number of ghost pixel-channels no single frame could serve.
     """
-    if not ghost.any():
+    alpha = np.asarray(ghost, np.float32)
+    ys, xs = np.nonzero(alpha > 0)
+    if not ys.size:
         return 0
+    # Only the ghost pixels are gathered, worked on and put back: the cost follows the
+    # mask, not the image.
+    fr = [f[ys, xs] for f in frames]
+    vv = None if valid is None else [None if v is None else v[ys, xs] for v in valid]
+    px = radiance[ys, xs].astype(np.float64)
     levels = tables.shape[1]
-    rz, r_ln, r_ok = _estimates(frames, log_times, tables, valid, ref)
-    sel = ghost[..., None] & np.ones(r_ok.shape[-1:], bool)
-    done = sel & r_ok
-    radiance[done] = np.exp(r_ln[done])
-    todo = sel & ~r_ok
+    nch = radiance.shape[-1]
+    with np.errstate(divide="ignore"):
+        ln_fused = np.log(np.where(px > 0, px, np.nan))
+    rz, r_ln, r_ok = _corrected(fr, log_times, tables, vv, ref, model)
+    target = np.where(r_ok, r_ln, np.nan)
+    todo = ~r_ok
     dark = rz < levels // 2
-    ends = (rz > 0) & (rz < levels - 1)
     for step, side in ((1, dark), (-1, ~dark)):  # longer exposures for dark, shorter for bright
         j = ref + step
-        while 0 <= j < len(frames) and (todo & side).any():
-            _, ln_e, ok = _estimates(frames, log_times, tables, valid, j)
+        while 0 <= j < len(fr) and (todo & side).any():
+            _, ln_e, ok = _corrected(fr, log_times, tables, vv, j, model)
             use = todo & side & ok
-            radiance[use] = np.exp(ln_e[use])
+            target[use] = ln_e[use]
             todo &= ~use
             j += step
-    # No frame measures it in its working range: the reference's own reading, unless
-    # clipped, still beats a blend with the moving object.
-    last = todo & ends
-    radiance[last] = np.exp(r_ln[last])
-    return int(np.count_nonzero(todo & ~ends))
+    if todo.any():
+        mono = np.maximum.accumulate(tables, axis=1)
+        chan = np.arange(nch)
+        rzi = rz.astype(np.int64)
+        lo = mono[chan, np.maximum(rzi - 1, 0)] - log_times[ref]
+        hi = mono[chan, np.minimum(rzi + 1, levels - 1)] - log_times[ref]
+        if model is not None and model.read_bias is not None:
+            b = model.read_bias[ref, chan, _bins(rz, levels)]
+            lo, hi = lo - b, hi - b
+        lo = np.where(rzi > 0, lo, -np.inf)
+        hi = np.where(rzi < levels - 1, hi, np.inf)
+        target[todo] = np.clip(ln_fused[todo], lo[todo], hi[todo])
+    have = np.isfinite(target) & np.isfinite(ln_fused)
+    a = np.broadcast_to(alpha[ys, xs][:, None], px.shape)
+    px[have] = np.exp(a[have] * target[have] + (1 - a[have]) * ln_fused[have])
+    radiance[ys, xs] = px
+    return int(np.count_nonzero(todo))

@@ -273,9 +273,11 @@ class _StripFusion:
         from hdrcl.core import deghost as dg
 
         y0, y1, frames, vv, out = item
-        mask = dg.find(frames, self.log_t, self.tables, vv, out, self.ghost_model, above=self.tail, below=below)
+        mask = dg.find(frames, self.log_t, self.tables, vv, out, self.ghost_model, above=self.tail, below=below,
+                       processor=self.proc)
         new_tail = self._rows_of(frames, vv, out, slice(-dg.CONTEXT, None))
-        self.ghosts["ghost_unresolved"] += dg.replace(out, frames, self.log_t, self.tables, mask, vv, self.ref)
+        self.ghosts["ghost_unresolved"] += dg.replace(out, frames, self.log_t, self.tables, mask, vv, self.ref,
+                                                     self.ghost_model)
         self.ghosts["ghost"] += int(np.count_nonzero(mask))
         if self.spec.ghost_mask is not None:
             self.spec.ghost_mask[y0:y1] = mask

@@ -92,3 +92,85 @@ def stops(n: int, step: float = 1.0, centre: float = 1.0) -> np.ndarray:
     """``n`` exposure times ``step`` stops apart, geometrically centred on ``centre``."""
     k = np.arange(n) - (n - 1) / 2.0
     return centre * 2.0 ** (k * step)
+
+
+@dataclass
+class NightScene:
+    """A night bracket with a moon and wind-blown leaves (:func:`night_scene`).
+
+    ``truth[k]`` is the radiance frame ``k`` saw (float64 ``(H, W, 3)``), ``frames[k]`` its
+    8-bit photograph, ``times`` increasing, ``moon`` the (H, W) bool of the disc's
+    interior in the middle frame (2 px inside its limb, leaves excluded).
+    """
+
+    truth: list
+    frames: list
+    times: np.ndarray
+    camera: Camera
+    moon: np.ndarray
+
+
+def _coverage(dist: np.ndarray) -> np.ndarray:
+    """Anti-aliased coverage of a shape from the signed distance to its edge (px, < 0 in)."""
+    return np.clip(0.5 - dist, 0.0, 1.0)
+
+
+def night_scene(height: int = 360, width: int = 480, frames: int = 5, step: float = 2.0, seed: int = 0,
+                noise: float = 0.5, sway: float = 3.0) -> NightScene:
+    """A moon saturating the longer frames above a dim sky, behind leaves that sway by up
+    to ``sway`` px between frames (the moon drifts 0.6 px a frame).
+
+    The moon (about 3 decades above the sky, limb-darkened, with soft darker maria) is
+    measured only by the shorter frames; the leaves (a decade below the sky, thin,
+    high-contrast edges) only by the longer ones: the scene of issue 32's real moon set,
+    where ``--deghost`` left dark blotches at leaf edges and under the moon and a banded
+    moon. Everything is seeded; sizes may be odd.
+    """
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:height, 0:width].astype(np.float64)
+    scale = min(height, width)
+    sky = 0.02 * (1.0 + 0.5 * yy / height) * np.exp(0.1 * np.sin(xx / (0.3 * scale)))
+    mx, my, mr = 0.62 * width, 0.35 * height, 0.16 * scale
+    maria = [(rng.uniform(-0.5, 0.5) * mr, rng.uniform(-0.5, 0.5) * mr, rng.uniform(0.15, 0.35) * mr)
+             for _ in range(5)]
+    leaves = []
+    for _ in range(max(12, int(height * width / 2500))):
+        cx, cy = rng.uniform(0, width), rng.uniform(0.15 * height, height)
+        leaves.append((cx, cy, rng.uniform(3.0, 0.04 * scale + 4.0), rng.uniform(1.5, 6.0),
+                       rng.uniform(0, np.pi)))
+    times = stops(frames, step, centre=1.0)
+    times = times / times[-1] * 64.0  # the longest frame: sky near mid-grey
+    cam = Camera(a=1.1, x0=(1.0, 1.0, 1.0))
+    truth, shots = [], []
+    for k in range(frames):
+        ox = mx + 0.6 * (k - frames // 2)
+        d = np.hypot(xx - ox, yy - my)
+        disc = _coverage(d - mr)
+        limb = np.sqrt(np.clip(1.0 - (d / mr) ** 2, 0.0, 1.0))
+        moon = 24.0 * (0.55 + 0.45 * limb)
+        for ax, ay, ar in maria:
+            moon = moon * (1.0 - 0.45 * np.exp(-((xx - ox - ax) ** 2 + (yy - my - ay) ** 2) / (ar * ar)))
+        rad = sky * (1 - disc) + moon * disc
+        dx, dy = rng.uniform(-sway, sway, 2) if k != frames // 2 else (0.0, 0.0)
+        cover = np.zeros_like(rad)
+        for cx, cy, a, b, th in leaves:  # each in its own window: big scenes stay quick
+            x0, x1 = max(0, int(cx + dx - a - 2)), min(width, int(cx + dx + a + 3))
+            y0, y1 = max(0, int(cy + dy - a - 2)), min(height, int(cy + dy + a + 3))
+            if x0 >= x1 or y0 >= y1:
+                continue
+            u, v = xx[y0:y1, x0:x1] - cx - dx, yy[y0:y1, x0:x1] - cy - dy
+            pu, pv = u * np.cos(th) + v * np.sin(th), -u * np.sin(th) + v * np.cos(th)
+            near = np.hypot(pu / a, pv / b)
+            win = cover[y0:y1, x0:x1]
+            np.maximum(win, _coverage((near - 1.0) * b), out=win)
+        rad = rad * (1 - cover) + 0.002 * cover
+        rad = rad[..., None] * np.array([1.0, 0.95, 0.85])
+        truth.append(rad)
+        shots.append(bracket(rad, [times[k]], cam, noise=noise, seed=seed * 100 + k)[0])
+    mid = frames // 2
+    from scipy import ndimage
+
+    inside = np.hypot(xx - mx, yy - my) < mr - 2.0
+    inside &= truth[mid][..., 1] > 1.0
+    inside = ndimage.binary_erosion(inside, iterations=2)
+    return NightScene(truth, shots, times, cam, inside)

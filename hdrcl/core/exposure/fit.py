@@ -39,7 +39,7 @@ TRUST_STOPS = 0.2
 IMPROVEMENT = 0.8
 #: Frames whose pixel-measured exposures are this close (stops) are at the same exposure.
 SAME_STOPS = 0.1
-#: How a verdict of :func:`hdrcl.core.exposure.known.untrusted_metadata` begins, and how it
+#: How a verdict of :func:`hdrcl.core.exposure.verdict.untrusted_metadata` begins, and how it
 #: ends (what to try; a batch says instead what it did, :mod:`hdrcl.shoot.batch.pooling`).
 UNTRUSTED = "the exposure metadata of this set cannot be trusted"
 PREFER_GOOD = "; prefer a response from a good set of the same camera (--response, or a batch's pooled response)"

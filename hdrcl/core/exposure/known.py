@@ -11,7 +11,7 @@ that are identical, or a frame off by a stop, are corrected; EXIF rounding (1/60
 for 1/64 s) is left alone.
 
 Without a known curve the pixels tell the exposures only up to ``a + b ln dt``;
-:func:`untrusted_metadata` says when a calibrating set's metadata cannot be trusted, so
+:func:`hdrcl.core.exposure.verdict.untrusted_metadata` says when a calibrating set's metadata cannot be trusted, so
 a caller can prefer a response from a good set of the same camera.
 """
 from __future__ import annotations
@@ -30,6 +30,7 @@ from hdrcl.core.exposure.fit import (
     ExposureFit,
 )
 from hdrcl.core.response import SPAN_BODY, Response
+from hdrcl.core.exposure.verdict import list_names as _list_names
 from hdrcl.core.weights import weight_values
 from hdrcl.errors import UsageError
 
@@ -517,62 +518,6 @@ def _explain(fit: KnownCurveFit, names, labels) -> None:
                          f"other frames to measure their exposures ({len(apart)} frames); their metadata is kept")
     else:
         notes.append(f"{fit.scale_note}; the metadata is kept for all {nominal.size} frames")
-
-
-def _list_names(names: Sequence[str], limit: int = 8) -> str:
-    names = list(names)
-    if len(names) > limit:
-        return ", ".join(names[:limit]) + f" and {len(names) - limit} more"
-    return ", ".join(names)
-
-
-def untrusted_metadata(response: Response, fit: Optional[ExposureFit] = None,
-                       names: Optional[Sequence[str]] = None) -> Optional[str]:
-    """Why a calibrating set's exposure metadata cannot be trusted, naming the frames; None
-    when nothing says so.
-
-    Two signs, either enough: the exposure check found no group of three or more frames
-    whose metadata agree with the pixels (``fit.trusted`` all False), and an 8-bit curve
-    whose body is stretched (:meth:`hdrcl.core.response.Response.span_problem`: wrong
-    times widen it). Every frame is named in both: without a known curve the pixels tell
-    the exposures only up to ``a + b ln dt``, so which time is wrong cannot be told. The caller warns, or prefers a
-    response from a good set of the same camera (``--response``, a batch's pooled one).
-
-    Parameters
-    ----------
-    response : hdrcl.core.response.Response
-        The curve calibrated from the set.
-    fit : hdrcl.core.exposure.fit.ExposureFit, optional
-        The calibration's exposure check (None when it was off or had two frames).
-    names : sequence of str, optional
-        The files; default the ``file`` of ``response.exposures``, else ``image k``.
-
-    Returns
-    -------
-    str or None
-    """
-    p = len(fit.nominal) if fit is not None else len(response.exposures or [])
-    if names is None:
-        ex = response.exposures or []
-        names = [e.get("file", f"image {k}") for k, e in enumerate(ex)] if len(ex) == p else None
-    names = [f"image {k}" for k in range(p)] if names is None else [os.path.basename(os.fspath(n)) for n in names]
-    reasons = []
-    if fit is not None and fit.trusted is not None and p >= 3 and not np.any(fit.trusted):
-        # Which frame is wrong cannot be told: the pixels fix the exposures only up to
-        # a + b ln dt, so every frame is named.
-        reasons.append(f"no three of its {p} frames ({_list_names(names)}) agree with each other's metadata")
-    problem = response.span_problem()
-    if problem is not None:
-        body = response.span_decades(*SPAN_BODY)
-        who = f" of {_list_names(names)}" if names else ""
-        reasons.append(f"the exposure times{who} stretch the response to {response.span_decades():.1f} decades "
-                       f"between codes 10 and 245 ({body:.1f} in its body, codes {SPAN_BODY[0]}..{SPAN_BODY[1]}; "
-                       "camera JPEGs about 2.5 and 1.9)")
-    if not reasons:
-        return None
-    from hdrcl.core.exposure.fit import PREFER_GOOD, UNTRUSTED
-
-    return UNTRUSTED + ": " + "; ".join(reasons) + PREFER_GOOD
 
 
 def exposures_for_merge(frames, times, response: Response, *, mode: str = "auto", valid=None,
