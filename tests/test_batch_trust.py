@@ -145,3 +145,41 @@ def test_single_untrusted_set_is_marked_check(tmp_path, cl_device):
     (s,) = report["sets"]
     assert s["status"] == "check", s
     assert any(f["check"] == "exposure" and f["severity"] == "check" for f in s["findings"]), s["findings"]
+
+
+def test_one_wrong_label_does_not_move_the_reference_exposure(tmp_path, cl_device):
+    """Issue 32: one frame's EXIF exposure 2 stops wrong was named and measured, but the
+    map's reference exposure followed the wrong label (the whole EXR 2 stops brighter than
+    the clean batch). A camera's only set takes its reference from the measured exposures."""
+    import shutil
+
+    import OpenImageIO as oiio
+
+    try:
+        from test_batch import make_clean_shoot
+    except ImportError:  # tests/ made a package
+        from tests.test_batch import make_clean_shoot
+
+    make_clean_shoot(str(tmp_path / "clean"), sets=1, frames=5, width=160, height=120)
+    shutil.copytree(tmp_path / "clean", tmp_path / "wrong")
+    victim = sorted((tmp_path / "wrong").rglob("*.jpg"))[2]  # the middle frame, 1/60 s
+    inp = oiio.ImageInput.open(str(victim))
+    spec = inp.spec()
+    pixels = inp.read_image(0, 0, 0, spec.nchannels, "uint8")
+    inp.close()
+    spec.attribute("ExposureTime", float(spec.getattribute("ExposureTime")) * 4.0)
+    out = oiio.ImageOutput.create(str(victim))
+    assert out.open(str(victim), spec) and out.write_image(pixels)
+    out.close()
+    maps = {}
+    for name in ("clean", "wrong"):
+        res = CliRunner().invoke(main, ["batch", str(tmp_path / name), "-o", str(tmp_path / f"out-{name}")])
+        assert res.exit_code == 0, res.output
+        exr = next((tmp_path / f"out-{name}").glob("*.exr"))
+        buf = oiio.ImageBuf(str(exr))
+        maps[name] = (buf.get_pixels(oiio.FLOAT), buf.spec().getattribute("hdrcl:referenceExposure"))
+    assert victim.name in res.stderr  # named, its exposure measured
+    assert maps["wrong"][1] == maps["clean"][1] == 2.0 ** -6
+    a, b = maps["clean"][0], maps["wrong"][0]
+    ok = (a > 1e-3) & (b > 1e-3)
+    assert abs(float(np.median(np.log2(b[ok] / a[ok])))) < 0.15  # the stored values, not only their meaning

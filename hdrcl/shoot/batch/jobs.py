@@ -217,6 +217,7 @@ class SetJob:
     group: str
     reference: Tuple[Optional[float], Optional[float]]
     exposure_ref: Optional[float] = None  # seconds a value of 1.0 stands for (hdrcl.core.encode)
+    exposure_ref_own: bool = False  # exposure_ref came from this set's labels alone: the measured exposures decide
     fnumber: Optional[float] = None  # f-number of an exposure list for frames whose header has none
 
 

@@ -440,6 +440,19 @@ def _camera_references(sets, firsts, groups, reference, given=None) -> Dict[str,
     return out
 
 
+def _references_of_one_set(firsts, groups, given=None) -> set:
+    """The groups whose reference exposure :func:`_camera_references` takes from one set's
+    labels alone (a camera with one set in the shoot; the shoot's only camera-less set):
+    that set's merge takes it from the exposures it measured instead, so that one wrong
+    label does not move the whole map (:class:`hdrcl.shoot.batch.setrun.SetMerge`)."""
+    if given is not None:
+        return set()
+    named = {g for g, indices in groups.items()
+             if any(firsts.get(i) is not None and (firsts[i].make or firsts[i].model) for i in indices)}
+    anonymous_sets = sum(len(indices) for g, indices in groups.items() if g not in named)
+    return {g for g, indices in groups.items() if len(indices) == 1 and (g in named or anonymous_sets == 1)}
+
+
 @dataclass
 class _Plan:
     jobs: Dict[int, SetJob]
@@ -474,6 +487,7 @@ def _plan(manifest, out_dir: str, options: BatchOptions, ranges, name: Optional[
     for s in sets:
         groups.setdefault(group_of[s.index], []).append(s.index)
     exposure_refs = _camera_references(sets, firsts, groups, reference, options.reference_exposure)
+    own_refs = _references_of_one_set(firsts, groups, options.reference_exposure)
     for s in sets:
         group = group_of[s.index]
         stem = os.path.join(out_dir, stems[s.index])
@@ -481,7 +495,7 @@ def _plan(manifest, out_dir: str, options: BatchOptions, ranges, name: Optional[
                                exposures=[float(t) for t in s.exposures], output=f"{stem}.{options.output_format}",
                                preview=stem + ".jpg" if options.preview else None, group=group,
                                reference=reference, exposure_ref=exposure_refs.get(group),
-                               fnumber=listed_fn.get(s.index))
+                               exposure_ref_own=group in own_refs, fnumber=listed_fn.get(s.index))
     selected = [jobs[s.index] for s in select_sets(sets, ranges)]
     return _Plan(jobs=jobs, selected=selected, reference=reference, groups=groups, firsts=firsts)
 

@@ -293,6 +293,13 @@ class SetMerge(MergeJob):
     def fuse(self) -> None:
         from hdrcl.report.preview import AreaAverage
 
+        if self.step.job.exposure_ref_own:
+            # The camera's reference came from this set's labels alone: take it from the
+            # exposures the merge measured, as `hdrcl merge` does, so one wrong label does
+            # not move the whole map (issue 32).
+            from hdrcl.core.encode import default_reference
+
+            self.inputs.reference_exposure = default_reference(self.times)
         h, w, nch = self.h, self.w, self.nch
         # The preview's reduced map; the quality report's own without a preview.
         self.small = AreaAverage(h, w, nch, self.opts.preview_size) if self.step.job.preview is not None else None
