@@ -10,6 +10,7 @@ from hdrcl.errors import InputError
 from hdrcl.shoot.batch.manifest import Manifest, Unmerged, _rel
 from hdrcl.shoot.grouping.damaged import DAMAGED, mark_damaged, place_damaged
 from hdrcl.shoot.grouping.rules import _exposure_range, _fmt_bias, group_frames
+from hdrcl.shoot.grouping.strays import place_duplicates, split_duplicates
 
 logger = logging.getLogger(__name__)
 
@@ -232,7 +233,13 @@ def scan_directory(path, *, recursive: bool = False, frames_per_set: Optional[in
     aside = [(i, damaged[os.fspath(i.path)]) for i in infos
              if os.fspath(i.path) in damaged and id(i) not in listed]
     kept = [i for i in infos if not any(i is a for a, _ in aside)]
+    dups = []
+    if frames_per_set is None:  # a copy on the card is left out, its set notes it
+        kept, dups = split_duplicates(kept, cache.thumb if compare is not None else None)
+        gone = {id(c) for c, _o, _h in dups}
+        named = {lst: [f for f in fs if id(f) not in gone] for lst, fs in named.items()}
     manifest = group_frames(kept, frames_per_set=frames_per_set, gap=gap, compare=compare, listed=named)
+    place_duplicates(manifest, dups)
     mark_damaged(manifest, damaged)  # frames an exposure list put in their set
     place_damaged(manifest, kept, aside + salvaged)
     manifest.unmerged.extend(bad)

@@ -218,6 +218,7 @@ class SetJob:
     reference: Tuple[Optional[float], Optional[float]]
     exposure_ref: Optional[float] = None  # seconds a value of 1.0 stands for (hdrcl.core.encode)
     fnumber: Optional[float] = None  # f-number of an exposure list for frames whose header has none
+    findings: Tuple[dict, ...] = ()  # what the scan found about the set (hdrcl.shoot.batch.manifest.FINDINGS)
 
 
 @dataclass

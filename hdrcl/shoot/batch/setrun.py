@@ -70,7 +70,7 @@ def _failed(job: SetJob, exc: BaseException, seconds=None, digest=None) -> SetRe
         logger.debug("set %d failed", job.index, exc_info=exc)
     return SetResult(index=job.index, files=list(job.files), status=STATUS_FAILED, output=job.output,
                      preview=job.preview, error=msg, seconds=dict(seconds or {}), digest=digest,
-                     response=job.group)
+                     response=job.group, findings=[dict(f) for f in job.findings])
 
 
 def _rebuild_preview(job: SetJob, digest: str, options: BatchOptions) -> None:
@@ -279,6 +279,13 @@ class SetMerge(MergeJob):
         super().__init__(inputs, opts.merge, response_source_of(entry, job, opened.infos, opts), job.output,
                          Extras(chain=opts.luminance_chain()))
         self.kept = None
+
+    def open(self) -> None:
+        super().open()
+        from hdrcl.core.findings import Finding
+
+        for d in self.step.job.findings:  # what the scan found (hdrcl.shoot.grouping.strays)
+            self.find(Finding.from_dict(d))
 
     def fuse(self) -> None:
         from hdrcl.report.preview import AreaAverage
