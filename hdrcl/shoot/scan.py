@@ -7,7 +7,7 @@ import logging
 import os
 from typing import List, Optional, Sequence, Tuple
 from hdrcl.errors import InputError
-from hdrcl.shoot.batch.manifest import Manifest, Unmerged, _rel
+from hdrcl.shoot.batch.manifest import Manifest, Unmerged, _rel, set_findings
 from hdrcl.shoot.grouping.damaged import DAMAGED, mark_damaged, place_damaged
 from hdrcl.shoot.grouping.rules import _exposure_range, _fmt_bias, group_frames
 from hdrcl.shoot.grouping.strays import place_duplicates, split_duplicates
@@ -302,6 +302,12 @@ def format_table(manifest: Manifest) -> str:
         lines.append(f"damaged ({len(hurt)}):")
         for s, f, c in hurt:
             lines.append(f"  {f}: {c}; set {s.index} fails until the file is replaced or taken out of it")
+    said = [(s, f) for s in manifest.sets for f in set_findings(s)]  # hdrcl.shoot.grouping.strays
+    if said:
+        lines.append("")
+        lines.append(f"found ({len(said)}):")
+        for s, f in said:
+            lines.append(f"  set {s.index} ({f.get('severity', 'check')}): {f['message']}")
     lines.append("")
     lines.append(f"{len(manifest.sets)} set(s), "
                  f"{sum(len(s.files) for s in manifest.sets)} frame(s) to merge, "

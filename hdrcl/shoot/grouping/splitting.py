@@ -14,6 +14,10 @@ Three passes, every decision kept with its reason:
    carries the set's compensation on one way (a phone in auto mode with 0.25-0.5 EV
    steps, whose metering table gives neighbouring steps one setting) is a duplicate, not
    a repeat: it stays in the set.
+1b. **Foreign frames.** A single frame whose scene matches neither run around it, while
+   they match each other and the timing and the ladder run on through it (another view,
+   a mirrored frame), is left out and the two runs are one
+   (:func:`hdrcl.shoot.grouping.strays.skip_strays`, passed in as ``strays``).
 2. **Duplicates.** A run that ended because the next frame repeated its *last* exposure
    is joined with the next run when, without the repeat, the two form one ladder and
    the scene has not changed: the shutter pressed twice before the dial moved. The

@@ -33,6 +33,7 @@ from hdrcl.core.findings import CHECK, NOTE, Finding
 from hdrcl.io.metadata import FrameInfo
 from hdrcl.shoot.grouping.compare import (_camera_desc, _camera_key, _gap, _same_bias, _same_settings, _sort_key,
                                           _time)
+from hdrcl.shoot.grouping.ladder import exposure_value
 from hdrcl.shoot.grouping.splitting import (_camera_reason, _fmt_gap, _gap_limit, _Group, _joined, _nearest,
                                             _nearest_pair, _pattern_reason)
 
@@ -227,6 +228,10 @@ def _fits_run(frames: List[FrameInfo], f: FrameInfo, compare):
         return None
     if any(_same_settings(g, f) for g in frames):
         return None
+    values = [exposure_value(g) for g in frames]
+    v = exposure_value(f)
+    if v is None or None in values or not min(values) < v < max(values):
+        return None  # not a rung inside their ladder
     v = compare(_nearest(frames, f), f)
     return v if v is not None and v.kind == "same" else None
 
