@@ -199,3 +199,15 @@ def test_batch_carries_the_scan_finding(tmp_path, cl_device, fault):
         assert f"check: set 0 ({truth['sets'][0][0]}): {victim}: does not match the scene" in r.stdout
     raw = [ln for ln in r.stderr.splitlines() if not ln.startswith("hdrcl:")]
     assert raw == [], r.stderr
+
+
+def test_findings_survive_the_manifest_file(tmp_path):
+    """``hdrcl scan -o manifest.json`` then ``batch --manifest``: the set keeps what the scan found."""
+    from hdrcl.shoot.batch.manifest import load_manifest, save_manifest
+
+    truth = _card(tmp_path / "in")
+    victim = _foreign(tmp_path / "in", truth)
+    m = scan_directory(tmp_path / "in")
+    save_manifest(m, tmp_path / "m.json")
+    back = load_manifest(tmp_path / "m.json")
+    assert set_findings(back.sets[0]) == set_findings(m.sets[0]) and set_findings(back.sets[0])[0]["file"] == victim
