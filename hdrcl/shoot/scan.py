@@ -7,9 +7,10 @@ import logging
 import os
 from typing import List, Optional, Sequence, Tuple
 from hdrcl.errors import InputError
-from hdrcl.shoot.batch.manifest import Manifest, Unmerged, _rel
+from hdrcl.shoot.batch.manifest import Manifest, Unmerged, _rel, set_findings
 from hdrcl.shoot.grouping.damaged import DAMAGED, mark_damaged, place_damaged
 from hdrcl.shoot.grouping.rules import _exposure_range, _fmt_bias, group_frames
+from hdrcl.shoot.grouping.strays import place_duplicates, split_duplicates
 
 logger = logging.getLogger(__name__)
 
@@ -232,7 +233,13 @@ def scan_directory(path, *, recursive: bool = False, frames_per_set: Optional[in
     aside = [(i, damaged[os.fspath(i.path)]) for i in infos
              if os.fspath(i.path) in damaged and id(i) not in listed]
     kept = [i for i in infos if not any(i is a for a, _ in aside)]
+    dups = []
+    if frames_per_set is None:  # a copy on the card is left out, its set notes it
+        kept, dups = split_duplicates(kept, cache.thumb if compare is not None else None)
+        gone = {id(c) for c, _o, _h in dups}
+        named = {lst: [f for f in fs if id(f) not in gone] for lst, fs in named.items()}
     manifest = group_frames(kept, frames_per_set=frames_per_set, gap=gap, compare=compare, listed=named)
+    place_duplicates(manifest, dups)
     mark_damaged(manifest, damaged)  # frames an exposure list put in their set
     place_damaged(manifest, kept, aside + salvaged)
     manifest.unmerged.extend(bad)
@@ -295,6 +302,12 @@ def format_table(manifest: Manifest) -> str:
         lines.append(f"damaged ({len(hurt)}):")
         for s, f, c in hurt:
             lines.append(f"  {f}: {c}; set {s.index} fails until the file is replaced or taken out of it")
+    said = [(s, f) for s in manifest.sets for f in set_findings(s)]  # hdrcl.shoot.grouping.strays
+    if said:
+        lines.append("")
+        lines.append(f"found ({len(said)}):")
+        for s, f in said:
+            lines.append(f"  set {s.index} ({f.get('severity', 'check')}): {f['message']}")
     lines.append("")
     lines.append(f"{len(manifest.sets)} set(s), "
                  f"{sum(len(s.files) for s in manifest.sets)} frame(s) to merge, "

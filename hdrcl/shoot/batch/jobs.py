@@ -219,6 +219,7 @@ class SetJob:
     exposure_ref: Optional[float] = None  # seconds a value of 1.0 stands for (hdrcl.core.encode)
     exposure_ref_own: bool = False  # exposure_ref came from this set's labels alone: the measured exposures decide
     fnumber: Optional[float] = None  # f-number of an exposure list for frames whose header has none
+    findings: Tuple[dict, ...] = ()  # what the scan found about the set (hdrcl.shoot.batch.manifest.FINDINGS)
 
 
 @dataclass

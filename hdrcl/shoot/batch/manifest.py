@@ -87,6 +87,28 @@ class BracketSet:
         return d
 
 
+#: Key of :attr:`BracketSet.extra` holding what the scan found about the set: a list of
+#: :meth:`hdrcl.core.findings.Finding.to_dict` (a frame left out of it, a duplicate...;
+#: :mod:`hdrcl.shoot.grouping.strays`). The batch carries them to the set's result.
+FINDINGS = "findings"
+
+
+def add_finding(s: BracketSet, finding: dict) -> None:
+    """Add ``finding`` (a Finding's dict) to the set's :data:`FINDINGS`, once."""
+    have = s.extra.setdefault(FINDINGS, [])
+    if not any(isinstance(f, dict) and f.get("message") == finding.get("message") for f in have):
+        have.append(dict(finding))
+
+
+def set_findings(s: BracketSet) -> List[dict]:
+    """The set's :data:`FINDINGS` that are findings (a hand-edited manifest may hold
+    anything there): dicts with a ``message`` string."""
+    got = s.extra.get(FINDINGS) if isinstance(s.extra, dict) else None
+    if not isinstance(got, list):
+        return []
+    return [dict(f) for f in got if isinstance(f, dict) and isinstance(f.get("message"), str) and f["message"]]
+
+
 _SET_OPTIONAL = ("start", "camera", "serial", "lens", "focal_length", "fnumber", "joins",
                  "iso", "ev", "gaps", "width", "height")
 

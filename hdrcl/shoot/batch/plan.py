@@ -12,6 +12,7 @@ from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 from hdrcl.errors import InputError, UsageError
 from hdrcl.shoot.batch.jobs import RESPONSE_SUFFIX, BatchOptions, SetJob
+from hdrcl.shoot.batch.manifest import set_findings
 
 logger = logging.getLogger(__name__)
 
@@ -495,7 +496,8 @@ def _plan(manifest, out_dir: str, options: BatchOptions, ranges, name: Optional[
                                exposures=[float(t) for t in s.exposures], output=f"{stem}.{options.output_format}",
                                preview=stem + ".jpg" if options.preview else None, group=group,
                                reference=reference, exposure_ref=exposure_refs.get(group),
-                               exposure_ref_own=group in own_refs, fnumber=listed_fn.get(s.index))
+                               exposure_ref_own=group in own_refs, fnumber=listed_fn.get(s.index),
+                               findings=tuple(set_findings(s)))
     selected = [jobs[s.index] for s in select_sets(sets, ranges)]
     return _Plan(jobs=jobs, selected=selected, reference=reference, groups=groups, firsts=firsts)
 

@@ -70,7 +70,7 @@ def _failed(job: SetJob, exc: BaseException, seconds=None, digest=None) -> SetRe
         logger.debug("set %d failed", job.index, exc_info=exc)
     return SetResult(index=job.index, files=list(job.files), status=STATUS_FAILED, output=job.output,
                      preview=job.preview, error=msg, seconds=dict(seconds or {}), digest=digest,
-                     response=job.group)
+                     response=job.group, findings=[dict(f) for f in job.findings])
 
 
 def _rebuild_preview(job: SetJob, digest: str, options: BatchOptions) -> None:
@@ -289,6 +289,13 @@ class SetMerge(MergeJob):
 
         for finding in trust_findings(self.entry, self.step.job, self.grid, self.opts):
             self.find(finding)
+
+    def open(self) -> None:
+        super().open()
+        from hdrcl.core.findings import Finding
+
+        for d in self.step.job.findings:  # what the scan found (hdrcl.shoot.grouping.strays)
+            self.find(Finding.from_dict(d))
 
     def fuse(self) -> None:
         from hdrcl.report.preview import AreaAverage

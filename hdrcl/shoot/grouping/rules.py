@@ -84,8 +84,9 @@ from hdrcl.io.metadata import FrameInfo
 from hdrcl.shoot.grouping.compare import (DEFAULT_GAP, LONG_EXPOSURE, _camera_desc, _camera_key, _camera_label,  # noqa: F401
                                  _exposure_range, _fmt_bias, _fmt_f, _gap, _norm, _same_stops, _sort_key, _time,
                                  _varies, format_exposure)
-from hdrcl.shoot.batch.manifest import BracketSet, Manifest, Unmerged, _is_number
+from hdrcl.shoot.batch.manifest import BracketSet, Manifest, Unmerged, _is_number, add_finding
 from hdrcl.shoot.grouping.splitting import _camera_reason, _Group, chunk, split_stream
+from hdrcl.shoot.grouping.strays import foreign_cameras, left_findings, skip_strays
 
 logger = logging.getLogger(__name__)
 
@@ -220,11 +221,11 @@ def _split_by_lens(stream: List[FrameInfo], gap, compare) -> List[_Group]:
         else:
             lenses.append([f])
     if len(lenses) == 1:
-        return split_stream(stream, gap, compare)
+        return split_stream(stream, gap, compare, skip_strays)
     position = {id(f): i for i, f in enumerate(stream)}
     groups = []
     for frames in lenses:
-        for grp in split_stream(frames, gap, compare):
+        for grp in split_stream(frames, gap, compare, skip_strays):
             for k, (a, b) in enumerate(zip(grp.frames, grp.frames[1:])):
                 between = position[id(b)] - position[id(a)] - 1
                 if between:
@@ -234,6 +235,23 @@ def _split_by_lens(stream: List[FrameInfo], gap, compare) -> List[_Group]:
                 grp.reason = _camera_reason(grp.frames[-1], stream[i + 1]) or grp.reason
             groups.append(grp)
     return groups
+
+
+def _say_left_out(manifest: Manifest, groups: List[_Group], made: dict, others: dict) -> None:
+    """Frames that did not belong to their run (:mod:`hdrcl.shoot.grouping.strays`): each
+    unmerged with its reason, and its set's finding in :data:`FINDINGS`."""
+    for grp in groups:
+        for f, reason, finding in left_findings(grp):
+            manifest.unmerged.append(Unmerged(files=[os.fspath(f.path)], reason=reason, ended=grp.reason))
+            if id(grp) in made:
+                add_finding(made[id(grp)], finding)
+        hit = others.get(id(grp))
+        if hit is not None and id(hit[0]) in made:
+            run, reason, finding = hit
+            for u in manifest.unmerged:
+                if u.files == [os.fspath(grp.frames[0].path)]:
+                    u.reason = reason
+            add_finding(made[id(run)], finding)
 
 
 # --------------------------------------------------------------------------- entry
@@ -299,17 +317,20 @@ def group_frames(infos: Sequence[FrameInfo], *, frames_per_set: Optional[int] = 
             groups.extend(_split_by_lens(stream, gap, compare))
         groups.sort(key=lambda g: _sort_key(g.frames[0]))
 
-    manifest = Manifest()
+    others = foreign_cameras(groups, compare) if frames_per_set is None else {}
+    manifest, made = Manifest(), {}
     for grp in groups:
         why = unmergeable_reason(grp.frames)
         if why is None:
             s = _make_set(grp)
             s.index = len(manifest.sets)
             manifest.sets.append(s)
+            made[id(grp)] = s
         else:
             manifest.unmerged.append(
                 Unmerged(files=[os.fspath(f.path) for f in grp.frames], reason=why, ended=grp.reason,
                          joins=list(grp.joins)))
+    _say_left_out(manifest, groups, made, others)
     logger.info("%d frames: %d bracket sets, %d groups not merged",
                 len(frames), len(manifest.sets), len(manifest.unmerged))
     return manifest

@@ -14,6 +14,10 @@ Three passes, every decision kept with its reason:
    carries the set's compensation on one way (a phone in auto mode with 0.25-0.5 EV
    steps, whose metering table gives neighbouring steps one setting) is a duplicate, not
    a repeat: it stays in the set.
+1b. **Foreign frames.** A single frame whose scene matches neither run around it, while
+   they match each other and the timing and the ladder run on through it (another view,
+   a mirrored frame), is left out and the two runs are one
+   (:func:`hdrcl.shoot.grouping.strays.skip_strays`, passed in as ``strays``).
 2. **Duplicates.** A run that ended because the next frame repeated its *last* exposure
    is joined with the next run when, without the repeat, the two form one ladder and
    the scene has not changed: the shutter pressed twice before the dial moved. The
@@ -68,6 +72,7 @@ class _Group:
     reason: str
     gaps: list
     joins: list = field(default_factory=list)  # why each frame after the first joined
+    left: list = field(default_factory=list)  # frames left out of it (hdrcl.shoot.grouping.strays)
 
 
 def _gap_limit(prev: FrameInfo, override: Optional[float]) -> float:
@@ -265,8 +270,10 @@ def _fmt_gap(g: Optional[float]) -> str:
     return "no capture time" if g is None else f"gap {g:.1f} s"
 
 
-def split_stream(frames: List[FrameInfo], gap: Optional[float], compare: Compare = None) -> List[_Group]:
-    """Split one camera's frames (capture order) into groups, with reasons."""
+def split_stream(frames: List[FrameInfo], gap: Optional[float], compare: Compare = None,
+                 strays=None) -> List[_Group]:
+    """Split one camera's frames (capture order) into groups, with reasons; ``strays``
+    (``strays(groups, compare, gap)``) rejoins runs a foreign frame cut after pass 1."""
     groups: List[_Group] = []
     cur, cur_gaps, joins = [frames[0]], [], []
     for f in frames[1:]:
@@ -299,6 +306,8 @@ def split_stream(frames: List[FrameInfo], gap: Optional[float], compare: Compare
             cur, cur_gaps, joins = [f], [], []
     groups.append(_Group(cur, "end of files", cur_gaps, joins))
     groups = _coalesce_repeats(groups)
+    if strays is not None:  # pass 1b: hdrcl.shoot.grouping.strays.skip_strays (it builds on this module)
+        groups = strays(groups, compare, gap)
     groups = _keep_duplicates(groups, compare)
     if gap is None:
         groups = _bridge(groups, compare)
@@ -365,7 +374,7 @@ def _bridge(groups: List[_Group], compare: Compare) -> List[_Group]:
 
 def _joined(a: _Group, b: _Group, why: str) -> _Group:
     return _Group(a.frames + b.frames, b.reason, a.gaps + [_gap(a.frames[-1], b.frames[0])] + b.gaps,
-                  a.joins + [why] + b.joins)
+                  a.joins + [why] + b.joins, a.left + b.left)
 
 
 def _bridge_chain(runs: List[_Group], compare: Compare) -> List[_Group]:
@@ -374,7 +383,8 @@ def _bridge_chain(runs: List[_Group], compare: Compare) -> List[_Group]:
         return runs
     valid = {}
     for i in range(m):
-        acc = _Group(list(runs[i].frames), runs[i].reason, list(runs[i].gaps), list(runs[i].joins))
+        acc = _Group(list(runs[i].frames), runs[i].reason, list(runs[i].gaps), list(runs[i].joins),
+                     list(runs[i].left))
         valid[(i, i)] = acc
         for j in range(i + 1, m):
             why = _bridge_reason(acc, runs[j], compare)
