@@ -156,6 +156,8 @@ def _cost(a, ma, b, mb, dy: int, dx: int, cap: float, least: int) -> float:
     pixels both hold (inf when they share fewer than ``least``); ``ma``, ``mb`` are the
     masks as 0/1 floats."""
     h, w = a.shape
+    if abs(dy) >= h or abs(dx) >= w:
+        return np.inf
     ya, yb = (slice(dy, h), slice(0, h - dy)) if dy >= 0 else (slice(0, h + dy), slice(-dy, h))
     xa, xb = (slice(dx, w), slice(0, w - dx)) if dx >= 0 else (slice(0, w + dx), slice(-dx, w))
     m = ma[ya, xa] * mb[yb, xb]
@@ -355,15 +357,18 @@ def findings(agreement: Agreement, paths=None, aligned: bool = False, deghost: b
     moved = [p for p in agreement.pairs if p.moved]
     if moved:
         p = max(moved, key=lambda q: q.shift_px)
-        name = _named(paths, _odd_frame(moved, p, paths, notes))
-        other = _named(paths, p.short) if name == _named(paths, p.long) else _named(paths, p.long)
-        dy, dx = p.shift
-        what = ("the frames still disagree after --align: check the alignment (--align-model)" if aligned
-                else "the camera moved: try --align")
+        odd = _odd_frame(moved, p, paths, notes)
+        name, other = _named(paths, odd), _named(paths, p.short if odd == p.long else p.long)
+        # p.shift moves the longer frame onto the shorter: the longer lies at minus it.
+        sign = -1.0 if odd == p.long else 1.0
+        dy, dx = sign * p.shift[0], sign * p.shift[1]
+        what = ("they still disagree after --align: check the alignment (--align-model)" if aligned
+                else "the camera moved, try --align")
         out.append(Finding(
-            "agreement", f"{name}: frames disagree by {p.shift_px:.1f} px against {other} (shift x {dx:+.1f}, "
-            f"y {dy:+.1f}; {len(moved)} of {n} frame pairs shifted {SHIFT_PX:g} px or more): {what}", CHECK,
+            "agreement", f"{name}: frames disagree by {p.shift_px:.1f} px: it lies x {dx:+.1f}, y {dy:+.1f} px off "
+            f"{other} ({len(moved)} of {n} frame pairs shifted {SHIFT_PX:g} px or more): {what}", CHECK,
             file=name, figure=round(p.shift_px, 2)))
+    # A shifted pair's disagreement is the shift's.
     ghosts = [p for p in agreement.pairs if p.ghost_percent >= GHOST_PERCENT and not p.moved]
     if ghosts:
         p = max(ghosts, key=lambda q: q.ghost_percent)
@@ -398,18 +403,18 @@ def check_job(job) -> None:
     sampling grid (a given response, ``--fit-exposures off``) the aligned frames in memory
     are sampled; a streamed set is skipped, with the reason in the log."""
     grid, src = job.grid, job.source
-    if len(job.inputs.paths) < 2:
+    if len(job.times) < 2:
         return
     from hdrcl.core.sampling import grid_stride
 
     with job.timed("agreement"):
-        if grid is not None:
-            frames, valid = grid.frames, grid.valid
-            stride = grid_stride(job.h, job.w) if getattr(grid, "grid", False) else 1
-        elif hasattr(src, "frames"):
+        held = grid if grid is not None and not getattr(grid, "grid", False) else src  # whole frames
+        if grid is not None and getattr(grid, "grid", False):
+            frames, valid, stride = grid.frames, grid.valid, grid_stride(job.h, job.w)
+        elif hasattr(held, "frames"):
             stride = grid_stride(job.h, job.w)
-            frames = [f[::stride, ::stride] for f in src.frames]
-            valid = [None if v is None else v[::stride, ::stride] for v in src.valid]
+            frames = [f[::stride, ::stride] for f in held.frames]
+            valid = [None if v is None else v[::stride, ::stride] for v in held.valid]
         else:
             logger.info("frames' agreement not checked: no sampling grid (a given response with "
                         "--fit-exposures off)")
