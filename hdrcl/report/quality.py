@@ -68,6 +68,7 @@ from hdrcl.core.response import Response
 from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.errors import UsageError
 from hdrcl.report.memory import release_free_memory
+from hdrcl.report.verdicts import verdicts_dict
 from hdrcl.report.preview import (
     _LUMA,  # Rec.709 luminance weights, as the preview's tone map
 )
@@ -326,6 +327,8 @@ class QualityFigures:
             "extraEvLow": float(self.extra_ev_low),
             "workingRange": list(self.working_range),
             "coverageHistogram": [int(v) for v in self.coverage_histogram],
+            # Each verdict with its cause (figure, value, limit); derived, so from_dict ignores it.
+            "verdicts": verdicts_dict(self),
         }
 
     @classmethod
