@@ -212,3 +212,43 @@ def test_memorial_agrees_and_a_shifted_frame_does_not(memorial_set):
     moved = _moved(measure_agreement(frames, valid, times, tables, 1))
     assert moved and all(k in (p.short, p.long) for p in moved)
     assert all(2.0 < p.shift_px < 4.0 for p in moved)
+
+
+def test_batch_set_with_a_moved_frame_needs_a_check(tmp_path, cl_device):
+    """Through hdrcl batch: the set whose middle frame moved 3 px is 'check' with the
+    agreement finding in report.json; the static set beside it is 'done'."""
+    import datetime as dt
+
+    from click.testing import CliRunner
+
+    from hdrcl.cli import main
+    from hdrcl.io.ldr import write_photo
+
+    folder = tmp_path / "shoot"
+    folder.mkdir()
+    rad = _scene(240, 320, seed=4) * 40.0
+    times = [1 / 500, 1 / 125, 1 / 30, 1 / 8]
+    when, n = dt.datetime(2024, 6, 1, 9, 0, 0), 0
+    for moved in (False, True):
+        rads = [rad] * 4
+        if moved:
+            rads[2] = np.roll(rad, 3, axis=1)
+        for k, (r, t) in enumerate(zip(rads, times)):
+            n += 1
+            frame = s.bracket(r, [t], CAM, noise=0.5, seed=n)[0]
+            write_photo(str(folder / f"IMG_{n:04d}.jpg"), frame,
+                        {"ExposureTime": float(t), "FNumber": 8.0, "Exif:PhotographicSensitivity": 100,
+                         "Exif:ExposureMode": 1, "Make": "Canon", "Model": "Canon EOS R6",
+                         "Exif:DateTimeOriginal": when.strftime("%Y:%m:%d %H:%M:%S")})
+            when += dt.timedelta(seconds=2)
+        when += dt.timedelta(seconds=60)
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["batch", str(folder), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    import json
+
+    sets = json.loads((out / "report.json").read_text())["sets"]
+    assert [x["status"] for x in sets] == ["done", "check"]
+    (f,) = [f for f in sets[1]["findings"] if f["check"] == "agreement"]
+    assert f["file"] == "IMG_0007.jpg" and f["severity"] == "check" and "--align" in f["message"]
+    assert not [f for f in sets[0].get("findings", []) if f["check"] == "agreement"]
