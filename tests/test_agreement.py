@@ -123,6 +123,9 @@ def test_bright_object_in_one_frame_is_named(synth):
     from hdrcl.core.agreement import findings
 
     names = [f"f{i}.png" for i in range(5)]
+    assert max(p.ghost_percent for p in ag.pairs) > 2.5
+    (f,) = findings(ag, names)
+    assert "f2.png" in f.message and "try --deghost" in f.message
     (f,) = findings(ag, names, notes=["f2.png: exposure measured +6.0 stops from its label"])
     assert f.file == "f2.png" and "not its exposure" in f.message
 

@@ -57,8 +57,10 @@ GHOST_PERCENT = 1.0
 BODY = (0.08, 0.92)
 #: Least noise allowance (ln units) and the spreads (robust sigma) beyond it.
 FLOOR_LN, SPREADS = 0.3, 5.0
+#: At the coarsest level a shift must cost under this share of no shift.
+COARSE_GAIN = 0.8
 #: Share of the grid two frames must both expose well for their shift to be measured.
-SHIFT_SHARE = 0.02
+SHIFT_SHARE = 0.05
 #: Grid pixels the ghost test works on at most (every 2nd grid pixel beyond).
 WORK_PIXELS = 120_000
 #: Pixels two frames must share in their bodies to be compared.
@@ -196,7 +198,11 @@ def _search(pa: list, pb: list, offset: float, cap: float, reach: int = 2):
 
         if k:
             costs = {(dy + y, dx + x): cost(dy + y, dx + x) for y in range(-r, r + 1) for x in range(-r, r + 1)}
-            dy, dx = min(costs, key=costs.get)
+            best = min(costs, key=costs.get)
+            # The coarsest level's far shifts compare other pixels (a short frame's few
+            # windows): one is taken only when clearly better than none.
+            if k < n - 1 or costs[best] < COARSE_GAIN * costs[(dy, dx)]:
+                dy, dx = best
             continue
         for _ in range(3):  # the finest level, the dearest: down the slope on a cross of 5
             c = {(y, x): cost(dy + y, dx + x) for y in (-1, 0, 1) for x in (-1, 0, 1) if abs(y) + abs(x) < 2}
@@ -376,11 +382,13 @@ def findings(agreement: Agreement, paths=None, aligned: bool = False, deghost: b
         name = _named(paths, frame)
         other = _named(paths, p.short if frame == p.long else p.long)
         blamed = any(name in note for note in notes)
+        known = blamed or len(ghosts) > 1  # else either frame of the one pair may hold the subject
         tail = ("; the exposure note on it may be this subject, not its exposure" if blamed else "")
         act = "--deghost took them from one frame" if deghost else "try --deghost"
+        what = "a moving subject?" if known else f"a moving subject in {name} or {other}?"
         out.append(Finding(
             "agreement", f"{name}: frames disagree on {p.ghost_percent:.1f} % of the picture against {other} "
-            f"({len(ghosts)} of {n} frame pairs over {GHOST_PERCENT:g} %: a moving subject?){tail}: {act}",
+            f"({len(ghosts)} of {n} frame pairs over {GHOST_PERCENT:g} %: {what}){tail}: {act}",
             NOTE if deghost else CHECK, file=name, figure=round(p.ghost_percent, 2)))
     return out
 
