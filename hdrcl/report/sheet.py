@@ -1,7 +1,8 @@
 """The contact sheet's HTML (``index.html``) and the figures in words.
 
 One card per set: name, status (in words: a batch's "skipped" is "up to date") and the
-worst verdict of its figures, camera settings, the tone-mapped preview, the input frames
+worst verdict of its figures with its causes (each figure, its value and the limit it passed),
+camera settings, the tone-mapped preview, the input frames
 with each one's settings as its camera recorded them, the figures coloured pass / warn /
 fail (:mod:`hdrcl.report.verdicts`, whose thresholds the header lists), the response and
 histogram charts and the coverage map, the exposures, the warnings; failed sets with
