@@ -24,6 +24,7 @@ from typing import List, Optional
 
 import numpy as np
 
+from hdrcl.core.agreement import check_job as check_agreement
 from hdrcl.core.options import MergeOptions
 from hdrcl.core.pipeline import fusion_processor
 from hdrcl.core.sources import Inputs, ResponseSource, check_brightness_order
@@ -375,6 +376,7 @@ class MergeJob(Timed):
         staged = None
         try:
             self.prepare()
+            check_agreement(self)  # do the frames agree? (findings; hdrcl.core.agreement)
             t2 = time.perf_counter()
             if self.extras.save_response is not None:
                 # A second output is staged first: a full disk fails here, before the radiance exists.

@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 
+from hdrcl.core.agreement import check_job as check_agreement
 from hdrcl.core.engine import Extras, MergeJob, _report_exposure_check, _warm_up
 from hdrcl.core.options import MergeOptions
 from hdrcl.core.pipeline import fusion_processor
@@ -86,9 +87,12 @@ class MemoryJob(MergeJob):
     def run(self):
         t0 = time.perf_counter()
         self.prepare()
+        check_agreement(self)
         self.scale()
         self.fuse()
         res = self.result
+        res.findings = list(self.findings)
+        res.warnings += [f.message for f in self.findings if f.message not in res.warnings]
         res.radiance = self.keep.array
         if self.counts.get("no_data"):
             res.warnings.append(f"{self.counts['no_data']} pixel-channels are invalid in every frame and were set to 0")

@@ -9,7 +9,7 @@ import numpy as np
 
 from hdrcl.core.reference import monotone_tables
 from hdrcl.core.response import Response
-from hdrcl.report.quality import NO_DATA, WORKING_HIGH, WORKING_LOW
+from hdrcl.report.clipping import NO_DATA, WORKING_HIGH, WORKING_LOW
 from hdrcl.report.svg import Chart
 
 #: Long side of the preview and of the coverage map, in pixels.

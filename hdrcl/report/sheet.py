@@ -1,7 +1,8 @@
 """The contact sheet's HTML (``index.html``) and the figures in words.
 
 One card per set: name, status (in words: a batch's "skipped" is "up to date") and the
-worst verdict of its figures, camera settings, the tone-mapped preview, the input frames
+worst verdict of its figures with its causes (each figure, its value and the limit it passed),
+camera settings, the tone-mapped preview, the input frames
 with each one's settings as its camera recorded them, the figures coloured pass / warn /
 fail (:mod:`hdrcl.report.verdicts`, whose thresholds the header lists), the response and
 histogram charts and the coverage map, the exposures, the warnings; failed sets with
@@ -19,7 +20,7 @@ import numpy as np
 
 from hdrcl.report.plots import coverage_legend
 from hdrcl.report.quality import QualityFigures
-from hdrcl.report.verdicts import grade_figures, legend_rows, thin_coverage_percent, worst
+from hdrcl.report.verdicts import causes, grade_figures, legend_rows, thin_coverage_percent, verdicts, worst
 
 STATUS_DONE, STATUS_SKIPPED, STATUS_FAILED, STATUS_CHECK = "done", "skipped", "failed", "check"
 #: What the page calls each status (a batch's internal "skipped" is an up-to-date output,
@@ -148,6 +149,8 @@ article.skipped .status{background:#e3ecf7}
 .v-pass{background:#e6f4e8;color:#1e6b2a}
 .v-warn{background:#fff1cc;color:#7a4d00}
 .v-fail{background:#fbdcdc;color:#a00}
+.why{margin:4px 0 6px;padding:4px 8px;border-radius:4px;font-size:.9em}
+.why ul{margin:2px 0 0;padding-left:18px}
 table.figures td.mark{white-space:nowrap;font-weight:600;font-size:.85em;text-align:right;padding:3px 6px}
 table.figures tr.v-pass td,table.figures tr.v-pass th,table.figures tr.v-warn td,table.figures tr.v-warn th,
 table.figures tr.v-fail td,table.figures tr.v-fail th{background:inherit}
@@ -276,15 +279,32 @@ def _plots(entry) -> List[str]:
 
 def _figures_table(f: QualityFigures) -> str:
     """The figures, the graded ones coloured by their verdict (:mod:`hdrcl.report.verdicts`)."""
-    grades = grade_figures(f)
+    graded = verdicts(f)
     out = ['<h3>Figures</h3><table class="figures">']
     for label, text in format_figures(f):
-        v = grades.get(label)
-        attrs = f' class="v-{v}" data-verdict="{v}"' if v else ""
+        g = graded.get(label)
+        v = g.verdict if g is not None else None
+        attrs = f' class="v-{v}" data-verdict="{v}" title="{_e(g.why)}"' if v else ""
         out.append(f"<tr{attrs}><th>{_e(label)}</th><td>{_e(text)}</td>"
                    f'<td class="mark">{_e(v or "")}</td></tr>')
     out.append("</table>")
     return "\n".join(out)
+
+
+def _why(f: QualityFigures) -> str:
+    """The causes of a set's warn or fail verdict, one line each (empty when it passes):
+    the figure, its value, the limit it passed and what that means."""
+    lines = causes(f)
+    if not lines:
+        return ""
+    v = lines[0].verdict
+    items = "".join(f'<li data-check="{_e(c.key)}">{_e(c.why)}</li>' for c in lines)
+    return f'<div class="why v-{v}" data-verdict="{v}"><b>{_e(v)}</b> because:<ul>{items}</ul></div>'
+
+
+def _badge_title(f: Optional[QualityFigures]) -> str:
+    lines = causes(f) if f is not None else []
+    return "; ".join(c.why for c in lines) if lines else "every graded figure passes"
 
 
 def _exposures_table(entry) -> List[str]:
@@ -308,7 +328,7 @@ def _card(entry, index: int) -> str:
     status = entry.status or STATUS_DONE
     f = entry.figures
     verdict = worst(grade_figures(f).values()) if f is not None else None
-    badge = f'<span class="verdict v-{verdict}" title="worst verdict of its figures">{verdict}</span>' \
+    badge = f'<span class="verdict v-{verdict}" title="{_e(_badge_title(f))}">{verdict}</span>' \
         if verdict else ""
     out = [f'<article class="set {_e(status)}" id="set-{index}" data-set="{_e(entry.name)}" '
            f'data-status="{_e(status)}" data-label="{_e(status_label(status))}"'
@@ -326,6 +346,9 @@ def _card(entry, index: int) -> str:
     out += _inputs(entry)
     out.append('</div><div class="numbers">')
     if f is not None:
+        why = _why(f)
+        if why:
+            out.append(why)
         out.append(_figures_table(f))
     out += _exposures_table(entry)
     if entry.warnings:
@@ -383,8 +406,8 @@ def contact_sheet_html(entries: Sequence, title: str = "hdrcl quality report",
                + (f"{check} to check, " if check else "")
                + (f"{skipped} {STATUS_LABELS[STATUS_SKIPPED]}, " if skipped else "") + f"{failed} failed"
                + (f", {other} pending" if other else ""))
-    verdicts = [worst(grade_figures(e.figures).values()) for e in entries if e.figures is not None]
-    counted = [f"{verdicts.count(v)} {v}" for v in ("pass", "warn", "fail") if v in verdicts]
+    graded = [worst(grade_figures(e.figures).values()) for e in entries if e.figures is not None]
+    counted = [f"{graded.count(v)} {v}" for v in ("pass", "warn", "fail") if v in graded]
     if counted:
         summary += "; verdicts: " + ", ".join(counted)
     nfiles = sum(len(g["files"]) for g in unmerged)
@@ -397,7 +420,7 @@ def contact_sheet_html(entries: Sequence, title: str = "hdrcl quality report",
         f"<title>{_e(title)}</title>\n<style>\n{_CSS}\n</style>\n</head>\n<body>\n"
         f"<header><h1>{_e(title)}</h1><p class=\"summary\">{_e(summary)} · hdrcl {_e(__version__)}</p>"
         f"<p id=\"image-check\" data-loaded=\"\" data-total=\"\"></p>"
-        f"{_thresholds_legend() if verdicts else ''}</header>\n"
+        f"{_thresholds_legend() if graded else ''}</header>\n"
         # One set: the card takes the page's width and lays its parts side by side.
         f"<main class=\"sets{' single' if len(entries) == 1 else ''}\">\n{cards}\n</main>\n"
         f"{_unmerged_section(list(unmerged))}\n"

@@ -23,6 +23,12 @@ Why these limits (8-bit code levels; 16-bit data is measured in the same 8-bit u
   needs two); a ladder whose steps overlap (2 EV or less) and that spans the scene
   leaves single-frame pixels only at its two ends. A quarter of the picture measured
   once means the steps are too far apart or the scene outruns the ladder.
+
+Every verdict states its cause (:class:`Verdict`, :func:`verdicts`): the figure, its value
+and the limit it passed or stayed within (``"Clipped high 4.7 % > 1 %: ..."``), with what
+the figure means for the set and what to try. The set page and the contact sheet show the
+causes of a set's warn and fail verdicts under its badge, and ``report.json`` (the
+``quality`` block) and the set's JSON carry them as ``verdicts``.
 """
 from __future__ import annotations
 
@@ -45,17 +51,23 @@ class Threshold:
     warn_above: float
     fail_above: float
     meaning: str
+    #: What a figure over ``warn_above`` means and what to try, in a few words.
+    remedy: str = ""
 
 
 #: The checks, in the order the page lists them. Percentages are of the valid pixels.
 THRESHOLDS = (
     Threshold("loo", "Leave-one-out RMSE", "levels", 5.0, 10.0,
               "8-bit levels; noise and quantisation give about 1-3 (scanned film: 4.3); "
-              "5 is about 1/8 stop at mid-grey, 10 about 1/4 stop"),
+              "5 is about 1/8 stop at mid-grey, 10 about 1/4 stop",
+              "the frames disagree with each other: a wrong exposure time, the response, or movement "
+              "(see the warnings; try --align or --deghost)"),
     Threshold("clipped", "Clipped high / low", "%", 0.1, 1.0,
-              "pixels no frame measures, each side; up to 0.1 % the dynamic range is still measured"),
+              "pixels no frame measures, each side; up to 0.1 % the dynamic range is still measured",
+              "no frame measures them: the bracket needs a {side} exposure"),
     Threshold("coverage", "Thin coverage", "%", 5.0, 25.0,
-              "pixels at most one frame measures: no averaging, no cross-check"),
+              "pixels at most one frame measures: no averaging, no cross-check",
+              "the exposure steps are too far apart or the scene outruns the ladder"),
 )
 
 _BY_KEY = {t.key: t for t in THRESHOLDS}
@@ -71,6 +83,71 @@ def grade(key: str, value: Optional[float]) -> Optional[str]:
     if v <= t.warn_above:
         return PASS
     return WARN if v <= t.fail_above else FAIL
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A graded figure and why: ``label`` (the row), ``verdict``, ``value`` in ``unit``,
+    and the ``limit`` that decided it (the pass limit for pass and warn, the fail limit
+    for fail)."""
+
+    key: str
+    label: str
+    verdict: str
+    value: float
+    unit: str
+    limit: float
+    remedy: str = ""
+
+    @property
+    def why(self) -> str:
+        """``"Clipped high 4.70 % > 1 %: no frame measures them: ..."``: the figure, its value,
+        the limit it passed (or stayed within, for pass) and, unless it passed, what it means."""
+        over = self.verdict != PASS
+        text = f"{self.label} {_value(self.value, self.unit)} {'>' if over else '≤'} {_limit(self.limit, self.unit)}"
+        return f"{text}: {self.remedy}" if over and self.remedy else text
+
+    def to_dict(self) -> dict:
+        return {"check": self.key, "figure": self.label, "verdict": self.verdict, "value": round(self.value, 4),
+                "unit": self.unit, "limit": self.limit, "why": self.why}
+
+
+def verdict(key: str, label: str, value: Optional[float], **fmt) -> Optional[Verdict]:
+    """The :class:`Verdict` of check ``key`` for ``value`` (row ``label``); None when
+    the value is unknown. ``fmt`` fills the remedy's fields (``side``)."""
+    v = grade(key, value)
+    if v is None:
+        return None
+    t = _BY_KEY[key]
+    return Verdict(key, label, v, float(value), t.unit, t.fail_above if v == FAIL else t.warn_above,
+                   t.remedy.format(**fmt) if fmt else t.remedy)
+
+
+def verdicts(figures) -> Dict[str, Optional[Verdict]]:
+    """:class:`Verdict` per graded row of a :class:`~hdrcl.report.quality.QualityFigures`
+    (the keys of :func:`grade_figures`; None where the figure is unknown)."""
+    return {
+        "Leave-one-out RMSE": verdict("loo", "Leave-one-out RMSE", figures.loo_rmse),
+        "Clipped high": verdict("clipped", "Clipped high", 100.0 * figures.clipped_high_fraction, side="shorter"),
+        "Clipped low": verdict("clipped", "Clipped low", 100.0 * figures.clipped_low_fraction, side="longer"),
+        "Thin coverage": verdict("coverage", "Thin coverage", thin_coverage_percent(figures)),
+    }
+
+
+def causes(figures) -> List[Verdict]:
+    """The verdicts that make the set's worst one (warn or fail), worst first: why the
+    set is not a pass. Empty when it passes or nothing was graded."""
+    graded = [v for v in verdicts(figures).values() if v is not None and v.verdict != PASS]
+    top = worst(v.verdict for v in graded)
+    return sorted((v for v in graded if v.verdict == top), key=lambda v: -v.value / max(v.limit, 1e-12))
+
+
+def verdicts_dict(figures) -> dict:
+    """JSON of the verdicts (``report.json``'s ``quality`` block, the set's JSON): the
+    worst, the causes' lines and every graded figure with its value and limit."""
+    vs = [v for v in verdicts(figures).values() if v is not None]
+    return {"verdict": worst(v.verdict for v in vs), "causes": [v.why for v in causes(figures)],
+            "figures": [v.to_dict() for v in vs]}
 
 
 def thin_coverage_percent(figures) -> Optional[float]:
@@ -102,6 +179,10 @@ def worst(verdicts) -> Optional[str]:
 
 def _limit(v: float, unit: str) -> str:
     return f"{v:g} {unit}" if unit != "%" else f"{v:g} %"
+
+
+def _value(v: float, unit: str) -> str:
+    return f"{v:.2f} {unit}" if unit != "%" else f"{v:.2f} %"
 
 
 def legend_rows() -> List[tuple]:
