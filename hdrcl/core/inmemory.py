@@ -42,12 +42,28 @@ class MemoryJob(MergeJob):
             from hdrcl.core.align.handheld import align_bracket
 
             with self.timed("align"):
-                al = align_bracket(frames, valid, self.times, o.device, o.crop, o.align_model, br.paths or None)
+                al = align_bracket(frames, valid, self.times, o.device, o.crop, o.align_model, br.paths or None,
+                                   find=self.find)
             frames, valid = al.frames, al.valid
+            if al.left_out:  # as the file merge does: merged without them, a finding names each
+                self._leave_out(al.left_out)
             self.shifts, self.crop_box, self.alignment = al.shifts, al.crop, al.alignment
             self.h, self.w = frames[0].shape[:2]
         self.source = ArraySource(frames, valid)
         self.ignore = None  # the bracket's masks hold the ignore colour already
+
+    def _leave_out(self, left_out) -> None:
+        from dataclasses import replace
+
+        from hdrcl.core.align.unaligned import without
+
+        n = len(self.times)
+        keep = [i for i in range(n) if i not in set(left_out)]
+        if len(self.inputs.paths) == n and len(self.inputs.infos) == n:
+            self.inputs = without(self.inputs, left_out)
+        else:
+            self.inputs = replace(self.inputs, times=np.asarray(self.times, np.float64)[keep])
+        self.times = self.nominal = np.asarray(self.inputs.times, np.float64)
 
     def sample(self) -> None:
         from hdrcl.core.bracket import Bracket
