@@ -219,3 +219,11 @@ def deliver(output: str, radiance: np.ndarray, options: DeliverOptions, orientat
         rec = DELIVERABLES[kind].write(path, r)
         out.append({"kind": kind, "path": path, **rec})
     return out
+
+
+def deliver_beside(output: str, radiance: np.ndarray, options: DeliverOptions) -> List[dict]:
+    """:func:`deliver` for a radiance map just written at ``output`` (``hdrcl merge``), upright
+    as that file's orientation says."""
+    from hdrcl.io.outmeta import read_orientation
+
+    return deliver(output, radiance, options, read_orientation(output)) if options else []
