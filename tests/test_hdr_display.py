@@ -351,9 +351,9 @@ def test_ultrahdr_opens_in_chromium(ic, scene_map, tmp_path, chromium_path):
                                      f'<img src="m.uhdr.jpg" width="{W}" height="{H}"></body></html>')
     shot = tmp_path / "shot.png"
     cmd = [chromium_path, "--headless", "--no-sandbox", "--disable-gpu", f"--user-data-dir={tmp_path / 'profile'}",
-           "--force-color-profile=srgb", "--hide-scrollbars", f"--window-size={W + 40},{H + 40}",
-           f"--screenshot={shot}", "file://" + str(tmp_path / "p.html")]
+           "--force-color-profile=srgb", "--hide-scrollbars", "--window-size=400,300",  # smaller: cut short
+           "--virtual-time-budget=5000", f"--screenshot={shot}", "file://" + str(tmp_path / "p.html")]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     px = ic.imread(str(shot))[:H, :W, :3].astype(int)
-    assert np.median(np.abs(px - base.astype(int))) <= 3
+    assert np.median(np.abs(px - base.astype(int))) <= 2  # Chromium's decoder, the base's JPEG error

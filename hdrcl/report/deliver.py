@@ -23,7 +23,7 @@ from typing import Callable, Dict, List, Optional, Tuple
 import numpy as np
 
 from hdrcl.core.options import DeliverOptions
-from hdrcl.report.tonemap import KEY, apply_global, quantize, srgb_encode, statistics, tone_map_array
+from hdrcl.report.tonemap import KEY, apply_global, statistics, tone_map_array
 
 logger = logging.getLogger(__name__)
 
@@ -59,12 +59,13 @@ class Rendering:
         EXIF orientation: the pictures are written upright, as the previews.
     """
 
-    def __init__(self, radiance: np.ndarray, options: DeliverOptions, orientation: int = 1):
+    def __init__(self, radiance: np.ndarray, options: DeliverOptions, orientation: int = 1,
+                 device: Optional[str] = None):
         rad = np.asarray(radiance)
         if rad.ndim == 2:
             rad = rad[:, :, None]
         self.radiance = rad[:, :, :3]
-        self.options, self.orientation = options, orientation
+        self.options, self.orientation, self.device = options, orientation, device
         self.h, self.w = rad.shape[:2]
         self.params = statistics(self.radiance, "reinhard" if options.tonemap == "reinhard-local" else options.tonemap)
         #: Multiplier to reference-white units (0 for a black map).
@@ -72,27 +73,37 @@ class Rendering:
         self._base: Optional[np.ndarray] = None
 
     # ---------------------------------------------------------------- pixels
-    def strips(self):
-        for y0 in range(0, self.h, STRIP_ROWS):
-            yield y0, min(self.h, y0 + STRIP_ROWS)
+    def strips(self, rows: int = STRIP_ROWS):
+        for y0 in range(0, self.h, rows):
+            yield y0, min(self.h, y0 + rows)
 
-    def _rgb(self, y0: int, y1: int) -> np.ndarray:
-        s = np.asarray(self.radiance[y0:y1], np.float64)
-        s = np.where(np.isfinite(s), np.maximum(s, 0.0), 0.0)
+    def _rgb(self, y0: int, y1: int, dtype=np.float64) -> np.ndarray:
+        s = np.asarray(self.radiance[y0:y1], dtype)
+        s = np.where(np.isfinite(s), np.maximum(s, 0), 0).astype(dtype, copy=False)
         return np.repeat(s, 3, axis=2) if s.shape[2] == 1 else s
 
-    def hdr(self, y0: int, y1: int, headroom: Optional[float] = None) -> np.ndarray:
-        """Rows ``y0:y1`` in reference-white units, each channel clipped at 2^headroom."""
+    def hdr(self, y0: int, y1: int, headroom: Optional[float] = None, dtype=np.float64) -> np.ndarray:
+        """Rows ``y0:y1`` in reference-white units, each channel clipped at 2^headroom
+        (float32 for the files: 2^-24 relative is far below any code step)."""
         top = 2.0 ** (self.options.headroom if headroom is None else headroom)
-        return np.minimum(self._rgb(y0, y1) * self.white_scale, top)
+        return np.minimum(self._rgb(y0, y1, dtype) * dtype(self.white_scale), dtype(top))
 
     def base(self) -> np.ndarray:
         """The SDR rendering, ``(H, W, 3)`` sRGB uint8, stored orientation: the previews'
         operator with the full map's statistics."""
         if self._base is None:
+            from hdrcl.cl.backend import get_processor
+            from hdrcl.report.tonemap import OP_CODES
+
             op = self.options.tonemap
+            proc = None if op == "reinhard-local" else get_processor("tonemap", self.device)
             if op == "reinhard-local":  # a local operator needs the whole map
                 out = tone_map_array(self._rgb(0, self.h), op)
+            elif proc is not None:  # the kernel of apply_global (within a code of its twin)
+                out = np.empty((self.h, self.w, 3), np.uint8)
+                for y0, y1 in self.strips(4096):
+                    out[y0:y1] = proc.apply(self._rgb(y0, y1, np.float32), OP_CODES[op], self.params.scale,
+                                            self.params.white, 8)
             else:
                 out = np.empty((self.h, self.w, 3), np.uint8)
                 for y0, y1 in self.strips():
@@ -100,18 +111,26 @@ class Rendering:
             self._base = out
         return self._base
 
-    def signal(self, transfer: str, bits: int) -> Tuple[np.ndarray, float]:
-        """PQ or HLG codes ``(H, W, 3)`` uint16 (0 .. 2^bits-1) and the headroom they keep."""
+    def signal(self, transfer: str, bits: int) -> Tuple[np.ndarray, float, Dict[str, float]]:
+        """PQ or HLG codes ``(H, W, 3)`` uint16 (0 .. 2^bits-1), the headroom they keep and
+        their content light level (CTA-861.3): ``max_cll``, the brightest pixel's largest
+        channel, and ``max_fall``, the mean of that over the picture, cd/m^2."""
         from hdrcl.io.hdrdisplay import REFERENCE_WHITE_NITS, hlg_encode, pq_encode
 
         top = (1 << bits) - 1
         headroom = self.options.headroom if transfer == "pq" else min(self.options.headroom, HLG_HEADROOM)
         out = np.empty((self.h, self.w, 3), np.uint16)
+        peak, total = 0.0, 0.0
         for y0, y1 in self.strips():
-            x = self.hdr(y0, y1, headroom)
-            sig = pq_encode(x * REFERENCE_WHITE_NITS) if transfer == "pq" else hlg_encode(x * 0.26496)
+            x = self.hdr(y0, y1, headroom, np.float32)
+            m = x.max(axis=2)
+            peak, total = max(peak, float(m.max(initial=0.0))), total + float(m.sum(dtype=np.float64))
+            sig = pq_encode(x * np.float32(REFERENCE_WHITE_NITS)) if transfer == "pq" else hlg_encode(
+                x * np.float32(0.26496))
             out[y0:y1] = np.floor(sig * top + 0.5).astype(np.uint16)
-        return out, headroom
+        level = {"max_cll": round(peak * REFERENCE_WHITE_NITS, 1),
+                 "max_fall": round(total * REFERENCE_WHITE_NITS / max(self.h * self.w, 1), 1)}
+        return out, headroom, level
 
     def gain_map(self):
         """The Ultra HDR gain map of :meth:`base`: ``(H, W, 3)`` uint8 codes and its
@@ -120,35 +139,28 @@ class Rendering:
         from hdrcl.io.hdrdisplay import GainMapMeta
 
         base = self.base()
-        lut = _srgb_decode_lut()
-
-        def gains(y0, y1):
-            sdr = lut[base[y0:y1]]
-            return np.log2((self.hdr(y0, y1) + GAIN_OFFSET) / (sdr + GAIN_OFFSET))
-
+        lut = (_srgb_decode_lut() + GAIN_OFFSET).astype(np.float32)
+        off = np.float32(GAIN_OFFSET)
+        # log2 gains held as float16 (6 bytes a pixel; steps of 0.008 stops at most, a
+        # tenth of a code) between the pass that finds their range and the quantisation
+        gains = np.empty((self.h, self.w, 3), np.float16)
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         for y0, y1 in self.strips():
-            g = gains(y0, y1)
+            g = np.log2((self.hdr(y0, y1, dtype=np.float32) + off) / lut[base[y0:y1]])
+            gains[y0:y1] = g
             lo, hi = np.minimum(lo, g.min(axis=(0, 1))), np.maximum(hi, g.max(axis=(0, 1)))
+        lo, hi = lo.astype(np.float16).astype(np.float64), hi.astype(np.float16).astype(np.float64)
         hi = np.maximum(hi, lo + 1e-3)  # a flat map still has a range
         codes = np.empty((self.h, self.w, 3), np.uint8)
+        scale = (255.0 / (hi - lo)).astype(np.float32)
         for y0, y1 in self.strips():
-            codes[y0:y1] = quantize((gains(y0, y1) - lo) / (hi - lo))
+            q = (gains[y0:y1].astype(np.float32) - lo.astype(np.float32)) * scale
+            codes[y0:y1] = np.floor(np.clip(q, 0, 255) + 0.5).astype(np.uint8)
+        del gains
         meta = GainMapMeta(gain_min=[float(v) for v in lo], gain_max=[float(v) for v in hi],
                            base_offset=GAIN_OFFSET, alternate_offset=GAIN_OFFSET,
                            base_headroom=0.0, alternate_headroom=self.options.headroom)
         return codes, meta
-
-    def light_level(self, headroom: float) -> Dict[str, float]:
-        """Content light level of the HDR rendering (CTA-861.3): MaxCLL, the brightest
-        pixel's largest channel, and MaxFALL, the mean of that over the picture, cd/m^2."""
-        from hdrcl.io.hdrdisplay import REFERENCE_WHITE_NITS
-
-        peak, total = 0.0, 0.0
-        for y0, y1 in self.strips():
-            m = self.hdr(y0, y1, headroom).max(axis=2) * REFERENCE_WHITE_NITS
-            peak, total = max(peak, float(m.max(initial=0.0))), total + float(m.sum())
-        return {"max_cll": round(peak, 1), "max_fall": round(total / max(self.h * self.w, 1), 1)}
 
     def upright(self, a: np.ndarray) -> np.ndarray:
         from hdrcl.io.exif import to_display
@@ -175,11 +187,11 @@ def _signal_writer(kind: str):
     def write(path: str, r: Rendering) -> dict:
         from hdrcl.io import hdrdisplay
 
-        codes, headroom = r.signal(r.options.transfer, r.options.bits)
+        codes, headroom, level = r.signal(r.options.transfer, r.options.bits)
         writer = hdrdisplay.write_avif if kind == "avif" else hdrdisplay.write_jxl
         size = writer(path, r.upright(codes), r.options.bits, r.options.transfer)
         return {"headroom": round(headroom, 4), "transfer": r.options.transfer, "bits": r.options.bits,
-                "primaries": "bt709", "bytes": size, **r.light_level(headroom)}
+                "primaries": "bt709", "bytes": size, **level}
 
     return write
 
@@ -200,7 +212,8 @@ def paths_for(output: str, options: DeliverOptions) -> Dict[str, str]:
     return {k: stem + DELIVERABLES[k].suffix for k in options.kinds}
 
 
-def deliver(output: str, radiance: np.ndarray, options: DeliverOptions, orientation: int = 1) -> List[dict]:
+def deliver(output: str, radiance: np.ndarray, options: DeliverOptions, orientation: int = 1,
+            device: Optional[str] = None) -> List[dict]:
     """Write every deliverable of ``options`` beside ``output`` (each atomically); one
     record per file: ``kind``, ``path``, ``bytes`` and what the writer reports (headroom,
     transfer, light level, gain range)."""
@@ -213,7 +226,7 @@ def deliver(output: str, radiance: np.ndarray, options: DeliverOptions, orientat
         from hdrcl.errors import UsageError
 
         raise UsageError(f"--deliver: {why}")
-    r = Rendering(radiance, options, orientation)
+    r = Rendering(radiance, options, orientation, device)
     out = []
     for kind, path in paths_for(output, options).items():
         rec = DELIVERABLES[kind].write(path, r)

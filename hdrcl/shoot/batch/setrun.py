@@ -375,7 +375,8 @@ class SetMerge(MergeJob):
 
             with self.timed("deliver"):
                 self.delivered = deliver(self.step.job.output, self.full.array, self.opts.deliver_options,
-                                         common_orientation(i.orientation for i in self.inputs.infos))
+                                         common_orientation(i.orientation for i in self.inputs.infos),
+                                         device=self.opts.device)
             self.full = None  # the map's memory, before the EXR is closed
 
     def quality_bracket(self):
