@@ -17,6 +17,7 @@ Android and Chromium read. Every file is written atomically.
 from __future__ import annotations
 
 import math
+import os
 import struct
 from dataclasses import dataclass
 from typing import Optional, Sequence
@@ -248,7 +249,7 @@ def write_avif(path, codes: np.ndarray, bits: int, transfer: str, quality: int =
     try:
         data = ic.avif_encode(np.ascontiguousarray(codes), quality, bitspersample=int(bits), pixelformat="444", speed=AVIF_SPEED,
                               primaries=CICP_PRIMARIES_BT709, transfer=_transfer_code(transfer),
-                              matrix=CICP_MATRIX_BT709, numthreads=2)
+                              matrix=CICP_MATRIX_BT709, numthreads=os.cpu_count() or 1)
     except Exception as exc:
         raise HdrclError(f"{path}: AVIF encoding failed ({type(exc).__name__})") from None
     return _write_bytes(path, bytes(data))
@@ -258,8 +259,6 @@ def write_jxl(path, codes: np.ndarray, bits: int, transfer: str, distance: float
     """A JPEG XL of ``codes`` (as :func:`write_avif`) through OpenImageIO's libjxl writer,
     the CICP triplet as its colour encoding, lossy at Butteraugli ``distance`` (1.0: visually
     lossless); the size in bytes."""
-    import os
-
     import OpenImageIO as oiio
 
     h, w, c = codes.shape
