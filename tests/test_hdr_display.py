@@ -147,6 +147,25 @@ def test_options_are_checked_once():
             DeliverOptions(**bad)
 
 
+def test_missing_codecs_are_refused_before_merging(monkeypatch, tmp_path):
+    from hdrcl.cli import main
+    from hdrcl.io import hdrdisplay
+
+    monkeypatch.setattr(hdrdisplay, "_imagecodecs", lambda: (_ for _ in ()).throw(
+        UsageError("HDR-screen outputs need imagecodecs 2026.3 or later: pip install 'hdrcl[hdr-display]'")))
+    with pytest.raises(UsageError, match=r"--deliver: HDR-screen outputs need imagecodecs"):
+        DeliverOptions("avif")
+    assert not DeliverOptions()  # nothing asked, nothing needed
+    from hdrcl.io.ldr import write_ldr
+
+    frames = [str(tmp_path / f"f{k}.png") for k in range(2)]
+    for k, f in enumerate(frames):
+        write_ldr(f, np.full((5, 7, 3), 60 * (k + 1), np.uint8))
+    res = CliRunner().invoke(main, ["merge", *frames, "--times", "1,2", "-o", str(tmp_path / "m.exr"),
+                                    "--deliver", "uhdr"])
+    assert res.exit_code == 2 and "hdr-display" in res.stderr and not (tmp_path / "m.exr").exists()
+
+
 def test_registry_names_the_options_deliverables():
     from hdrcl.report.deliver import DELIVERABLES
 

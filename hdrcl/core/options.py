@@ -144,6 +144,12 @@ class DeliverOptions:
         object.__setattr__(self, "headroom", float(o["headroom"]))
         object.__setattr__(self, "transfer", str(o["hdr_transfer"]))
         object.__setattr__(self, "bits", int(o["hdr_bits"]))
+        if kinds:  # refused before any merge, not after it
+            from hdrcl.io.hdrdisplay import codecs_available
+
+            why = codecs_available()
+            if why:
+                raise UsageError(f"--deliver: {why}")
 
     def __bool__(self) -> bool:
         return bool(self.kinds)
