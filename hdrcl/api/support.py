@@ -14,6 +14,8 @@ import importlib
 #: name -> module that defines it.
 _WHERE = {
     "MergeOptions": "hdrcl.core.options",
+    "DeliverOptions": "hdrcl.core.options",
+    "deliver_beside": "hdrcl.report.deliver",
     "merge_files": "hdrcl.core.merge",
     "calibrate": "hdrcl.core.calibrate",
     "tonemap_file": "hdrcl.report.tonemap",

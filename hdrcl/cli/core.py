@@ -13,6 +13,7 @@ from hdrcl.cli.options import (
     align_model_option,
     Checked,
     luminance_options,
+    deliver_options,
     InputFile,
     OutputFile,
     OutputFolder,
@@ -170,15 +171,16 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
 @click.option("--owner", default=None, metavar="TEXT",
               help="Owner / copyright recorded in the file [default: the frames' EXIF Copyright].")
 @luminance_options
+@deliver_options
 @device_option
 def merge(images, output, response, save_response, response_cache, times, times_file, ignore_color, samples, smoothness,
           seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, clip_mask, ghost_threshold,
           ghost_reference,
           neutral, reference_patch, absolute, align, align_model, crop, report, dtype, compression,
           reference_exposure, colorspace, owner, lens_circle, resize, fisheye_projection, vignetting, nd_filter, calibration_factor,
-          view, device):
+          view, deliver, headroom, hdr_transfer, hdr_bits, device):
     """Merge one bracket set into a radiance map."""
-    from hdrcl.api.support import MergeOptions, chain_or_none, format_time, merge_files
+    from hdrcl.api.support import DeliverOptions, MergeOptions, chain_or_none, format_time, merge_files
     from hdrcl.core.params import check_options
 
     # Every option once, in the options object (hdrcl.core.options: the rules that tie
@@ -191,6 +193,7 @@ def merge(images, output, response, save_response, response_cache, times, times_
                         crop=crop, dtype=dtype, compression=compression, colorspace=colorspace.lower(),
                         reference_exposure=reference_exposure, device=device)
     check_options(frames=len(images), ghost_reference=ghost_reference)
+    delivery = DeliverOptions(deliver, headroom, hdr_transfer.lower(), int(hdr_bits))
     check_inputs_not_outputs(list(images) + [response, times_file], output, save_response, ghost_mask, clip_mask,
                              response_cache)
     warn_inapplicable(output, dtype=dtype, compression=compression)
@@ -203,7 +206,8 @@ def merge(images, output, response, save_response, response_cache, times, times_
         response, save_response = _from_cache(response_cache, images, response, save_response)
     res = merge_files(list(images), output, opts, times=times, times_file=times_file, response=response,
                       ghost_mask=ghost_mask, clip_mask=clip_mask, thumbnail=512 if report else 0,
-                      keep_frames=bool(report), owner=owner, save_response=save_response, chain=chain)
+                      keep_frames=bool(report), owner=owner, save_response=save_response, chain=chain,
+                      keep_radiance=bool(delivery))
     h, w_, c = res.shape
     if chain is not None:  # the file holds the calibrated N x N map
         h = w_ = chain.size
@@ -239,6 +243,12 @@ def merge(images, output, response, save_response, response_cache, times, times_
             + (f" ({unresolved} pixel-channels unresolved)" if unresolved else ""))
     if cnt.get("clipped_high") or cnt.get("clipped_low"):
         say(f"  clipped in every frame: {cnt['clipped_high']} high, {cnt['clipped_low']} low (pixel-channels)")
+    if delivery:
+        from hdrcl.api.support import deliver_beside
+
+        for d in deliver_beside(output, res.radiance, delivery):
+            say(f"  wrote {d['path']}: {d['kind']}, {d['bytes']} bytes, headroom {d['headroom']:g} stops")
+        res.radiance = None
     if report:
         from hdrcl.api.support import format_figures, write_quality_report
 

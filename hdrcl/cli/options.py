@@ -362,3 +362,21 @@ def luminance_options(f):
     for opt in reversed(opts):
         f = opt(f)
     return f
+
+
+def deliver_options(f):
+    """``--deliver`` and its settings: pictures for HDR screens beside the radiance map
+    (``merge``, ``batch``; :class:`hdrcl.core.options.DeliverOptions`, docs/deliver.md)."""
+    f = click.option("--hdr-bits", type=click.Choice(["10", "12"]), default="10", show_default=True,
+                     help="Bits per sample of the AVIF and JPEG XL deliverables.")(f)
+    f = click.option("--hdr-transfer", type=click.Choice(["pq", "hlg"], case_sensitive=False), default="pq",
+                     show_default=True,
+                     help="Transfer of the AVIF and JPEG XL deliverables: PQ (absolute, reference white "
+                          "203 cd/m^2) or HLG (relative; at most 1.9 stops above reference white).")(f)
+    f = click.option("--headroom", type=Checked("headroom"), default=3.0, show_default=True, metavar="STOPS",
+                     help="Stops above reference white the HDR renderings keep; brighter is clipped "
+                          "(0 < STOPS <= 5.6).")(f)
+    return click.option("--deliver", default="", metavar="LIST",
+                        help="Also write pictures for HDR screens beside the radiance map, a comma list of: "
+                             "uhdr (<stem>.uhdr.jpg, Ultra HDR JPEG: the tone-mapped SDR picture plus a gain "
+                             "map), avif (<stem>.avif), jxl (<stem>.jxl); see docs/deliver.md.")(f)

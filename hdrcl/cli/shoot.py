@@ -23,6 +23,7 @@ from hdrcl.cli.options import (
     OutputFolder,
     sets_callback,
     colorspace_option,
+    deliver_options,
     deghost_option,
     device_option,
     grouping_options,
@@ -232,6 +233,7 @@ class _Progress:
 @colorspace_option
 @output_format_option
 @luminance_options
+@deliver_options
 @device_option
 @click.pass_context
 def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force, name, dry_run, response_cache,
@@ -240,7 +242,7 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
           seed, weight, ignore_color, deghost, align, align_model, crop, neutral, exposure_tolerance, fit_exposures,
           times_file, dtype,
           compression, reference_exposure, colorspace, output_format, lens_circle, resize, fisheye_projection,
-          vignetting, nd_filter, calibration_factor, view, device):
+          vignetting, nd_filter, calibration_factor, view, deliver, headroom, hdr_transfer, hdr_bits, device):
     """Merge every bracket set of a folder or manifest into OUT_DIR.
 
     SOURCE is a folder of photographs (grouped as 'hdrcl scan' does; a folder whose
@@ -280,7 +282,9 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
                          reference_exposure=reference_exposure, align_model=align_model,
                          exposure_tolerance=exposure_tolerance)
     opts = BatchOptions.wrap(merge, preview=preview, preview_size=preview_size, tonemap=tonemap,
-                             report_dir=report_dir, output_format=output_format, luminance=luminance)
+                             report_dir=report_dir, output_format=output_format, luminance=luminance,
+                             deliver=deliver, headroom=headroom, hdr_transfer=hdr_transfer.lower(),
+                             hdr_bits=int(hdr_bits))
     if dry_run:
         from hdrcl.api.batch import describe_batch
 

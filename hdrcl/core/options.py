@@ -104,3 +104,52 @@ class MergeOptions:
 
     def asdict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+#: Pictures for HDR screens a merge can deliver beside its radiance map
+#: (:mod:`hdrcl.report.deliver` holds what each is and its writer; docs/deliver.md).
+DELIVERABLE_NAMES = ("uhdr", "avif", "jxl")
+
+
+@dataclass(frozen=True)
+class DeliverOptions:
+    """What ``--deliver`` writes beside each radiance map, checked when made.
+
+    ``kinds``: names from :data:`DELIVERABLE_NAMES` (a comma list is accepted);
+    ``headroom``: stops above reference white that the HDR renderings keep (clipped
+    beyond); ``transfer`` (``pq``/``hlg``) and ``bits`` (10/12) of AVIF and JPEG XL;
+    ``tonemap``: operator of the SDR base of the Ultra HDR JPEG (as the previews').
+    """
+
+    kinds: Tuple[str, ...] = ()
+    headroom: float = 3.0
+    transfer: str = "pq"
+    bits: int = 10
+    tonemap: str = "reinhard"
+
+    def __post_init__(self):
+        from hdrcl.core.params import check_options
+        from hdrcl.errors import UsageError
+
+        kinds = self.kinds
+        if isinstance(kinds, str):
+            kinds = [k for k in kinds.replace(" ", "").split(",") if k]
+        kinds = tuple(dict.fromkeys(str(k).strip().lower() for k in kinds or ()))
+        bad = [k for k in kinds if k not in DELIVERABLE_NAMES]
+        if bad:
+            raise UsageError(f"--deliver: unknown '{bad[0]}'; use a comma list of {', '.join(DELIVERABLE_NAMES)}")
+        object.__setattr__(self, "kinds", kinds)
+        o = check_options(headroom=self.headroom, hdr_transfer=self.transfer, hdr_bits=str(self.bits),
+                          operator=self.tonemap)
+        object.__setattr__(self, "headroom", float(o["headroom"]))
+        object.__setattr__(self, "transfer", str(o["hdr_transfer"]))
+        object.__setattr__(self, "bits", int(o["hdr_bits"]))
+        if kinds:  # refused before any merge, not after it
+            from hdrcl.io.hdrdisplay import codecs_available
+
+            why = codecs_available()
+            if why:
+                raise UsageError(f"--deliver: {why}")
+
+    def __bool__(self) -> bool:
+        return bool(self.kinds)

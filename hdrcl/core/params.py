@@ -108,6 +108,11 @@ TABLE: Dict[str, Option] = {o.name: o for o in (
     _O("jobs", "int", 1, 4096, what="a number of processes"),
     _O("retries", "int", 0, 1000, what="a number of retries"),
     _O("preview_size", "int", 16, 65536, what="a number of pixels"),
+    # HDR-screen deliverables (hdrcl.core.options.DeliverOptions): PQ ends at 10000 cd/m^2, 5.6
+    # stops above its 203 cd/m^2 reference white.
+    _O("headroom", "float", 0, 5.6, lo_open=True, what="a number of stops"),
+    _O("hdr_transfer", "choice", choices=("pq", "hlg")),
+    _O("hdr_bits", "choice", choices=("10", "12")),
     _O("frames_per_set", "int", 1, 100_000, what="a number of frames"),
     _O("frames", "int", 2, 32, what="a number of frames"),
     _O("gap", "float", 0, 1e9, what="a number of seconds"),

@@ -87,6 +87,10 @@ class BatchOptions:
         ``projection``, ``vignetting``, ``nd_filter``, ``calibration_factor``, ``view``;
         :func:`hdrcl.core.luminance.fisheye.chain_or_none`): every set becomes a calibrated
         luminance map.
+    deliver, headroom, hdr_transfer, hdr_bits
+        Pictures for HDR screens written beside each EXR (``--deliver uhdr,avif,jxl``;
+        :class:`hdrcl.core.options.DeliverOptions`, :mod:`hdrcl.report.deliver`). Not part
+        of the EXR's identity.
     reference_exposure : float, optional
         Seconds (at the shoot's reference f-number and ISO) that a value of 1.0 in
         every EXR stands for (:mod:`hdrcl.core.encode`); default one per camera, the
@@ -116,9 +120,22 @@ class BatchOptions:
     output_format: str = "exr"
     luminance: Optional[dict] = None
     exposure_tolerance: Optional[float] = None
+    deliver: Tuple[str, ...] = ()
+    headroom: float = 3.0
+    hdr_transfer: str = "pq"
+    hdr_bits: int = 10
 
     def __post_init__(self):
         self.merge  # noqa: B018 -- every merge option checked once, here (hdrcl.core.options)
+        self.deliver_options  # noqa: B018 -- and the deliverables'
+
+    @functools.cached_property
+    def deliver_options(self):
+        """The :class:`hdrcl.core.options.DeliverOptions` of every set (empty: none); the
+        SDR base is tone-mapped as the previews (``tonemap``)."""
+        from hdrcl.core.options import DeliverOptions
+
+        return DeliverOptions(self.deliver, self.headroom, self.hdr_transfer, self.hdr_bits, self.tonemap)
 
     @classmethod
     def wrap(cls, merge, **batch) -> "BatchOptions":
@@ -252,6 +269,7 @@ class SetResult:
     vertical_illuminance: Optional[float] = None  # lux at the lens, with a fisheye luminance map (-vta view)
     glare: Optional[dict] = None  # DGP, DGI, UGR, sources of that map (hdrcl.core.luminance.glare, as `hdrcl glare`)
     findings: List[dict] = field(default_factory=list)  # hdrcl.core.findings.Finding.to_dict of each
+    deliverables: List[dict] = field(default_factory=list)  # --deliver: kind, path, bytes, ... (hdrcl.report.deliver)
 
     @property
     def needs_check(self) -> bool:
@@ -284,6 +302,7 @@ class SetResult:
             **({"alignment": self.alignment} if self.alignment is not None else {}),
             **({"vertical_illuminance": self.vertical_illuminance} if self.vertical_illuminance is not None else {}),
             **({"glare": self.glare} if self.glare is not None else {}),
+            **({"deliverables": list(self.deliverables)} if self.deliverables else {}),
             "findings": [dict(f) for f in self.findings],
         }
 
@@ -397,8 +416,15 @@ class BatchReport:
                         "check": counts.get(STATUS_CHECK, 0),
                         "skipped": counts.get(STATUS_SKIPPED, 0), "failed": counts.get(STATUS_FAILED, 0),
                         "unreadable_files": len(self.unreadable),
+                        **_deliverable_counts(entries),
                         **({"cancelled": signal_name(self.cancelled)} if self.cancelled else {})},
         }
+
+
+def _deliverable_counts(entries) -> dict:
+    """``{"deliverables": {kind: files}}`` over the sets' entries, when any was written."""
+    kinds = Counter(d.get("kind") for e in entries for d in e.get("deliverables") or ())
+    return {"deliverables": dict(sorted(kinds.items()))} if kinds else {}
 
 
 def signal_name(signum: int) -> str:

@@ -93,6 +93,27 @@ def _rebuild_preview(job: SetJob, digest: str, options: BatchOptions) -> None:
               metadata=_preview_metadata(digest, options, counts))
 
 
+def _current_deliverables(job: SetJob, options: BatchOptions, warnings: list, radiance=None) -> list:
+    """The deliverables of an up-to-date set: those on disk as they are, the missing ones
+    made from its EXR (``radiance``: when the caller read it already)."""
+    import dataclasses
+
+    from hdrcl.report.deliver import deliver, paths_for
+
+    opts = options.deliver_options
+    paths = paths_for(job.output, opts)
+    missing = tuple(k for k, p in paths.items() if not os.path.isfile(p))
+    out = [{"kind": k, "path": p, "bytes": os.path.getsize(p)} for k, p in paths.items() if k not in missing]
+    if missing:
+        from hdrcl.io.outmeta import read_orientation
+        from hdrcl.io.radiance import read_radiance
+
+        rad = radiance if radiance is not None else read_radiance(job.output)[0]
+        out += deliver(job.output, rad, dataclasses.replace(opts, kinds=missing), read_orientation(job.output))
+        warnings.append(f"{', '.join(missing)} missing: made from the EXR")
+    return sorted(out, key=lambda d: list(paths).index(d["kind"]))
+
+
 @contextlib.contextmanager
 def _claimed(job: SetJob) -> Iterator[None]:
     """Hold the set's claim (:mod:`hdrcl.shoot.batch.claims`) while writing any of its files,
@@ -157,6 +178,11 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
                         _rebuild_preview(job, digest, ctx.options)
                     seconds["preview"] = _time.perf_counter() - t1
                     res.warnings.append("preview was missing or stale: rebuilt from the EXR")
+                if ctx.options.deliver_options:
+                    t1 = _time.perf_counter()
+                    with _claimed(job):
+                        res.deliverables = _current_deliverables(job, ctx.options, res.warnings, radiance)
+                    seconds["deliver"] = _time.perf_counter() - t1
                 if ctx.options.report_dir:
                     res.quality = _current_quality(ctx.options.report_dir, job, digest)
                     if res.quality is None:
@@ -223,7 +249,7 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
         with _FUSE_LOCK:
             res = merge.run()
         seconds["merge"] = _time.perf_counter() - t0 - merge.seconds.get("preview", 0.0) \
-            - merge.seconds.get("write", 0.0)
+            - merge.seconds.get("write", 0.0) - merge.seconds.get("deliver", 0.0)
         for k, v in merge.seconds.items():
             if k not in ("open", "calibrate"):
                 seconds[k] = seconds.get(k, 0.0) + v
@@ -313,6 +339,12 @@ class SetMerge(MergeJob):
         self.reduced = self.small if self.small is not None or not self.opts.report_dir else \
             AreaAverage(h, w, nch, REPORT_IMAGE_SIZE)
         self.extras.sinks = [self.reduced]
+        self.full = None
+        if self.opts.deliver_options:  # the deliverables need the map at full size
+            from hdrcl.core.pipeline import ArraySink
+
+            self.full = ArraySink(h, w, nch)
+            self.extras.sinks.append(self.full)
         super().fuse()
 
     def metadata(self) -> dict:
@@ -350,6 +382,16 @@ class SetMerge(MergeJob):
                                      common_orientation(i.orientation for i in self.inputs.infos))
                 write_ldr(self.step.job.preview, upright,
                           metadata=_preview_metadata(self.step.digest, self.opts, counts))
+        self.delivered = []
+        if self.full is not None:
+            from hdrcl.io.exif import common_orientation
+            from hdrcl.report.deliver import deliver
+
+            with self.timed("deliver"):
+                self.delivered = deliver(self.step.job.output, self.full.array, self.opts.deliver_options,
+                                         common_orientation(i.orientation for i in self.inputs.infos),
+                                         device=self.opts.device)
+            self.full = None  # the map's memory, before the EXR is closed
 
     def quality_bracket(self):
         """The frames the fusion saw, for the quality report: kept as they streamed, or
@@ -378,6 +420,7 @@ class SetMerge(MergeJob):
                         counts={k: int(counts.get(k, 0)) for k in keys},
                         ev_offset=round(step.opened.ev_offset, 6), digest=step.digest, response=job.group,
                         storage=res.storage_note, findings=[f.to_dict() for f in res.findings])
+        out.deliverables = list(getattr(self, "delivered", []))
         if out.needs_check:
             out.status = STATUS_CHECK
         if res.alignment is not None:
