@@ -278,7 +278,7 @@ def test_ev_offset_relates_batch_to_merge(tmp_path):
     shoot_dir, out = tmp_path / "shoot", tmp_path / "out"
     assert run("sample-shoot", shoot_dir, "--size", "64x48").exit_code == 0
     assert run("batch", shoot_dir, "-o", out, "--dtype", "float", "--no-preview").exit_code == 0
-    resp = next(n for n in os.listdir(out) if "ISO-200" in n)
+    resp = next(n for n in os.listdir(out) if "ISO_200" in n)
     frames = [shoot_dir / f"PANO_{k:04d}.jpg" for k in range(7, 12)]
     res = run("merge", *frames, "-o", tmp_path / "m.exr", "--response", out / resp, "--dtype", "float")
     assert res.exit_code == 0, res.output

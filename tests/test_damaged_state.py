@@ -1,5 +1,5 @@
 """hdrcl's own state files, damaged: a batch's ``report.json``, the pooled
-``<camera>-ISO<n>.response.json``, the quality report's per-set JSON and a ``merge
+``<camera>_ISO_<n>.response.json``, the quality report's per-set JSON and a ``merge
 --report`` folder's JSON. Each is read through :func:`hdrcl.io.jsondoc.read_json` and
 type-checked; a damaged one counts as absent or stale (rebuilt), never as an error.
 """

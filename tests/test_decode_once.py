@@ -278,8 +278,8 @@ def test_batch_one_set_per_camera_decodes_each_frame_once(tmp_path, decoded, cl_
     assert len(rows) == 10 and set(rows.values()) == {48}  # every frame's 48 rows, once
     rep = json.loads((out / "report.json").read_text())
     assert [e["status"] for e in rep["sets"]] == ["done", "done"]
-    assert sorted(p.name for p in out.glob("*.response.json")) == ["Canon-EOS-R6-ISO-100.response.json",
-                                                                   "Nikon-D750-ISO-100.response.json"]
+    assert sorted(p.name for p in out.glob("*.response.json")) == ["Canon_EOS_R6_ISO_100.response.json",
+                                                                   "Nikon_D750_ISO_100.response.json"]
     assert all(e["seconds"].get("decode", 0) > 0 and e["seconds"].get("solve", 0) > 0 for e in rep["sets"])
     decoded.clear()
     res = CliRunner().invoke(main, ["batch", str(tmp_path / "shoot"), "-r", "-o", str(out), "--no-preview"])

@@ -4,6 +4,10 @@
 Errors are one line on stderr (``hdrcl: error: ...``) with the exit code of their
 class: 1 processing failed, 2 usage, 3 unreadable input. ``--debug`` shows tracebacks.
 """
-from hdrcl.cli.group import main  # the commands' modules load when a command is used
+from hdrcl.cli.early import take_sigterm
+
+take_sigterm()  # the command says "terminated" from here on, not only once click is loaded
+
+from hdrcl.cli.group import main  # noqa: E402  # the commands' modules load when a command is used
 
 __all__ = ["main"]

@@ -206,7 +206,7 @@ class _Progress:
               help="Print the plan (each set's frames, exposures, output, response) and exit; nothing is "
                    "merged or written. With --json, as JSON.")
 @click.option("--response-cache", "response_cache", type=OutputFolder("response cache"),
-              help="Folder of responses, one per camera and ISO (<camera>-ISO-<n>.response.json): one found "
+              help="Folder of responses, one per camera and ISO (<camera>_ISO_<n>.response.json): one found "
                    "there that fits is used as it is, else the curve is calibrated and saved there.")
 @click.option("--calibrate-only", is_flag=True,
               help="Only solve (or load) and save the responses, e.g. once before submitting farm chunks.")

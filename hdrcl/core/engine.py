@@ -325,6 +325,12 @@ class MergeJob(Timed):
         self.writer, self.counts, self.stored = fuse_to_file(open_writer, run, output=self.output, dtype=o.dtype,
                                                              reference=self.t_ref, keep_units=self.unit != "relative",
                                                              chain=self.chain)
+        if self.chain is not None:  # --lens-circle against the image's dark border
+            from hdrcl.core.luminance.border import lens_circle_finding
+
+            found = lens_circle_finding(self.chain.border, self.chain.lens_circle, self.inputs.paths[0])
+            if found is not None:
+                self.find(found)
 
     def commit(self) -> None:
         """The hook, then the radiance file moved into place; masks and response after."""

@@ -36,6 +36,7 @@ from typing import Optional, Tuple
 import numpy as np
 
 from hdrcl.core.luminance import fisheye_math as fm
+from hdrcl.core.luminance.border import BorderMeter
 from hdrcl.errors import InputError, ProcessingError, UsageError
 from hdrcl.io.radcal import (RadialProjection, Vignetting, calibration_factor_option, check_factor_range,
                              nd_filter_option, read_projection, vignetting_option)
@@ -148,6 +149,7 @@ class LuminanceChain:
         self.backend = "numpy"
         self._acc = None
         self._box = None
+        self.border = None  # a BorderMeter once bound
         self._rows_seen = 0
 
     @classmethod
@@ -250,6 +252,7 @@ class LuminanceChain:
                         cx, cy, d, width, height)
         self._box = (left, top, side)
         self._image = (height, width)
+        self.border = BorderMeter(cx, cy, d, height, width)  # does the circle fit the dark border?
         self._acc = np.zeros((self.size, self.size, nch), np.float64)
         self._rows_seen = 0
 
@@ -262,6 +265,7 @@ class LuminanceChain:
         if self._acc is None:  # not bound by the caller: the height is checked at the end
             self.bind(max(y1, sum(self.crop_box()[1:])), data.shape[1], data.shape[2])
         left, top, side = self._box
+        self.border.add(y0, data)
         a, b = max(y0, top), min(y1, top + side)
         self._rows_seen = y1
         if a >= b:

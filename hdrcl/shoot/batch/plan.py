@@ -11,7 +11,8 @@ from dataclasses import dataclass, field, replace
 from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 from hdrcl.errors import InputError, UsageError
-from hdrcl.shoot.batch.jobs import RESPONSE_SUFFIX, BatchOptions, SetJob
+from hdrcl.shoot.batch.jobs import BatchOptions, SetJob
+from hdrcl.shoot.batch.names import response_path, slug
 from hdrcl.shoot.batch.manifest import set_findings
 
 logger = logging.getLogger(__name__)
@@ -136,7 +137,7 @@ def name_fields(manifest) -> Dict[int, Dict[str, str]]:
     """The values of :data:`NAME_FIELDS` for every set, by index: ``folder`` (the first
     frame's folder name), ``first`` (the first frame's stem, capture order), ``date``
     (capture date YYYY-MM-DD, ``undated`` without one), ``index`` (1-based, zero-padded
-    to the widest number), ``camera`` (make-model slug, ``unknown-camera``)."""
+    to the widest number), ``camera`` (make-model slug, ``unknown_camera``)."""
     sets = sorted(manifest.sets, key=lambda s: s.index)
     width = len(str(max([len(sets)] + [s.index + 1 for s in sets])))
     out = {}
@@ -147,7 +148,7 @@ def name_fields(manifest) -> Dict[int, Dict[str, str]]:
             "first": os.path.splitext(os.path.basename(s.files[0]))[0].lstrip(".") or f"set{s.index}",
             "date": start[:10] if re.match(r"\d{4}-\d\d-\d\d", start) else "undated",
             "index": str(s.index + 1).zfill(width),
-            "camera": _slug(s.camera) if s.camera else "unknown-camera",
+            "camera": slug(s.camera) if s.camera else "unknown_camera",
         }
     return out
 
@@ -372,16 +373,6 @@ def _folder_label(s, root) -> str:
         if rel != "." and not rel.startswith(".."):
             return rel.replace(os.sep, "/")
     return os.path.basename(folder) or "root"
-
-
-def _slug(text: str) -> str:
-    s = re.sub(r"[^A-Za-z0-9]+", "-", text.replace("#", "")).strip("-")
-    return s or "camera"
-
-
-def response_path(group: str, folder: str) -> str:
-    """Where a response group's curve is saved: ``<folder>/<slug>.response.json``."""
-    return os.path.join(folder, _slug(group) + RESPONSE_SUFFIX)
 
 
 def _reference(infos: Sequence) -> Tuple[Optional[float], Optional[float]]:

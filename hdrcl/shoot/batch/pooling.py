@@ -22,7 +22,8 @@ from hdrcl.shoot.batch.jobs import (
     ResponseEntry,
     SetJob,
 )
-from hdrcl.shoot.batch.plan import _camera_label, _Plan, _shoot_scale, response_path
+from hdrcl.shoot.batch.names import response_path, response_to_read
+from hdrcl.shoot.batch.plan import _camera_label, _Plan, _shoot_scale
 from hdrcl.shoot.batch.state import (
     DIGEST_RECIPE,
     _atomic_json,
@@ -155,20 +156,22 @@ def saved_response(group: str, jobs: List[SetJob], out_dir: str, options: BatchO
     key = _json_digest({"recipe": DIGEST_RECIPE, "hdrcl": __version__, "solve": options.solve_params(),
                         "reference": list(jobs[0].reference) if jobs else None, "sets": keyed, "trust": 1})
     entry.key = key
-    saved = read_state(path, "pooled response") or {}  # absent or damaged: solve again
+    found = response_to_read(group, out_dir)  # an older version's hyphenated name too
+    saved = read_state(found, "pooled response") or {}  # absent or damaged: solve again
     calib = saved.get("calibration")
     if isinstance(calib, dict) and calib.get("key") == key:
         warns = calib.get("warnings", [])
         try:
             if not isinstance(warns, list) or not all(isinstance(w, str) for w in warns):
-                raise InputError(f"{path}: calibration.warnings: expected a list of strings")
-            Response.from_dict(saved, source=path)  # validates
+                raise InputError(f"{found}: calibration.warnings: expected a list of strings")
+            Response.from_dict(saved, source=found)  # validates
         except HdrclError as exc:  # stale or damaged: solve again
             logger.info("%s; the response is solved again", str(exc).splitlines()[0])
         else:
             entry.payload = {k: v for k, v in saved.items() if k != "calibration"}
             entry.digest = _key_digest(key)
             entry.source = "loaded"
+            entry.file = found
             entry.warnings += warns
             _restore_trust(entry, calib)
     return entry, usable
@@ -315,7 +318,7 @@ def _cached(group: str, cache: str, first_info) -> "ResponseEntry | None":
 
     A curve this batch calibrated into the cache keeps the digest it was merged with
     (its calibration key), so a rerun finds its sets up to date."""
-    path = response_path(group, cache)
+    path = response_to_read(group, cache)  # an older version's hyphenated name too
     if not os.path.isfile(path):
         return None
     saved = read_state(path, "cached response")  # damaged: None, said by read_state

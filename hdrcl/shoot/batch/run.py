@@ -5,7 +5,7 @@
 **One response per camera body and ISO.** Sets are grouped by the first frame's
 camera (make, model, serial) and ISO. Each group's curve is solved once from samples
 pooled across the group's sets (:func:`hdrcl.core.solve.recover_response_pooled`) and
-saved beside the outputs as ``<camera>-ISO-<n>.response.json`` (a set without camera
+saved beside the outputs as ``<camera>_ISO_<n>.response.json`` (a set without camera
 make and model is its folder's: ``<folder>.response.json``); ``--response`` gives one
 curve for everything instead, ``--response-cache DIR`` keeps the curves in DIR and uses
 one found there as it is. The pool is chosen from the *whole manifest*, never from
@@ -415,7 +415,7 @@ def describe_batch(source, out_dir, *, options: Optional[BatchOptions] = None, s
     As :func:`run_batch` before it writes anything.
     """
     from hdrcl.shoot.batch.pooling import _cached, _pool_of, saved_response
-    from hdrcl.shoot.batch.plan import response_path
+    from hdrcl.shoot.batch.names import response_path, response_to_read
 
     options = options or BatchOptions()
     if response is not None and response_cache is not None:
@@ -438,18 +438,21 @@ def describe_batch(source, out_dir, *, options: Optional[BatchOptions] = None, s
         cached = response_cache is not None and cache_for(first, folder) is not None
         if cached and job.group not in usable:
             usable[job.group] = _cached(job.group, folder, first) is not None
-        path = response_path(job.group, folder if cached else out_dir)
+        where = folder if cached else out_dir
+        path = response_path(job.group, where)
         if response is not None:
             resp = {"group": job.group, "file": os.fspath(response), "source": "given"}
             calib = {"kind": "given"}
         else:
             if cached:
-                there = os.path.isfile(path) and usable[job.group]  # a damaged one is calibrated again
+                there = usable[job.group]  # a damaged one is calibrated again
             else:  # loaded only when saved for this very calibration (the run's own test)
                 if job.group not in usable:
                     usable[job.group] = saved_response(job.group, [plan.jobs[i] for i in _pool_of(members)],
                                                        out_dir, options)[0].source == "loaded"
                 there = usable[job.group]
+            if there:  # the file read: an older version's hyphenated name too
+                path = response_to_read(job.group, where)
             resp = {"group": job.group, "file": path,
                     "source": ("cached" if cached else "saved") if there else "calibrate"}
             calib = ({"kind": "cached"} if there and cached else
