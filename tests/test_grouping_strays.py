@@ -117,6 +117,24 @@ def test_duplicated_file_is_merged_once(tmp_path):
     assert name in f["message"] and copy in f["message"]
 
 
+def test_the_same_files_in_two_folders_are_two_sets(tmp_path, write_frames):
+    """Folders of one set each (frames without EXIF, a list each) holding the same frames
+    (a set copied, its list changed) are two whole sets: a copy in another folder is no
+    duplicate (it took 4 frames out of one set)."""
+    from hdrcl.core import synthetic
+
+    times = [1 / 250, 1 / 60, 1 / 15, 1 / 4]
+    frames = synthetic.bracket(synthetic.radiance_field(24, 32, decades=3.0, seed=2), times, synthetic.Camera())
+    for d, k in (("a", 1.0), ("b", 2.0)):
+        paths = write_frames(tmp_path / d, frames)
+        (tmp_path / d / "image_list.txt").write_text("".join(f"{os.path.basename(p)} {t * k}\n"
+                                                            for p, t in zip(paths, times)))
+    m = scan_directory(tmp_path, recursive=True)
+    assert [len(s.files) for s in m.sets] == [4, 4]
+    assert not [u for u in m.unmerged if u.reason.startswith("duplicate")]
+    assert not any(set_findings(s) for s in m.sets)
+
+
 def test_re_encoded_copy_is_a_duplicate(tmp_path):
     """Same capture time, settings and pixels, other bytes (a copy saved again)."""
     truth = _card(tmp_path)

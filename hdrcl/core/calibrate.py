@@ -191,6 +191,26 @@ def exposures_used(response: Response, bracket_times) -> np.ndarray:
     return nominal
 
 
+#: The verdict is a statistic over the whole picture: it is asked on at most this many
+#: pixels a frame (a batch asks it of every set, so it must stay cheap: 0.5 s -> 0.1 s a
+#: 12 MP set's grid; the verdicts of tests/test_batch_trust.py are the same).
+VERDICT_PIXELS = 65_536
+
+
+def _thinned(bracket: Bracket, max_pixels: int) -> Bracket:
+    """``bracket`` on every k-th row and column, k the smallest that leaves at most
+    ``max_pixels`` pixels a frame."""
+    import dataclasses
+    import math
+
+    h, w = bracket.frames[0].shape[:2]
+    k = max(1, math.ceil(math.sqrt(h * w / max_pixels)))
+    if k == 1:
+        return bracket
+    return dataclasses.replace(bracket, frames=[f[::k, ::k] for f in bracket.frames],
+                               valid=[None if v is None else v[::k, ::k] for v in bracket.valid])
+
+
 def metadata_verdict(bracket: Bracket, *, samples: Optional[int] = None, smoothness: Optional[float] = None,
                      weight: str = DEFAULT_WEIGHT, seed: int = 0, fit_exposures: str = "auto",
                      exposure_tolerance: Optional[float] = None):
@@ -207,6 +227,7 @@ def metadata_verdict(bracket: Bracket, *, samples: Optional[int] = None, smoothn
 
     if bracket.paths and _all_raw(bracket.paths):  # linear: no curve, no verdict
         return None, 0.0
+    bracket = _thinned(bracket, VERDICT_PIXELS)
     resp = calibrate(bracket, samples=samples, smoothness=smoothness, weight=weight, seed=seed,
                      fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance, warn=False)
     verdict = next((w for w in resp.warnings if w.startswith(UNTRUSTED)), None)

@@ -12,8 +12,8 @@ result as a :class:`hdrcl.core.findings.Finding` (``check="frames"``, kept in th
   whole; the frame is left out (merged in, it would paint another scene into the radiance
   map) and the set says so, severity ``check``: one rung of the ladder is missing, and
   only a person can say which view was meant.
-* **A duplicated frame** (:func:`split_duplicates`): the same file twice (the same bytes),
-  or the same camera, capture time, settings and thumbnail: a copy on the card. The later
+* **A duplicated frame** (:func:`split_duplicates`): the same file twice in one folder (the
+  same bytes), or the same camera, capture time, settings and thumbnail: a copy on the card. The later
   one (by name) is left out, severity ``note``: nothing is lost.
 * **A frame of another camera inside a run** (:func:`foreign_cameras`): its Make, Model or
   serial differ from the frames it was shot among, while its image size, the scene and
@@ -124,7 +124,11 @@ def split_duplicates(infos: Sequence[FrameInfo], thumb=None) -> Tuple[List[Frame
     or None; without it only identical bytes count."""
     buckets: Dict[tuple, List[FrameInfo]] = {}
     for f in sorted(infos, key=_sort_key):
-        key = (_camera_key(f), _time(f), f.width, f.height)
+        # Frames without a capture time are grouped by folder (a folder, a set): the same
+        # file in another folder is another set's, never taken out of its set. A camera's
+        # frame copied into another folder is the same shot twice.
+        folder = os.path.dirname(os.path.abspath(os.fspath(f.path))) if _time(f) is None else None
+        key = (folder, _camera_key(f), _time(f), f.width, f.height)
         buckets.setdefault(key, []).append(f)
     dups: List[tuple] = []
     gone = set()
