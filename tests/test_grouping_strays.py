@@ -125,10 +125,10 @@ def test_the_same_files_in_two_folders_are_two_sets(tmp_path, write_frames):
 
     times = [1 / 250, 1 / 60, 1 / 15, 1 / 4]
     frames = synthetic.bracket(synthetic.radiance_field(24, 32, decades=3.0, seed=2), times, synthetic.Camera())
-    for d, k in (("a", 1.0), ("b", 2.0)):
+    for d, k in (("a", [1, 1, 1, 1]), ("b", [1, 4, 1, 4])):  # b's list: two times wrong, two the same
         paths = write_frames(tmp_path / d, frames)
-        (tmp_path / d / "image_list.txt").write_text("".join(f"{os.path.basename(p)} {t * k}\n"
-                                                            for p, t in zip(paths, times)))
+        (tmp_path / d / "image_list.txt").write_text("".join(f"{os.path.basename(p)} {t * f}\n"
+                                                            for p, t, f in zip(paths, times, k)))
     m = scan_directory(tmp_path, recursive=True)
     assert [len(s.files) for s in m.sets] == [4, 4]
     assert not [u for u in m.unmerged if u.reason.startswith("duplicate")]
