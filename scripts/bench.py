@@ -1250,11 +1250,9 @@ def main(argv=None) -> int:
                          "instead; the other options go to it (see shoot_bench.py --help)")
     ap.add_argument("--worker", nargs=2, help=argparse.SUPPRESS)
     args = sys.argv[1:] if argv is None else [str(x) for x in argv]
-    if "--shoot" in args:
-        sys.path.insert(0, os.path.dirname(SCRIPT))
-        import shoot_bench
-
-        return shoot_bench.main([x for x in args if x != "--shoot"])
+    if "--shoot" in args:  # its own process: shoot_bench imports this module, never the other way
+        return subprocess.call([sys.executable, os.path.join(os.path.dirname(SCRIPT), "shoot_bench.py"),
+                                *[x for x in args if x != "--shoot"]])
     a = ap.parse_args(argv)
     _ensure_importable()
 
