@@ -62,6 +62,14 @@ def test_batch_marks_check_names_it_and_keeps_it_on_rerun(tmp_path, flagging, cl
     rep = json.load(open(out / "report.json"))
     assert [s["status"] for s in rep["sets"]] == ["skipped", "skipped"]
     assert all(s["findings"] and s["findings"][0]["message"].endswith("planted finding") for s in rep["sets"])
+    assert rep["summary"]["check"] == 2  # still to check, though up to date
+    # Without the old report.json, the EXRs say what their merge found.
+    os.remove(out / "report.json")
+    r = CliRunner().invoke(main, ["batch", str(shoot), "-o", str(out)])
+    assert r.exit_code == 0 and "2 to check" in r.stdout, r.output
+    rep = json.load(open(out / "report.json"))
+    assert rep["summary"]["check"] == 2
+    assert all(any(f["message"].endswith("planted finding") for f in s["findings"]) for s in rep["sets"])
 
 
 def test_merge_prints_findings_once(tmp_path, flagging, cl_device):

@@ -344,6 +344,27 @@ def test_batch_delivers_beside_every_exr(ic, shoot, tmp_path):
     rep = json.loads((out / "report.json").read_text())
     assert os.path.isfile(first) and rep["summary"]["deliverables"] == {"avif": len(merged), "uhdr": len(merged)}
     assert any("avif missing: made from the EXR" in w for s in rep["sets"] for w in s["warnings"])
+    # Other settings (not part of the EXR's identity) remake the deliverables from the EXR:
+    # the headroom they keep is the one asked (review: they were kept as they were).
+    args = ["batch", shoot, "-o", str(out), "--deliver", "uhdr,avif", "--headroom", "4"]
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 1, res.output
+    rep = json.loads((out / "report.json").read_text())
+    assert all(d["headroom"] == 4.0 for s in rep["sets"] for d in s.get("deliverables", []))
+    assert any("made with other settings" in w for s in rep["sets"] for w in s["warnings"])
+
+
+def test_no_deliverables_of_luminance_maps(ic, shoot, tmp_path):
+    """A luminance map (--lens-circle) is cropped and calibrated after the fusion: the
+    pictures would show another image than the file, so --deliver is refused (review)."""
+    from hdrcl.cli import main
+
+    frames = sorted(os.path.join(shoot, f) for f in os.listdir(shoot) if f.startswith("IMG_000") and
+                    f[4:8] in ("0001", "0002", "0003"))
+    for cmd in (["merge", *frames, "-o", str(tmp_path / "m.hdr")], ["batch", shoot, "-o", str(tmp_path / "b")]):
+        res = CliRunner().invoke(main, [*cmd, "--lens-circle", "20,20,30", "--deliver", "uhdr"])
+        assert res.exit_code == 2 and "--deliver: not with a luminance map" in res.stderr, res.output
+        assert not (tmp_path / "m.hdr").exists() and not (tmp_path / "b").exists()
 
 
 def test_merge_cli(ic, shoot, tmp_path):

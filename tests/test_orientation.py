@@ -3,6 +3,7 @@
 upright, a note on every set whose frames are turned, a check where the frames differ.
 All on generated frames; Radiance's pvalue and Pillow are the oracles of the geometry."""
 import json
+import os
 import subprocess
 
 import numpy as np
@@ -148,3 +149,22 @@ def test_batch_preview_upright_and_mixed_set_checked(frames, tmp_path):
     assert report["plain"].get("findings", []) == []
     assert report["mixed"]["status"] == "check"
     assert report["mixed"]["findings"][0]["file"] == "IMG_1.jpg"
+
+
+@pytest.mark.parametrize("fmt", ["exr", "hdr"])
+def test_rebuilt_preview_is_turned_once(frames, tmp_path, fmt):
+    """A preview made again from the output (lost, or of another size) is the one the merge
+    wrote: a .hdr is read upright already and was turned a second time (review)."""
+    from PIL import Image
+
+    _photos(tmp_path / "turned", frames, (6, 6, 6))
+    args = ["batch", str(tmp_path / "turned"), "-o", str(tmp_path / "out"), "--format", fmt]
+    assert CliRunner().invoke(main, args).exit_code == 0
+    entry = json.loads((tmp_path / "out" / "report.json").read_text())["sets"][0]
+    first = np.asarray(Image.open(entry["preview"]), np.float64)
+    os.remove(entry["preview"])
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 0 and "rebuilt" in res.output, res.output
+    again = np.asarray(Image.open(entry["preview"]), np.float64)
+    assert again.shape == first.shape == (32, 24, 3)
+    assert np.abs(again - first).mean() < 2.0

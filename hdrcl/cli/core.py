@@ -200,6 +200,7 @@ def merge(images, output, response, save_response, response_cache, times, times_
     chain = chain_or_none(lens_circle=lens_circle, resize=resize, projection=fisheye_projection, vignetting=vignetting,
                           nd_filter=nd_filter, calibration_factor=calibration_factor, view=view, device=device,
                           output=output)  # factors checked against what the output's format holds
+    delivery.refuse_with_luminance(chain is not None)
     if times is None and times_file is None:
         _say_exposure_lists(images)
     if response_cache is not None:

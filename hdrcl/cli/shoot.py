@@ -365,7 +365,7 @@ def _summary(rep) -> None:
                 more = f" (+{len(u['files']) - 1} more)" if len(u["files"]) > 1 else ""
                 click.echo(f"  not merged: {os.path.basename(u['files'][0])}{more}: {u['reason']}")
     else:
-        check = f"{rep.count('check')} to check, " if rep.count("check") else ""
+        check = f"{rep.to_check} to check, " if rep.to_check else ""
         click.echo(f"{n} set(s): {rep.count('done')} done, {check}{rep.count('skipped')} up to date, "
                    f"{rep.count('failed')} failed in {rep.seconds:.1f} s; report: {rep.path}")
     if rep.quality_report:

@@ -151,5 +151,20 @@ class DeliverOptions:
             if why:
                 raise UsageError(f"--deliver: {why}")
 
+
+    def identity(self) -> str:
+        """What the pictures are made with, as text (recorded beside the map: a rerun remakes
+        the deliverables when it differs)."""
+        return f"headroom {self.headroom:g}; {self.transfer} {self.bits}-bit; base {self.tonemap}"
+
+    def refuse_with_luminance(self, luminance: bool) -> None:
+        """UsageError when deliverables are asked of luminance maps (``--lens-circle``):
+        the map is cropped, projected and calibrated after the fusion, so the pictures
+        would show another image than the file."""
+        if self.kinds and luminance:
+            from hdrcl.errors import UsageError
+
+            raise UsageError("--deliver: not with a luminance map (--lens-circle): the map is cropped, projected "
+                             "and calibrated after the fusion; deliver pictures from a plain merge of the set")
     def __bool__(self) -> bool:
         return bool(self.kinds)

@@ -340,6 +340,15 @@ def orientation_carrier(path, orientation: int) -> str:
             "oiiotool --reorient turns the pixels)")
 
 
+def orientation_after_reading(path) -> int:
+    """The EXIF orientation still to apply to an output as :func:`hdrcl.io.radiance.read_radiance`
+    returns it: 1 for a Radiance file (read as Radiance places it, upright already), else
+    :func:`read_orientation` (other formats are read as stored)."""
+    if os.path.splitext(os.fspath(path))[1].lower() == ".hdr":
+        return 1
+    return read_orientation(path)
+
+
 def read_orientation(path) -> int:
     """The EXIF orientation an output says: a Radiance file's resolution line, or the
     ``Orientation`` attribute of another format (1 where it says none)."""

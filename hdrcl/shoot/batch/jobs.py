@@ -127,7 +127,7 @@ class BatchOptions:
 
     def __post_init__(self):
         self.merge  # noqa: B018 -- every merge option checked once, here (hdrcl.core.options)
-        self.deliver_options  # noqa: B018 -- and the deliverables'
+        self.deliver_options.refuse_with_luminance(bool(self.luminance))  # and the deliverables'
 
     @functools.cached_property
     def deliver_options(self):
@@ -386,6 +386,12 @@ class BatchReport:
         return sum(1 for r in self.results if r.status == status)
 
     @property
+    def to_check(self) -> int:
+        """This run's sets whose findings need a check: merged now (status ``check``) or
+        up to date from a run that found the same."""
+        return sum(1 for r in self.results if r.needs_check)
+
+    @property
     def failed(self) -> int:
         return self.count(STATUS_FAILED)
 
@@ -413,7 +419,10 @@ class BatchReport:
             "unmerged": self.unmerged,
             "responses": [r.to_dict() for r in self.responses],
             "summary": {"sets": len(entries), "done": counts.get(STATUS_DONE, 0),
-                        "check": counts.get(STATUS_CHECK, 0),
+                        # merged now with a finding to check (status "check"), or up to date
+                        # from a run that found the same (status "skipped")
+                        "check": sum(1 for e in entries if any(f.get("severity") == "check"
+                                                                for f in e.get("findings") or ())),
                         "skipped": counts.get(STATUS_SKIPPED, 0), "failed": counts.get(STATUS_FAILED, 0),
                         "unreadable_files": len(self.unreadable),
                         **_deliverable_counts(entries),

@@ -4,6 +4,7 @@ and writing it (merge stage); :func:`process_set` runs both.
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
 import time as _time
@@ -13,6 +14,7 @@ from typing import Dict, Iterator, List, Optional
 import numpy as np
 
 from hdrcl.core.engine import Extras, MergeJob
+from hdrcl.core.findings import Finding
 from hdrcl.core.sources import GivenResponse, Inputs, ResponseSource
 from hdrcl.errors import HdrclError
 from hdrcl.shoot.batch.jobs import (
@@ -86,32 +88,57 @@ def _rebuild_preview(job: SetJob, digest: str, options: BatchOptions) -> None:
     except HdrclError:
         counts = {}
     from hdrcl.io.exif import to_display
-    from hdrcl.io.outmeta import read_orientation
+    from hdrcl.io.outmeta import orientation_after_reading
 
     write_ldr(job.preview, to_display(encode(downscale(rad, options.preview_size), options.tonemap),
-                                      read_orientation(job.output)),  # upright, as the EXR says
+                                      orientation_after_reading(job.output)),  # upright, as the output says
               metadata=_preview_metadata(digest, options, counts))
 
 
-def _current_deliverables(job: SetJob, options: BatchOptions, warnings: list, radiance=None) -> list:
-    """The deliverables of an up-to-date set: those on disk as they are, the missing ones
-    made from its EXR (``radiance``: when the caller read it already)."""
+def _current_deliverables(job: SetJob, options: BatchOptions, warnings: list, radiance=None,
+                          recorded: Optional[str] = None) -> list:
+    """The deliverables of an up-to-date set: those on disk as they are when the EXR says
+    they were made with these settings (``recorded``, its :data:`DELIVER_KEY`), the missing
+    or stale ones made from its EXR (``radiance``: when the caller read it already)."""
     import dataclasses
 
     from hdrcl.report.deliver import deliver, paths_for
 
     opts = options.deliver_options
     paths = paths_for(job.output, opts)
-    missing = tuple(k for k, p in paths.items() if not os.path.isfile(p))
+    stale = recorded != opts.identity()  # other settings, or an EXR merged without --deliver
+    missing = tuple(k for k, p in paths.items() if stale or not os.path.isfile(p))
     out = [{"kind": k, "path": p, "bytes": os.path.getsize(p)} for k, p in paths.items() if k not in missing]
     if missing:
-        from hdrcl.io.outmeta import read_orientation
+        from hdrcl.io.outmeta import orientation_after_reading
         from hdrcl.io.radiance import read_radiance
 
         rad = radiance if radiance is not None else read_radiance(job.output)[0]
-        out += deliver(job.output, rad, dataclasses.replace(opts, kinds=missing), read_orientation(job.output))
-        warnings.append(f"{', '.join(missing)} missing: made from the EXR")
+        out += deliver(job.output, rad, dataclasses.replace(opts, kinds=missing), orientation_after_reading(job.output))
+        warnings.append(f"{', '.join(missing)} {'made with other settings' if stale else 'missing'}: "
+                        "made from the EXR")
     return sorted(out, key=lambda d: list(paths).index(d["kind"]))
+
+
+#: EXR attributes of a batch set (``hdrcl:`` names): the findings its merge knew when the
+#: file was opened (the scan's, the exposure trust, alignment, agreement, orientation),
+#: and the settings its deliverables were made with.
+FINDINGS_KEY, DELIVER_KEY = "findings", "deliver"
+
+
+def _recorded_findings(job: SetJob, meta: dict) -> List[dict]:
+    """The findings of an up-to-date set: the scan's (``job.findings``) and those its merge
+    recorded in the EXR (:data:`FINDINGS_KEY`), each once."""
+    out = [dict(f) for f in job.findings]
+    try:
+        recorded = json.loads(meta.get(FINDINGS_KEY) or "[]")
+    except (TypeError, ValueError):
+        recorded = []
+    for f in recorded if isinstance(recorded, list) else []:
+        if isinstance(f, dict) and isinstance(f.get("message"), str) and \
+                all(f["message"] != g.get("message") for g in out):
+            out.append(Finding.from_dict(f).to_dict())
+    return out
 
 
 @contextlib.contextmanager
@@ -171,7 +198,9 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
             if exr_ok:
                 res = SetResult(index=job.index, files=list(job.files), status=STATUS_SKIPPED, output=job.output,
                                 preview=job.preview, seconds=seconds, digest=digest, response=job.group,
-                                counts=_counts_of(pmeta), ev_offset=_float_or_none(meta.get("evOffset")))
+                                counts=_counts_of(pmeta), ev_offset=_float_or_none(meta.get("evOffset")),
+                                findings=_recorded_findings(job, meta))
+                res.warnings += [f["message"] for f in res.findings]
                 if not preview_ok:
                     t1 = _time.perf_counter()
                     with _claimed(job):  # its temporary file is the claim holder's
@@ -181,7 +210,8 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
                 if ctx.options.deliver_options:
                     t1 = _time.perf_counter()
                     with _claimed(job):
-                        res.deliverables = _current_deliverables(job, ctx.options, res.warnings, radiance)
+                        res.deliverables = _current_deliverables(job, ctx.options, res.warnings, radiance,
+                                                                 meta.get(DELIVER_KEY))
                     seconds["deliver"] = _time.perf_counter() - t1
                 if ctx.options.report_dir:
                     res.quality = _current_quality(ctx.options.report_dir, job, digest)
@@ -227,6 +257,7 @@ def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResu
                                  preview=job.preview, seconds=step.seconds, digest=step.digest,
                                  response=job.group, counts=_counts_of(pmeta),
                                  ev_offset=_float_or_none(meta.get("evOffset")),
+                                 findings=_recorded_findings(job, meta),
                                  warnings=["merged meanwhile by another process on this folder"])
         return _merge_claimed(step, ctx, strict)
     finally:
@@ -359,6 +390,10 @@ class SetMerge(MergeJob):
         meta.update(self.alignment_meta())
         if self.unit == "relative":
             meta["referenceExposure"] = self.t_ref
+        if self.findings:  # what the checks found so far: a rerun that skips the set says it again
+            meta[FINDINGS_KEY] = json.dumps([f.to_dict() for f in self.findings], sort_keys=True)
+        if self.opts.deliver_options:  # what the deliverables beside it are made with
+            meta[DELIVER_KEY] = self.opts.deliver_options.identity()
         return meta
 
     def tap(self, source):
