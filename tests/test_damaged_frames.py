@@ -124,3 +124,22 @@ def test_warm_up_is_waited_for_at_exit():
     finally:
         threading.Thread.start = real
     assert [t.daemon for t in started if t.name == "hdrcl-warm-up"] == [False]
+
+
+def test_every_damaged_set_of_a_camera_names_its_file(tmp_path, cl_device):
+    """Both sets of one camera hold a frame cut short (so the camera has no set to pool): each
+    set fails naming its own file, not with the camera's "no response" (review)."""
+    from click.testing import CliRunner
+
+    from hdrcl.cli import main
+
+    truth = _card(tmp_path / "in", 5)
+    victims = [truth["sets"][0][2], truth["sets"][1][1]]
+    _damage(tmp_path / "in" / victims[0], 0.5)
+    _damage(tmp_path / "in" / victims[1], 0.3)
+    r = CliRunner().invoke(main, ["batch", str(tmp_path / "in"), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 1, r.output
+    rep = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert [s["status"] for s in rep["sets"]] == ["failed", "failed"]
+    for s, victim in zip(rep["sets"], victims):
+        assert victim in s["error"], s["error"]

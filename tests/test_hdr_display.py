@@ -397,3 +397,28 @@ def test_ultrahdr_opens_in_chromium(ic, scene_map, tmp_path, chromium_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     px = ic.imread(str(shot))[:H, :W, :3].astype(int)
     assert np.median(np.abs(px - base.astype(int))) <= 2  # Chromium's decoder, the base's JPEG error
+
+
+def test_deliverables_temporary_files_are_the_sets(tmp_path):
+    """A killed run's temporary deliverables are the set's: its claim removes them, and the
+    stale sweep knows their names (review: .uhdr.tmp-*.jpg and .avif/.jxl were missed)."""
+    import time
+
+    from hdrcl.shoot.batch.claims import SetClaim, set_temps
+    from hdrcl.shoot.batch.state import STALE_TEMP_SECONDS, _remove_stale_temps
+
+    names = [".IMG_1.tmp-1a2b3c4d.exr", ".IMG_1.uhdr.tmp-1a2b3c4d.jpg", ".IMG_1.tmp-0a0b0c0d.avif",
+             ".IMG_1.tmp-1111aaaa.jxl", ".IMG_1.5.tmp-1a2b3c4d.exr"]
+    for n in names:
+        (tmp_path / n).write_bytes(b"x")
+    assert sorted(os.path.basename(p) for p in set_temps(str(tmp_path), "IMG_1")) == sorted(names[:4])
+    c = SetClaim(str(tmp_path), "IMG_1")
+    assert c.acquire(wait=False) and c.remove_temps() == 4
+    c.release()
+    assert sorted(os.listdir(tmp_path)) == [".IMG_1.5.tmp-1a2b3c4d.exr"]
+    for n in names[1:4]:  # the stale sweep of another run: old files of a set nobody holds
+        p = tmp_path / n
+        p.write_bytes(b"x")
+        os.utime(p, (time.time() - STALE_TEMP_SECONDS - 10,) * 2)
+    _remove_stale_temps(str(tmp_path), [])
+    assert sorted(os.listdir(tmp_path)) == [".IMG_1.5.tmp-1a2b3c4d.exr"]

@@ -232,7 +232,8 @@ def scan_directory(path, *, recursive: bool = False, frames_per_set: Optional[in
     listed = {id(f) for fs in named.values() for f in fs}
     aside = [(i, damaged[os.fspath(i.path)]) for i in infos
              if os.fspath(i.path) in damaged and id(i) not in listed]
-    kept = [i for i in infos if not any(i is a for a, _ in aside)]
+    gone = {id(a) for a, _ in aside}
+    kept = [i for i in infos if id(i) not in gone]
     dups = []
     if frames_per_set is None:  # a copy on the card is left out, its set notes it
         kept, dups = split_duplicates(kept, cache.thumb if compare is not None else None)

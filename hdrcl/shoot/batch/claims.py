@@ -118,7 +118,7 @@ class SetClaim:
     def remove_temps(self) -> int:
         """Delete this set's temporary files (only its claim holder may)."""
         n = 0
-        for p in glob.glob(os.path.join(glob.escape(self.out_dir), f".{glob.escape(self.stem)}.tmp-*")):
+        for p in set_temps(self.out_dir, self.stem):
             with contextlib.suppress(OSError):
                 os.remove(p)
                 n += 1
@@ -151,13 +151,29 @@ def claim_set(out_dir: str, stem: str) -> SetClaim:
     return c
 
 
+def temp_infixes() -> tuple:
+    """What stands between a set's stem and ``.tmp-`` in its files' temporary names: nothing
+    (``.IMG_1.tmp-1a2b3c4d.exr``, its preview, AVIF, JPEG XL) or a deliverable's inner
+    suffix (``.IMG_1.uhdr.tmp-1a2b3c4d.jpg``; :data:`hdrcl.report.deliver.DELIVERABLES`)."""
+    from hdrcl.report.deliver import DELIVERABLES
+
+    inner = {d.suffix.rsplit(".", 1)[0] for d in DELIVERABLES.values()}  # ".uhdr.jpg" -> ".uhdr", ".avif" -> ""
+    return ("",) + tuple(sorted(x for x in inner if x))
+
+
+def set_temps(out_dir: str, stem: str) -> list:
+    """The temporary files of set ``stem`` in ``out_dir`` (its outputs' and deliverables')."""
+    folder = glob.escape(out_dir)
+    return [p for infix in temp_infixes()
+            for p in glob.glob(os.path.join(folder, f".{glob.escape(stem)}{infix}.tmp-*"))]
+
+
 def remove_orphan_temps(out_dir: str, stems) -> None:
     """Remove temporary files and claim files of sets nobody holds a claim on (their
     writer is gone); those of sets a live process works on stay."""
     for stem in stems:
         c = SetClaim(out_dir, stem)
-        if not (os.path.lexists(c.path)
-                or glob.glob(os.path.join(glob.escape(out_dir), f".{glob.escape(stem)}.tmp-*"))):
+        if not (os.path.lexists(c.path) or set_temps(out_dir, stem)):
             continue
         try:
             got = c.acquire(wait=False)

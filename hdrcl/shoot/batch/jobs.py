@@ -237,6 +237,7 @@ class SetJob:
     exposure_ref_own: bool = False  # exposure_ref came from this set's labels alone: the measured exposures decide
     fnumber: Optional[float] = None  # f-number of an exposure list for frames whose header has none
     findings: Tuple[dict, ...] = ()  # what the scan found about the set (hdrcl.shoot.batch.manifest.FINDINGS)
+    damaged: Tuple[Tuple[str, str], ...] = ()  # (file name, cause) the scan could not decode (grouping.damaged)
 
 
 @dataclass

@@ -488,7 +488,8 @@ def _plan(manifest, out_dir: str, options: BatchOptions, ranges, name: Optional[
                                preview=stem + ".jpg" if options.preview else None, group=group,
                                reference=reference, exposure_ref=exposure_refs.get(group),
                                exposure_ref_own=group in own_refs, fnumber=listed_fn.get(s.index),
-                               findings=tuple(set_findings(s)))
+                               findings=tuple(set_findings(s)),
+                               damaged=tuple(sorted(dict((s.extra or {}).get("damaged") or {}).items())))
     selected = [jobs[s.index] for s in select_sets(sets, ranges)]
     return _Plan(jobs=jobs, selected=selected, reference=reference, groups=groups, firsts=firsts)
 

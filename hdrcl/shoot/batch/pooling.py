@@ -179,7 +179,7 @@ def saved_response(group: str, jobs: List[SetJob], out_dir: str, options: BatchO
 
 def _solve_pool(entry: ResponseEntry, usable: List[SetJob], options: BatchOptions, grids=None) -> ResponseEntry:
     """Solve the pooled response of ``usable`` (their sampling grids read here, or given
-    as ``grids``: ``{index: (frames, times, valid)}``) and save it with its key."""
+    as ``grids``: ``{index: (infos, (frames, times, valid), paths)}``) and save it with its key."""
     from hdrcl.core.solve import recover_response_pooled
 
     from hdrcl.core.bracket import Bracket
@@ -188,9 +188,11 @@ def _solve_pool(entry: ResponseEntry, usable: List[SetJob], options: BatchOption
     brackets, pooled, first_info = [], [], None
     for j in usable:
         if grids is not None:
-            infos, grid = grids[j.index]
+            infos, grid, paths = grids[j.index]
             frames, times, valid = grid
-            br = Bracket(frames=list(frames), times=times, valid=[valid] * len(frames), paths=list(j.files),
+            if not len(frames) == len(paths) == len(infos):
+                raise HdrclError(f"set {j.index}: {len(frames)} frames on the grid for {len(paths)} paths")
+            br = Bracket(frames=list(frames), times=times, valid=[valid] * len(frames), paths=list(paths),
                          infos=list(infos), grid=True)
         else:
             try:
@@ -387,7 +389,8 @@ def cache_for(first_info, cache):
     return cache
 
 
-def solve_deferred(entry: ResponseEntry, job: SetJob, infos, grid, options: BatchOptions) -> Response:
+def solve_deferred(entry: ResponseEntry, job: SetJob, infos, grid, options: BatchOptions,
+                   paths=None) -> Response:
     """The response of a one-set group, solved by that set's merge from the sampling grid
     of the decode that feeds its fusion, and saved (as :func:`_calibrate_group` would).
 
@@ -396,7 +399,8 @@ def solve_deferred(entry: ResponseEntry, job: SetJob, infos, grid, options: Batc
     HdrclError
         The solve failed (the set fails with the reason).
     """
-    _solve_pool(entry, [job], options, grids={job.index: (infos, grid)})
+    # ``paths``: the frames the grid holds (a merge may have left some out: alignment)
+    _solve_pool(entry, [job], options, grids={job.index: (infos, grid, list(paths or job.files))})
     if entry.payload is None:
         raise HdrclError(f"no response for {entry.group}: {entry.error}")
     entry.deferred = False  # solved: a later use in this process loads it like any other

@@ -16,7 +16,7 @@ import numpy as np
 from hdrcl.core.engine import Extras, MergeJob
 from hdrcl.core.findings import Finding
 from hdrcl.core.sources import GivenResponse, Inputs, ResponseSource
-from hdrcl.errors import HdrclError
+from hdrcl.errors import HdrclError, InputError
 from hdrcl.shoot.batch.jobs import (
     _FUSE_LOCK,
     STATUS_CHECK,
@@ -159,6 +159,10 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
     seconds: Dict[str, float] = {}
     digest = None
     try:
+        if job.damaged:  # the scan could not decode it: the set fails naming the file, first
+            name, cause = job.damaged[0]
+            path = next((f for f in job.files if os.path.basename(f) == name), name)
+            raise InputError(f"{path}: {cause}")
         entry = ctx.responses.get(job.group)
         if entry is None or (entry.payload is None and not entry.deferred):
             # A set's own problem (its first frame is missing...) explains this best.
@@ -313,7 +317,7 @@ class DeferredResponse(ResponseSource):
         from hdrcl.shoot.batch.pooling import solve_deferred
 
         return solve_deferred(self.entry, self.job, merge.inputs.infos, (grid.frames, grid.times, grid.valid_all),
-                              self.opts)
+                              self.opts, paths=merge.inputs.paths)
 
 
 def response_source_of(entry, job: SetJob, infos, options) -> ResponseSource:

@@ -265,7 +265,11 @@ def _remove_stale_temps(out_dir: str, stems: Sequence[str]) -> None:
         return held[stem]
 
     now = _time.time()
-    pat = re.compile(r"^\.(?P<stem>.+)\.tmp-[0-9a-f]{8}\.(exr|jpg)$|^\..+\.json\.[^.]+\.tmp$")
+    from hdrcl.shoot.batch.claims import temp_infixes
+
+    infix = "|".join(re.escape(x) for x in temp_infixes() if x)
+    pat = re.compile(rf"^\.(?P<stem>.+?)(?:{infix})?\.tmp-[0-9a-f]{{8}}\.(exr|hdr|jpg|avif|jxl)$"
+                     r"|^\..+\.json\.[^.]+\.tmp$")
     try:
         names = os.listdir(out_dir)
     except OSError:

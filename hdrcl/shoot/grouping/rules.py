@@ -240,17 +240,22 @@ def _split_by_lens(stream: List[FrameInfo], gap, compare) -> List[_Group]:
 def _say_left_out(manifest: Manifest, groups: List[_Group], made: dict, others: dict) -> None:
     """Frames that did not belong to their run (:mod:`hdrcl.shoot.grouping.strays`): each
     unmerged with its reason, and its set's finding in :data:`FINDINGS`."""
+    by_file: dict = {}  # single files unmerged, indexed once (a walk of them all per hit was quadratic)
+    for u in manifest.unmerged:
+        if len(u.files) == 1:
+            by_file.setdefault(u.files[0], []).append(u)
     for grp in groups:
         for f, reason, finding in left_findings(grp):
-            manifest.unmerged.append(Unmerged(files=[os.fspath(f.path)], reason=reason, ended=grp.reason))
+            u = Unmerged(files=[os.fspath(f.path)], reason=reason, ended=grp.reason)
+            manifest.unmerged.append(u)
+            by_file.setdefault(u.files[0], []).append(u)
             if id(grp) in made:
                 add_finding(made[id(grp)], finding)
         hit = others.get(id(grp))
         if hit is not None and id(hit[0]) in made:
             run, reason, finding = hit
-            for u in manifest.unmerged:
-                if u.files == [os.fspath(grp.frames[0].path)]:
-                    u.reason = reason
+            for u in by_file.get(os.fspath(grp.frames[0].path), ()):
+                u.reason = reason
             add_finding(made[id(run)], finding)
 
 

@@ -245,9 +245,10 @@ def place_duplicates(manifest, dups: Sequence[tuple]) -> None:
     holds its original (:func:`split_duplicates`)."""
     from hdrcl.shoot.batch.manifest import Unmerged, add_finding
 
+    set_of = {os.fspath(f): s for s in manifest.sets for f in s.files}  # one index, not a walk per copy
     for copy, orig, reason, finding in duplicate_findings(dups):
         manifest.unmerged.append(Unmerged(files=[os.fspath(copy.path)], reason=reason))
-        for s in manifest.sets:
-            if os.fspath(orig.path) in (os.fspath(f) for f in s.files):
-                add_finding(s, finding)
-                logger.info("%s: %s", copy.path, reason)
+        s = set_of.get(os.fspath(orig.path))
+        if s is not None:
+            add_finding(s, finding)
+            logger.info("%s: %s", copy.path, reason)
