@@ -1,0 +1,267 @@
+"""Exposure fusion (Mertens, Kautz & Van Reeth 2007): the float64 NumPy twin of
+``kernels/mertens.cl`` and the public :func:`exposure_fusion`.
+
+The equations are OpenCV's ``MergeMertens`` (``photo/src/merge.cpp``), written out so
+that the result matches it to float rounding. Each frame ``I_k`` (RGB in [0, 1]: codes /
+255 or / 65535) gets a weight per pixel::
+
+    C_k = |L * grey(I_k)|                   L = [0 1 0; 1 -4 1; 0 1 0], border reflect-101,
+                                             grey = 0.299 R + 0.587 G + 0.114 B
+    S_k = sqrt(sum_c (I_kc - mean_c I_k)^2)  (not divided by the channel count; grey: 1)
+    E_k = prod_c exp(-(I_kc - 0.5)^2 / (2 sigma^2))          sigma = 0.2
+    W_k = C_k^wc * S_k^ws * E_k^we + 1e-12,  V_k = W_k / sum_j W_j
+
+(``valid`` masks set ``C S E`` to 0 where a frame is invalid: its 1e-12 remains). The
+result is the collapsed pyramid ``R = sum_l up^l( sum_k Lap_l(I_k) * G_l(V_k) )`` with
+OpenCV's ``pyrDown`` (5x5 [1 4 6 4 1]/16, reflect-101, ``(n + 1) // 2``), its ``pyrUp``
+(zero-stuffed reflect-101 of length 2n, kernel x 4) and ``int(log2(min(h, w)))`` levels
+above the finest. Float32 ``(H, W, C)``, about [0, 1] but not clipped (as OpenCV's).
+
+The pyramid's coarse levels span the whole image, so bounded memory needs more than
+strips: :mod:`hdrcl.core.mertens_bands` runs the fusion in horizontal bands with a halo
+(exact, not an approximation); see its docstring.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import List, Optional, Sequence
+
+import numpy as np
+
+from hdrcl.errors import UsageError
+
+logger = logging.getLogger(__name__)
+
+#: Kernel of OpenCV's pyrDown and pyrUp, one dimension.
+_K5 = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0
+#: OpenCV's RGB2GRAY coefficients (R, G, B).
+GREY = (0.299, 0.587, 0.114)
+#: Added to every weight (as OpenCV does) so that a pixel with no weight anywhere is the mean.
+EPS = 1e-12
+
+
+@dataclass(frozen=True)
+class FusionWeights:
+    """The exponents of the three measures and the well-exposedness width.
+
+    ``contrast``, ``saturation``, ``exposedness`` : float >= 0 (OpenCV's ``contrast_weight``,
+    ``saturation_weight``, ``exposure_weight``; 0 turns a measure off). ``sigma`` > 0, in
+    the [0, 1] units of the frames.
+    """
+
+    contrast: float = 1.0
+    saturation: float = 1.0
+    exposedness: float = 1.0
+    sigma: float = 0.2
+
+    def __post_init__(self):
+        for name in ("contrast", "saturation", "exposedness"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v) and 0 <= v <= 100):
+                raise UsageError(f"--{name}: the exponent must be a number from 0 to 100, not {v!r}")
+        if not (isinstance(self.sigma, (int, float, np.floating)) and np.isfinite(self.sigma) and 0 < self.sigma <= 10):
+            raise UsageError(f"sigma: the well-exposedness width must be above 0 and at most 10, not {self.sigma!r}")
+
+
+def max_level(h: int, w: int) -> int:
+    """OpenCV's pyramid depth: ``int(logf(min(h, w)) / logf(2))`` in float32."""
+    m = np.float32(min(h, w))
+    return int(np.float32(np.log(m, dtype=np.float32)) / np.float32(np.log(np.float32(2.0), dtype=np.float32)))
+
+
+def level_size(n: int, levels: int) -> int:
+    """Size of ``n`` after ``levels`` pyrDowns (each ``(n + 1) // 2``)."""
+    for _ in range(levels):
+        n = (n + 1) // 2
+    return n
+
+
+def reflect101(p: np.ndarray, n: int) -> np.ndarray:
+    """OpenCV's BORDER_REFLECT_101 index for any integer ``p`` (arrays)."""
+    p = np.asarray(p, np.int64)
+    if n == 1:
+        return np.zeros_like(p)
+    while True:
+        bad = (p < 0) | (p >= n)
+        if not bad.any():
+            return p
+        p = np.where(p < 0, -p, np.where(p >= n, 2 * n - 2 - p, p))
+
+
+def _down_axis(a: np.ndarray, axis: int) -> np.ndarray:
+    n = a.shape[axis]
+    m = (n + 1) // 2
+    y = 2 * np.arange(m)
+    out = 0.0
+    for t in range(5):
+        shape = [1] * a.ndim
+        shape[axis] = m
+        out = out + _K5[t] * np.take(a, reflect101(y + t - 2, n), axis=axis)
+    return out
+
+
+def pyr_down(a: np.ndarray) -> np.ndarray:
+    """OpenCV ``pyrDown``: ``(h, w[, c])`` to ``((h + 1) // 2, (w + 1) // 2[, c])``."""
+    return _down_axis(_down_axis(a, 0), 1)
+
+
+def _up_axis(a: np.ndarray, axis: int, m: int) -> np.ndarray:
+    n = a.shape[axis]
+    y = np.arange(m)
+    out = 0.0
+    for t in range(5):
+        j = reflect101(y + t - 2, 2 * n)
+        coef = np.where(j % 2 == 0, 2.0 * _K5[t], 0.0)
+        shape = [1] * a.ndim
+        shape[axis] = m
+        out = out + coef.reshape(shape) * np.take(a, j // 2, axis=axis)
+    return out
+
+
+def pyr_up(a: np.ndarray, h: int, w: int) -> np.ndarray:
+    """OpenCV ``pyrUp`` of ``(n, m[, c])`` to ``(h, w[, c])`` (h = 2n or 2n - 1)."""
+    return _up_axis(_up_axis(a, 0, h), 1, w)
+
+
+def to_unit(frame: np.ndarray) -> np.ndarray:
+    """Frame codes as float64 in [0, 1]: uint8 / 255, uint16 / 65535, floats as given."""
+    f = np.asarray(frame)
+    if f.dtype == np.uint8:
+        return f.astype(np.float64) / 255.0
+    if f.dtype == np.uint16:
+        return f.astype(np.float64) / 65535.0
+    return f.astype(np.float64)
+
+
+def weights(img: np.ndarray, fw: FusionWeights, valid: Optional[np.ndarray] = None) -> np.ndarray:
+    """``W_k`` of one frame (float64 ``(h, w)``, with the 1e-12), ``img`` in [0, 1] ``(h, w, c)``."""
+    h, w, c = img.shape
+    grey = img[..., 0] if c == 1 else GREY[0] * img[..., 0] + GREY[1] * img[..., 1] + GREY[2] * img[..., 2]
+    ry, rx = reflect101(np.arange(-1, h + 1), h), reflect101(np.arange(-1, w + 1), w)
+    g = grey[ry][:, rx]
+    lap = g[:-2, 1:-1] + g[2:, 1:-1] + g[1:-1, :-2] + g[1:-1, 2:] - 4.0 * grey
+    out = np.abs(lap) ** fw.contrast
+    if c == 3:
+        mean = img.mean(axis=2, keepdims=True)
+        out = out * np.sqrt(((img - mean) ** 2).sum(axis=2)) ** fw.saturation
+    wexp = np.exp(-((img - 0.5) ** 2) / (2.0 * fw.sigma ** 2)).prod(axis=2)
+    out = out * wexp ** fw.exposedness
+    if valid is not None:
+        out = np.where(np.asarray(valid, bool), out, 0.0)
+    return out + EPS
+
+
+def normalised_weights(imgs: Sequence[np.ndarray], fw: FusionWeights,
+                       valid: Optional[Sequence[Optional[np.ndarray]]] = None) -> List[np.ndarray]:
+    """``V_k = W_k / sum_j W_j`` of every frame."""
+    ws = [weights(im, fw, None if valid is None else valid[k]) for k, im in enumerate(imgs)]
+    total = np.sum(ws, axis=0)
+    return [wk / total for wk in ws]
+
+
+def gaussian(img: np.ndarray, levels: int) -> List[np.ndarray]:
+    """Levels 0 .. ``levels`` of the Gaussian pyramid (finest first)."""
+    out = [img]
+    for _ in range(levels):
+        out.append(pyr_down(out[-1]))
+    return out
+
+
+def blend(imgs: Sequence[np.ndarray], vs: Sequence[np.ndarray], levels: int,
+          top: Optional[np.ndarray] = None) -> np.ndarray:
+    """``sum_l up^l( sum_k Lap_l(I_k) G_l(V_k) )`` over levels 0 .. ``levels``.
+
+    ``top`` given: the blended result already collapsed at level ``levels`` (the coarse
+    part, :mod:`hdrcl.core.mertens_bands`), which replaces ``sum_k G(I_k) G(V_k)`` there.
+    Float64 ``(h, w, c)``.
+    """
+    acc: List = [0.0] * (levels + 1)
+    for img, v in zip(imgs, vs):
+        gi, gv = gaussian(img, levels), gaussian(v, levels)
+        for lv in range(levels):
+            h, w = gi[lv].shape[:2]
+            acc[lv] = acc[lv] + (gi[lv] - pyr_up(gi[lv + 1], h, w)) * gv[lv][..., None]
+        if top is None:
+            acc[levels] = acc[levels] + gi[levels] * gv[levels][..., None]
+    res = np.asarray(top, np.float64) if top is not None else acc[levels]
+    for lv in range(levels - 1, -1, -1):
+        h, w = acc[lv].shape[:2]
+        res = acc[lv] + pyr_up(res, h, w)
+    return res
+
+
+def tops(imgs: Sequence[np.ndarray], vs: Sequence[np.ndarray], levels: int):
+    """Level ``levels`` of each frame's Gaussian pyramids: ``([G(I_k)], [G(V_k)])``."""
+    return [gaussian(i, levels)[-1] for i in imgs], [gaussian(v, levels)[-1] for v in vs]
+
+
+class NumpyFusion:
+    """The twin as a band backend (:mod:`hdrcl.core.mertens_bands`): frames' codes in,
+    float results out, float64 inside."""
+
+    name = "NumPy (reference path)"
+
+    def tops(self, frames, valid, fw: FusionWeights, levels: int):
+        imgs = [to_unit(f) for f in frames]
+        vs = normalised_weights(imgs, fw, valid)
+        gi, gv = tops(imgs, vs, levels)
+        return [g.astype(np.float32) for g in gi], [g.astype(np.float32) for g in gv]
+
+    def blend(self, frames, valid, fw: FusionWeights, levels: int, top=None) -> np.ndarray:
+        imgs = [to_unit(f) for f in frames]
+        vs = normalised_weights(imgs, fw, valid)
+        return blend(imgs, vs, levels, top).astype(np.float32)
+
+
+def exposure_fusion(frames, valid=None, contrast: float = 1.0, saturation: float = 1.0,
+                    exposedness: float = 1.0, device: Optional[str] = None, sigma: float = 0.2,
+                    band_rows: Optional[int] = None) -> np.ndarray:
+    """Fuse a bracket into one display image (Mertens et al. 2007), as OpenCV's MergeMertens.
+
+    Parameters
+    ----------
+    frames : sequence of ndarray
+        Two or more frames of one size, ``(H, W, 3)`` or ``(H, W)``/``(H, W, 1)``, uint8,
+        uint16 or float in [0, 1]; RGB order (the grey uses 0.299 R + 0.587 G + 0.114 B).
+    valid : sequence of bool ndarray (H, W) or None, optional
+        Per-frame masks: an invalid pixel weighs nothing in that frame.
+    contrast, saturation, exposedness : float
+        Exponents of the three measures (0: the measure is off).
+    device : str, optional
+        OpenCL device (``--device``); the NumPy twin runs where OpenCL is off or missing.
+    sigma : float
+        Width of the well-exposedness Gaussian, in [0, 1] units.
+    band_rows : int, optional
+        Rows per band (memory bound); None: the whole image if its working set fits
+        :data:`hdrcl.core.mertens_bands.WHOLE_BYTES`, else bands of
+        :data:`~hdrcl.core.mertens_bands.BAND_BYTES`.
+
+    Returns
+    -------
+    ndarray
+        float32 ``(H, W, C)``, about [0, 1], not clipped (scale by 255 and clip for 8 bits).
+    """
+    from hdrcl.core.mertens_bands import ArraySource, fuse_bands
+
+    src = ArraySource(frames, valid)
+    fw = FusionWeights(float(contrast), float(saturation), float(exposedness), float(sigma))
+    out = np.empty((src.height, src.width, src.channels), np.float32)
+    for r0, r1, rows in fuse_bands(src, fw, backend(device, src.height * src.width * src.count), band_rows):
+        out[r0:r1] = rows
+    return out
+
+
+def backend(device: Optional[str] = None, work: Optional[int] = None):
+    """The OpenCL processor of ``kernels/mertens.cl``, else the NumPy twin."""
+    from hdrcl.cl.backend import get_processor
+
+    proc = get_processor("mertens", device, work=work)
+    return NumpyFusion() if proc is None else proc
+
+
+def to_codes(fused: np.ndarray, bits: int = 8) -> np.ndarray:
+    """Fused float image to 8- or 16-bit codes: ``clip(round(x * max))``."""
+    top = 255 if bits == 8 else 65535
+    x = np.nan_to_num(np.asarray(fused, np.float32), nan=0.0, posinf=1.0, neginf=0.0)
+    return np.clip(np.rint(x * np.float32(top)), 0, top).astype(np.uint8 if bits == 8 else np.uint16)
