@@ -7,7 +7,10 @@
  *   W_k = |lap(grey)|^wc * sqrt(sum_c (I_c - mean)^2)^ws * prod_c exp(-(I_c - 0.5)^2 inv2s2)^we
  *         + 1e-12       (0 before the 1e-12 where the frame is invalid; NCH == 1: no
  *                        saturation term), grey = 0.299 R + 0.587 G + 0.114 B,
- *                        lap = 4-neighbour Laplacian, border reflect-101
+ *                        lap = 4-neighbour Laplacian, border reflect-101, taken of each
+ *                        channel's codes (exact in integers) and then weighted as grey:
+ *                        where the codes are flat or a linear ramp the contrast is exactly 0
+ *                        (OpenCV's float32 grey leaves rounding noise there, ~1e-8)
  *   V_k = W_k / sum_j W_j
  * then the Laplacian pyramid of each I_k weighted by the Gaussian pyramid of V_k, summed
  * over k, collapsed. pyr_down is OpenCV's pyrDown (5x5 [1 4 6 4 1]/16, reflect-101,
@@ -27,6 +30,7 @@
  *   -DPIXEL_T=uchar|ushort|float  type of the frame codes (default uchar)
  *   -DNCH=1|3                     channels per pixel (default 3)
  *   -DHAS_VALID                   a per-pixel validity mask (uchar, 0 invalid) is read
+ *   -DINTEGER_CODES               uchar or ushort codes: the Laplacian in integers (exact)
  *
  * Arguments (units, layout): images are row-major, channels interleaved, float32
  *   codes   PIXEL_T [h * w * NCH]  one frame's window
@@ -61,15 +65,21 @@ static int reflect101(int p, const int n)
     return p;
 }
 
-static float grey_at(__global const PIXEL_T *codes, const int x, const int y, const int w, const float scale)
-{
-    const size_t i = ((size_t)y * w + x) * NCH;
-#if NCH == 3
-    return 0.299f * ((float)codes[i] * scale) + 0.587f * ((float)codes[i + 1] * scale)
-         + 0.114f * ((float)codes[i + 2] * scale);
+#ifdef INTEGER_CODES
+typedef int lap_t;
 #else
-    return (float)codes[i] * scale;
+typedef float lap_t;
 #endif
+
+/* 4-neighbour Laplacian of channel c's codes: exact for integer codes, so that a flat
+ * or linear ramp of codes has exactly no contrast (as in the float64 twin). */
+static lap_t lap_at(__global const PIXEL_T *codes, const int x, const int y, const int w, const int h, const int c)
+{
+    const int xl = reflect101(x - 1, w), xr = reflect101(x + 1, w);
+    const int yu = reflect101(y - 1, h), yd = reflect101(y + 1, h);
+    return (lap_t)codes[((size_t)yu * w + x) * NCH + c] + (lap_t)codes[((size_t)yd * w + x) * NCH + c]
+         + (lap_t)codes[((size_t)y * w + xl) * NCH + c] + (lap_t)codes[((size_t)y * w + xr) * NCH + c]
+         - 4 * (lap_t)codes[((size_t)y * w + x) * NCH + c];
 }
 
 static float powe(const float v, const float e)
@@ -83,24 +93,32 @@ static float mertens_weight(__global const PIXEL_T *codes, const int x, const in
                             const float inv2s2, float *px)
 {
     const size_t i = ((size_t)y * w + x) * NCH;
-    const float g = grey_at(codes, x, y, w, scale);
-    const float lap = grey_at(codes, x, reflect101(y - 1, h), w, scale) + grey_at(codes, x, reflect101(y + 1, h), w, scale)
-                    + grey_at(codes, reflect101(x - 1, w), y, w, scale) + grey_at(codes, reflect101(x + 1, w), y, w, scale)
-                    - 4.0f * g;
-    float mean = 0.0f, wexp = 1.0f;
+#if NCH == 3
+    const float lap = (0.299f * (float)lap_at(codes, x, y, w, h, 0) + 0.587f * (float)lap_at(codes, x, y, w, h, 1)
+                     + 0.114f * (float)lap_at(codes, x, y, w, h, 2)) * scale;
+#else
+    const float lap = (float)lap_at(codes, x, y, w, h, 0) * scale;
+#endif
+    float wexp = 1.0f;
     for (int c = 0; c < NCH; c++) {
         px[c] = (float)codes[i + c] * scale;
-        mean += px[c];
         const float d = px[c] - 0.5f;
         wexp *= exp(-d * d * inv2s2);
     }
     float out = powe(fabs(lap), wc);
 #if NCH == 3
-    mean /= 3.0f;
-    float s = 0.0f;
-    for (int c = 0; c < NCH; c++)
-        s += (px[c] - mean) * (px[c] - mean);
+    /* sum_c (c - mean)^2 = (3 sum c^2 - (sum c)^2) / 3: exact in integers, so a grey
+     * pixel has exactly no saturation (as in the twin) */
+#ifdef INTEGER_CODES
+    const long c0 = codes[i], c1 = codes[i + 1], c2 = codes[i + 2];
+    const long s1 = c0 + c1 + c2;
+    const float s = (float)(3 * (c0 * c0 + c1 * c1 + c2 * c2) - s1 * s1) * (1.0f / 3.0f);
+    out *= powe(sqrt(s) * scale, ws);
+#else
+    const float mean = (px[0] + px[1] + px[2]) / 3.0f;
+    const float s = (px[0] - mean) * (px[0] - mean) + (px[1] - mean) * (px[1] - mean) + (px[2] - mean) * (px[2] - mean);
     out *= powe(sqrt(s), ws);
+#endif
 #endif
     return out * powe(wexp, we);
 }

@@ -42,7 +42,8 @@ class MertensProcessor(OpenCLProcessor):
 
     def _kernels(self, dtype, nch: int, has_valid: bool):
         pix, scale = _PIXEL_T[dtype]
-        opts = (f"-DPIXEL_T={pix}", f"-DNCH={nch}") + (("-DHAS_VALID",) if has_valid else ())
+        opts = (f"-DPIXEL_T={pix}", f"-DNCH={nch}") + (("-DHAS_VALID",) if has_valid else ()) \
+            + (("-DINTEGER_CODES",) if pix != "float" else ())
         names = ("weight_sum", "load", "pyr_down1", "pyr_downc", "blend", "blend_top", "collapse")
         return {n: self.ctx.kernel("mertens", n, opts) for n in names}, np.float32(scale)
 

@@ -6,7 +6,8 @@ that the result matches it to float rounding. Each frame ``I_k`` (RGB in [0, 1]:
 255 or / 65535) gets a weight per pixel::
 
     C_k = |L * grey(I_k)|                   L = [0 1 0; 1 -4 1; 0 1 0], border reflect-101,
-                                             grey = 0.299 R + 0.587 G + 0.114 B
+                                             grey = 0.299 R + 0.587 G + 0.114 B (L of each
+                                             channel's codes, exact: :func:`laplacian`)
     S_k = sqrt(sum_c (I_kc - mean_c I_k)^2)  (not divided by the channel count; grey: 1)
     E_k = prod_c exp(-(I_kc - 0.5)^2 / (2 sigma^2))          sigma = 0.2
     W_k = C_k^wc * S_k^ws * E_k^we + 1e-12,  V_k = W_k / sum_j W_j
@@ -134,17 +135,39 @@ def to_unit(frame: np.ndarray) -> np.ndarray:
     return f.astype(np.float64)
 
 
-def weights(img: np.ndarray, fw: FusionWeights, valid: Optional[np.ndarray] = None) -> np.ndarray:
-    """``W_k`` of one frame (float64 ``(h, w)``, with the 1e-12), ``img`` in [0, 1] ``(h, w, c)``."""
-    h, w, c = img.shape
-    grey = img[..., 0] if c == 1 else GREY[0] * img[..., 0] + GREY[1] * img[..., 1] + GREY[2] * img[..., 2]
+def laplacian(frame: np.ndarray) -> np.ndarray:
+    """4-neighbour Laplacian of the grey of ``frame``'s codes, in [0, 1] units: taken per
+    channel (exact integers for integer codes) and then weighted as the grey, so a flat
+    or linear ramp of codes has exactly no contrast."""
+    f = np.asarray(frame)
+    h, w, c = f.shape
+    codes = f.astype(np.int64) if f.dtype.kind == "u" else f.astype(np.float64)
     ry, rx = reflect101(np.arange(-1, h + 1), h), reflect101(np.arange(-1, w + 1), w)
-    g = grey[ry][:, rx]
-    lap = g[:-2, 1:-1] + g[2:, 1:-1] + g[1:-1, :-2] + g[1:-1, 2:] - 4.0 * grey
-    out = np.abs(lap) ** fw.contrast
+    g = codes[ry][:, rx]
+    lap = g[:-2, 1:-1] + g[2:, 1:-1] + g[1:-1, :-2] + g[1:-1, 2:] - 4 * codes
+    grey = lap[..., 0].astype(np.float64) if c == 1 else GREY[0] * lap[..., 0] + GREY[1] * lap[..., 1] + GREY[2] * lap[..., 2]
+    return grey * (to_unit(np.ones(1, f.dtype))[0] if f.dtype.kind == "u" else 1.0)
+
+
+def saturation(frame: np.ndarray) -> np.ndarray:
+    """``sqrt(sum_c (I_c - mean)^2)`` in [0, 1] units, as ``(3 sum c^2 - (sum c)^2) / 3`` of
+    integer codes (exact: a grey pixel has exactly none)."""
+    f = np.asarray(frame)
+    if f.dtype.kind != "u":
+        img = f.astype(np.float64)
+        return np.sqrt(((img - img.mean(axis=2, keepdims=True)) ** 2).sum(axis=2))
+    c = f.astype(np.int64)
+    s1 = c.sum(axis=2)
+    return np.sqrt((3 * (c * c).sum(axis=2) - s1 * s1) / 3.0) * to_unit(np.ones(1, f.dtype))[0]
+
+
+def weights(frame: np.ndarray, fw: FusionWeights, valid: Optional[np.ndarray] = None) -> np.ndarray:
+    """``W_k`` of one frame of codes ``(h, w, c)`` (float64 ``(h, w)``, with the 1e-12)."""
+    img = to_unit(frame)
+    c = img.shape[2]
+    out = np.abs(laplacian(frame)) ** fw.contrast
     if c == 3:
-        mean = img.mean(axis=2, keepdims=True)
-        out = out * np.sqrt(((img - mean) ** 2).sum(axis=2)) ** fw.saturation
+        out = out * saturation(frame) ** fw.saturation
     wexp = np.exp(-((img - 0.5) ** 2) / (2.0 * fw.sigma ** 2)).prod(axis=2)
     out = out * wexp ** fw.exposedness
     if valid is not None:
@@ -152,10 +175,10 @@ def weights(img: np.ndarray, fw: FusionWeights, valid: Optional[np.ndarray] = No
     return out + EPS
 
 
-def normalised_weights(imgs: Sequence[np.ndarray], fw: FusionWeights,
+def normalised_weights(frames: Sequence[np.ndarray], fw: FusionWeights,
                        valid: Optional[Sequence[Optional[np.ndarray]]] = None) -> List[np.ndarray]:
-    """``V_k = W_k / sum_j W_j`` of every frame."""
-    ws = [weights(im, fw, None if valid is None else valid[k]) for k, im in enumerate(imgs)]
+    """``V_k = W_k / sum_j W_j`` of every frame (codes)."""
+    ws = [weights(f, fw, None if valid is None else valid[k]) for k, f in enumerate(frames)]
     total = np.sum(ws, axis=0)
     return [wk / total for wk in ws]
 
@@ -204,13 +227,13 @@ class NumpyFusion:
 
     def tops(self, frames, valid, fw: FusionWeights, levels: int):
         imgs = [to_unit(f) for f in frames]
-        vs = normalised_weights(imgs, fw, valid)
+        vs = normalised_weights(frames, fw, valid)
         gi, gv = tops(imgs, vs, levels)
         return [g.astype(np.float32) for g in gi], [g.astype(np.float32) for g in gv]
 
     def blend(self, frames, valid, fw: FusionWeights, levels: int, top=None) -> np.ndarray:
         imgs = [to_unit(f) for f in frames]
-        vs = normalised_weights(imgs, fw, valid)
+        vs = normalised_weights(frames, fw, valid)
         return blend(imgs, vs, levels, top).astype(np.float32)
 
 
