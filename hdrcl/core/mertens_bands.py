@@ -8,7 +8,7 @@ halo of :data:`HALO_UNITS` x 2^D rows above and below (D = :data:`BAND_LEVELS`):
    of the normalised weights V_k, which are per pixel and so exact in any band); the
    band's own rows of level D are kept: K small images of 1/4^D of the pixels;
 2. the coarse part -- the blend of levels D .. top, collapsed to level D -- is computed
-   from them once, by the float64 twin (:func:`hdrcl.core.mertens.blend` on the level-D
+   from them once, by the float64 twin (:func:`hdrcl.core.pyramids.blend` on the level-D
    images: pyrDown of level D *is* level D + 1);
 3. each band again: its fine levels 0 .. D - 1 blended and collapsed on top of its rows
    of the coarse part; the band's own rows are the result.
@@ -29,7 +29,7 @@ from typing import Callable, Iterator, Optional, Sequence, Tuple
 
 import numpy as np
 
-from hdrcl.core.mertens import FusionWeights, blend, level_size, max_level
+from hdrcl.core.pyramids import blend, level_size, max_level
 from hdrcl.errors import UsageError
 
 logger = logging.getLogger(__name__)
@@ -134,9 +134,13 @@ def plan_bands(src, band_rows: Optional[int] = None) -> Tuple[int, int, int]:
     return d, band, halo
 
 
-def fuse_bands(src, fw: FusionWeights, backend, band_rows: Optional[int] = None
+def fuse_bands(src, fw, backend, band_rows: Optional[int] = None
                ) -> Iterator[Tuple[int, int, np.ndarray]]:
-    """Yield ``(r0, r1, rows)`` of the fused image, top to bottom (float32 rows)."""
+    """Yield ``(r0, r1, rows)`` of the fused image, top to bottom (float32 rows).
+
+    ``fw``: the :class:`hdrcl.core.mertens.FusionWeights`; ``backend``: the OpenCL
+    processor or the twin (``tops`` and ``blend``, :class:`hdrcl.core.mertens.NumpyFusion`).
+    """
     h, w = src.height, src.width
     top = max_level(h, w)
     d, band, halo = plan_bands(src, band_rows)
