@@ -1,0 +1,180 @@
+"""Exposure fusion (hdrcl fuse) against OpenCV's MergeMertens: agreement, speed, memory.
+
+    python scripts/mertens_bench.py compare [--data ../shared/data]
+        code-level differences from OpenCV (same exponents, RGB order) on the Memorial
+        set (all 16 frames, blue borders included, as OpenCV sees them) and window_e995
+        (12 Nikon E995 JPEGs); enfuse's too where it is installed
+    python scripts/mertens_bench.py speed [--mp 24] [--frames 7] [--repeat 3]
+        seconds (medians) of hdrcl's fusion and OpenCV's on generated frames
+    python scripts/mertens_bench.py memory [--mp 100] [--frames 5]
+        peak resident memory of a fresh process fusing generated frames made band by band
+        (nothing holds a whole frame: the frames would be 1.5 GB at 100 MP x 5)
+
+Figures: docs/merge.md ("Exposure fusion"). The device is hdrcl's choice (PYOPENCL_CTX
+picks another); OpenCV uses all cores (cv2.getNumThreads()).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def _cv2():
+    try:
+        import cv2
+    except ImportError:
+        sys.exit("OpenCV is needed: pip install opencv-python-headless (the bench extra)")
+    return cv2
+
+
+def _codes(x):
+    from hdrcl.core.mertens import to_codes
+
+    return to_codes(x).astype(np.int16)
+
+
+def _levels(a, b) -> str:
+    d = np.abs(_codes(a) - _codes(b))
+    return (f"median {np.median(d):.0f}, mean {d.mean():.3f}, p99 {np.percentile(d, 99):.0f}, "
+            f"max {d.max()} code levels; {100 * np.mean(d > 2):.3f}% of values differ by more than 2")
+
+
+def _read(paths):
+    from hdrcl.io.frames import read_images
+
+    return [im.pixels for im in read_images(paths)]
+
+
+def compare(args) -> None:
+    cv2 = _cv2()
+    from hdrcl.core.mertens import exposure_fusion
+
+    data = Path(args.data)
+    sets = {"memorial": sorted((data / "memorial").glob("memorial*.png")),
+            "window_e995": sorted((data / "window_e995").glob("*.jpg"))}
+    for name, paths in sets.items():
+        if not paths:
+            print(f"{name}: not found under {data}")
+            continue
+        frames = _read(paths)
+        h, w = frames[0].shape[:2]
+        for e in ((1.0, 1.0, 1.0), (1.0, 1.0, 0.0)):
+            ours = exposure_fusion(frames, contrast=e[0], saturation=e[1], exposedness=e[2])
+            theirs = cv2.createMergeMertens(*e).process([f.copy() for f in frames])  # RGB: its RGB2GRAY is ours
+            print(f"{name} ({len(frames)} x {w}x{h}), exponents {e}: vs OpenCV {cv2.__version__}: "
+                  f"{_levels(ours, theirs)}")
+        if shutil.which("enfuse"):
+            with tempfile.TemporaryDirectory() as tmp:
+                out = os.path.join(tmp, "enfuse.tif")
+                subprocess.run(["enfuse", "--exposure-weight=1", "--saturation-weight=1", "--contrast-weight=1",
+                                "-o", out] + [str(p) for p in paths], check=True, capture_output=True)
+                ef = _read([out])[0][..., :3].astype(np.float32) / 255.0
+            ours = exposure_fusion(frames)
+            print(f"{name}: vs enfuse (its own pyramid and contrast window): {_levels(ours, ef)}")
+        else:
+            print(f"{name}: enfuse is not installed here (apt-get install enblend-enfuse): not compared")
+
+
+def _scene_rows(k: int, a: int, b: int, w: int, n: int) -> np.ndarray:
+    """Rows a..b of frame k of a generated bracket: a smooth scene over ~4 decades with
+    texture and a deterministic per-pixel grain (the same rows whatever the band)."""
+    y = np.arange(a, b, dtype=np.float32)[:, None]
+    x = np.arange(w, dtype=np.float32)[None, :]
+    u, v = x / w, y / (w * 0.66)
+    log10 = 4.0 * (0.6 * u + 0.4 * v) - 2.0 + 0.3 * np.sin(40 * u) * np.cos(31 * v) + 0.1 * np.sin(400 * u + 3 * v)
+    grain = (((x.astype(np.int64) * 73856093) ^ (y.astype(np.int64) * 19349663)) % 997).astype(np.float32) / 997 - 0.5
+    rad = 10.0 ** log10 * 2.0 ** (k - (n - 1) / 2.0) * 2.0
+    out = np.empty((b - a, w, 3), np.uint8)
+    for c, tint in enumerate((1.0, 0.9, 0.75)):
+        z = 255.0 * (rad * tint / (1.0 + rad * tint)) ** (1 / 2.2) + 2.0 * grain
+        out[..., c] = np.clip(z + 0.5, 0, 255)
+    return out
+
+
+def _size(mp: float):
+    w = int(round((mp * 1e6 * 1.5) ** 0.5 / 16)) * 16
+    return int(round(w / 1.5 / 16)) * 16, w
+
+
+def speed(args) -> None:
+    cv2 = _cv2()
+    from hdrcl.cl.backend import get_processor
+    from hdrcl.core.mertens import exposure_fusion
+
+    h, w = _size(args.mp)
+    frames = [_scene_rows(k, 0, h, w, args.frames) for k in range(args.frames)]
+    proc = get_processor("mertens")
+    print(f"{args.frames} frames of {w}x{h} ({w * h / 1e6:.1f} MP); hdrcl on "
+          f"{proc.name if proc else 'NumPy'}, OpenCV {cv2.__version__} on {cv2.getNumThreads()} threads")
+    exposure_fusion([f[:64, :64] for f in frames])  # kernels built and cached before timing
+    ours, theirs = [], []
+    for _ in range(args.repeat):
+        t = time.perf_counter()
+        a = exposure_fusion(frames)
+        ours.append(time.perf_counter() - t)
+        if not args.skip_opencv:
+            t = time.perf_counter()
+            b = cv2.createMergeMertens(1.0, 1.0, 1.0).process(frames)
+            theirs.append(time.perf_counter() - t)
+        print(f"  run: hdrcl {ours[-1]:.2f} s" + (f", OpenCV {theirs[-1]:.2f} s" if theirs else ""), flush=True)
+    print(f"hdrcl median {statistics.median(ours):.2f} s")
+    if theirs:
+        print(f"OpenCV median {statistics.median(theirs):.2f} s: hdrcl is "
+              f"{statistics.median(theirs) / statistics.median(ours):.1f}x faster; last run {_levels(a, b)}")
+
+
+def memory(args) -> None:
+    if args.child:
+        from hdrcl.core.mertens import FusionWeights, backend
+        from hdrcl.core.mertens_bands import RowSource, fuse_bands, plan_bands
+
+        h, w = _size(args.mp)
+        n = args.frames
+        src = RowSource(h, w, 3, n, np.uint8, lambda k, a, b: _scene_rows(k, a, b, w, n))
+        d, band, halo = plan_bands(src)
+        t = time.perf_counter()
+        total = 0
+        for _, _, rows in fuse_bands(src, FusionWeights(), backend(work=h * w * n)):
+            total += int(_codes(rows[::97, ::97]).sum())
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        print(f"{n} frames of {w}x{h} ({w * h / 1e6:.1f} MP) in bands of {band} rows (halo {halo}, {d} levels "
+              f"per band): {time.perf_counter() - t:.1f} s, peak RSS {peak:.0f} MB (checksum {total})")
+        return
+    cmd = [sys.executable, __file__, "memory", "--child", "--mp", str(args.mp), "--frames", str(args.frames)]
+    subprocess.run(cmd, check=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="what", required=True)
+    c = sub.add_parser("compare")
+    data = [p / "shared" / "data" for p in (ROOT.parent, ROOT.parent.parent)]
+    c.add_argument("--data", default=str(next((p for p in data if p.is_dir()), data[0])))
+    s = sub.add_parser("speed")
+    s.add_argument("--mp", type=float, default=24.0)
+    s.add_argument("--frames", type=int, default=7)
+    s.add_argument("--repeat", type=int, default=3)
+    s.add_argument("--skip-opencv", action="store_true")
+    m = sub.add_parser("memory")
+    m.add_argument("--mp", type=float, default=100.0)
+    m.add_argument("--frames", type=int, default=5)
+    m.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    {"compare": compare, "speed": speed, "memory": memory}[args.what](args)
+
+
+if __name__ == "__main__":
+    main()
