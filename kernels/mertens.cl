@@ -19,7 +19,8 @@
  *
  * Kernels (2-D ranges: dimension 0 the column x, dimension 1 the row y, each rounded up
  * to the work-group size; every kernel returns for x >= w or y >= h):
- *   weight_sum  wsum = (first ? 0 : wsum) + W_k                 one frame per launch
+ *   grey        g = 1000 grey (integers for integer codes)        one frame per launch
+ *   weight_sum  wk = W_k, wsum = (first ? 0 : wsum) + W_k       one frame per launch
  *   load        img = I_k, wn = W_k / wsum                       level 0 of both pyramids
  *   pyr_down1, pyr_downc   one level of a 1- or NCH-channel Gaussian pyramid
  *   blend       acc = (first ? 0 : acc) + (g - up(gc)) * wl     a Laplacian level, weighted
@@ -30,12 +31,17 @@
  *   -DPIXEL_T=uchar|ushort|float  type of the frame codes (default uchar)
  *   -DNCH=1|3                     channels per pixel (default 3)
  *   -DHAS_VALID                   a per-pixel validity mask (uchar, 0 invalid) is read
- *   -DINTEGER_CODES               uchar or ushort codes: the Laplacian in integers (exact)
+ *   -DINTEGER_CODES               uchar or ushort codes: the grey's Laplacian and the saturation
+ *                                 in integers (exact)
+ *   -DSAT_T=int|long              integer type of the saturation's sums (long for ushort)
  *
  * Arguments (units, layout): images are row-major, channels interleaved, float32
  *   codes   PIXEL_T [h * w * NCH]  one frame's window
  *   valid   uchar [h * w]           read only with -DHAS_VALID
- *   wsum    float [h * w]           sum of the frames' W_k (dimensionless)
+ *   g       int|float [h * w]       1000 x grey of the frame's codes
+ *   wk      float [h * w]           W_k of one frame (dimensionless; kept from weight_sum
+ *                                   to load: computing it again cost more than storing it)
+ *   wsum    float [h * w]           sum of the frames' W_k
  *   img     float [h * w * NCH]     I_k in [0, 1]
  *   wn      float [h * w]           V_k in [0, 1]
  *   g, gc   float [h*w*NCH], [ch*cw*NCH]   a Gaussian level and the next coarser one
@@ -56,13 +62,14 @@
 
 #define EPS_W 1e-12f
 
+/* OpenCV's BORDER_REFLECT_101 for p at most 2 outside [0, n) -- all the kernels need --
+ * with n >= 1; written without a loop (the CPU runtime then vectorises across work items). */
 static int reflect101(int p, const int n)
 {
-    if (n == 1)
-        return 0;
-    while (p < 0 || p >= n)
-        p = p < 0 ? -p : 2 * n - 2 - p;
-    return p;
+    p = abs(p);
+    p = p >= n ? 2 * n - 2 - p : p;
+    p = abs(p);
+    return n == 1 ? 0 : p;
 }
 
 #ifdef INTEGER_CODES
@@ -70,16 +77,24 @@ typedef int lap_t;
 #else
 typedef float lap_t;
 #endif
+#ifndef SAT_T
+#define SAT_T long
+#endif
 
-/* 4-neighbour Laplacian of channel c's codes: exact for integer codes, so that a flat
- * or linear ramp of codes has exactly no contrast (as in the float64 twin). */
-static lap_t lap_at(__global const PIXEL_T *codes, const int x, const int y, const int w, const int h, const int c)
+/* The grey scaled by 1000 (299 R + 587 G + 114 B; 1000 Y for one channel): integers for
+ * integer codes, so its Laplacian is exact and a flat or linear ramp of codes has exactly
+ * no contrast (as in the float64 twin; OpenCV's float32 grey leaves noise there). */
+__kernel void grey(__global const PIXEL_T *codes, __global lap_t *g, const int w, const int h)
 {
-    const int xl = reflect101(x - 1, w), xr = reflect101(x + 1, w);
-    const int yu = reflect101(y - 1, h), yd = reflect101(y + 1, h);
-    return (lap_t)codes[((size_t)yu * w + x) * NCH + c] + (lap_t)codes[((size_t)yd * w + x) * NCH + c]
-         + (lap_t)codes[((size_t)y * w + xl) * NCH + c] + (lap_t)codes[((size_t)y * w + xr) * NCH + c]
-         - 4 * (lap_t)codes[((size_t)y * w + x) * NCH + c];
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= w || y >= h)
+        return;
+    const size_t p = (size_t)y * w + x;
+#if NCH == 3
+    g[p] = 299 * (lap_t)codes[p * 3] + 587 * (lap_t)codes[p * 3 + 1] + 114 * (lap_t)codes[p * 3 + 2];
+#else
+    g[p] = 1000 * (lap_t)codes[p];
+#endif
 }
 
 static float powe(const float v, const float e)
@@ -88,30 +103,29 @@ static float powe(const float v, const float e)
 }
 
 /* W_k - 1e-12 at (x, y); px receives I_k there. */
-static float mertens_weight(__global const PIXEL_T *codes, const int x, const int y, const int w, const int h,
-                            const float scale, const float wc, const float ws, const float we,
-                            const float inv2s2, float *px)
+static float mertens_weight(__global const PIXEL_T *codes, __global const lap_t *g, const int x, const int y,
+                            const int w, const int h, const float scale, const float wc, const float ws,
+                            const float we, const float inv2s2, float *px)
 {
     const size_t i = ((size_t)y * w + x) * NCH;
-#if NCH == 3
-    const float lap = (0.299f * (float)lap_at(codes, x, y, w, h, 0) + 0.587f * (float)lap_at(codes, x, y, w, h, 1)
-                     + 0.114f * (float)lap_at(codes, x, y, w, h, 2)) * scale;
-#else
-    const float lap = (float)lap_at(codes, x, y, w, h, 0) * scale;
-#endif
-    float wexp = 1.0f;
+    const size_t row = (size_t)y * w;
+    const lap_t l4 = g[(size_t)reflect101(y - 1, h) * w + x] + g[(size_t)reflect101(y + 1, h) * w + x]
+                   + g[row + reflect101(x - 1, w)] + g[row + reflect101(x + 1, w)] - 4 * g[row + x];
+    const float lap = (float)l4 * (scale * 0.001f);
+    float e2 = 0.0f; /* prod_c exp(-d_c^2 inv2s2) as one exp of the sum */
     for (int c = 0; c < NCH; c++) {
         px[c] = (float)codes[i + c] * scale;
         const float d = px[c] - 0.5f;
-        wexp *= exp(-d * d * inv2s2);
+        e2 += d * d;
     }
+    const float wexp = exp(-e2 * inv2s2);
     float out = powe(fabs(lap), wc);
 #if NCH == 3
     /* sum_c (c - mean)^2 = (3 sum c^2 - (sum c)^2) / 3: exact in integers, so a grey
      * pixel has exactly no saturation (as in the twin) */
 #ifdef INTEGER_CODES
-    const long c0 = codes[i], c1 = codes[i + 1], c2 = codes[i + 2];
-    const long s1 = c0 + c1 + c2;
+    const SAT_T c0 = codes[i], c1 = codes[i + 1], c2 = codes[i + 2];
+    const SAT_T s1 = c0 + c1 + c2;
     const float s = (float)(3 * (c0 * c0 + c1 * c1 + c2 * c2) - s1 * s1) * (1.0f / 3.0f);
     out *= powe(sqrt(s) * scale, ws);
 #else
@@ -131,35 +145,32 @@ static float mertens_weight(__global const PIXEL_T *codes, const int x, const in
 #define IS_VALID(i) 1
 #endif
 
-__kernel void weight_sum(__global const PIXEL_T *codes, VALID_PARAM __global float *wsum, const int w, const int h,
-                         const float scale, const float wc, const float ws, const float we, const float inv2s2,
-                         const int first)
+__kernel void weight_sum(__global const PIXEL_T *codes, __global const lap_t *g, VALID_PARAM __global float *wk,
+                         __global float *wsum,
+                         const int w, const int h, const float scale, const float wc, const float ws, const float we,
+                         const float inv2s2, const int first)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     if (x >= w || y >= h)
         return;
     const size_t p = (size_t)y * w + x;
     float px[NCH];
-    float wk = IS_VALID(p) ? mertens_weight(codes, x, y, w, h, scale, wc, ws, we, inv2s2, px) : 0.0f;
-    wk += EPS_W;
-    wsum[p] = first ? wk : wsum[p] + wk;
+    float v = IS_VALID(p) ? mertens_weight(codes, g, x, y, w, h, scale, wc, ws, we, inv2s2, px) : 0.0f;
+    v += EPS_W;
+    wk[p] = v;
+    wsum[p] = first ? v : wsum[p] + v;
 }
 
-__kernel void load(__global const PIXEL_T *codes, VALID_PARAM __global const float *wsum, __global float *img,
-                   __global float *wn, const int w, const int h, const float scale, const float wc, const float ws,
-                   const float we, const float inv2s2)
+__kernel void load(__global const PIXEL_T *codes, __global const float *wk, __global const float *wsum,
+                   __global float *img, __global float *wn, const int w, const int h, const float scale)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     if (x >= w || y >= h)
         return;
     const size_t p = (size_t)y * w + x;
-    float px[NCH];
-    float wk = mertens_weight(codes, x, y, w, h, scale, wc, ws, we, inv2s2, px);
-    if (!IS_VALID(p))
-        wk = 0.0f;
-    wn[p] = (wk + EPS_W) / wsum[p];
+    wn[p] = wk[p] / wsum[p];
     for (int c = 0; c < NCH; c++)
-        img[p * NCH + c] = px[c];
+        img[p * NCH + c] = (float)codes[p * NCH + c] * scale;
 }
 
 #define K5(i) ((i) == 2 ? 6.0f : ((i) == 1 || (i) == 3) ? 4.0f : 1.0f)
@@ -196,20 +207,26 @@ __kernel void NAME(__global const float *src, __global float *dst, const int sw,
 PYR_DOWN(pyr_down1, 1)
 PYR_DOWN(pyr_downc, NCH)
 
-/* Taps of pyrUp along one dimension at fine index y (coarse length n): 2 or 3 indices
- * into the coarse row or column and their weights (kernel x 2 / 16). */
+/* Taps of pyrUp along one dimension at fine index y (coarse length n): the coarse
+ * indices and weights (kernel x 2 / 16) of the zero-stuffed signal of length 2n under
+ * reflect-101: y = 2i takes i-1, i, i+1 (1, 6, 1 / 8; i-1 of i = 0 is 1, i+1 of i = n-1
+ * is n-1), y = 2i+1 takes i, i+1 (4, 4 / 8; i+1 of i = n-1 is n-1). */
 static int up_taps(const int y, const int n, int *idx, float *wt)
 {
-    int m = 0;
-    for (int t = 0; t < 5; t++) {
-        const int j = reflect101(y + t - 2, 2 * n);
-        if ((j & 1) == 0) {
-            idx[m] = j >> 1;
-            wt[m] = K5(t) * 0.125f;
-            m++;
-        }
+    const int i = y >> 1;
+    const int hi = min(i + 1, n - 1);
+    if (y & 1) {
+        idx[0] = i;
+        idx[1] = hi;
+        wt[0] = wt[1] = 0.5f;
+        return 2;
     }
-    return m;
+    idx[0] = i == 0 ? min(1, n - 1) : i - 1;
+    idx[1] = i;
+    idx[2] = hi;
+    wt[0] = wt[2] = 0.125f;
+    wt[1] = 0.75f;
+    return 3;
 }
 
 static void up(__global const float *gc, const int x, const int y, const int cw, const int ch, float *out)

@@ -2,9 +2,10 @@
 
 Contract: :class:`hdrcl.core.mertens.NumpyFusion` (``tops`` and ``blend``; the float64
 twin). :mod:`hdrcl.core.mertens_bands` decides the windows. On the device one frame's
-codes are held at a time (uploaded twice: once for the weight sum, once for the
-pyramids), with the weight sum and one pyramid each of the image, its weights and the
-blend: about ``C * itemsize + 4 + 4/3 * (8 C + 4)`` bytes a pixel (45 for 8-bit RGB).
+codes are held at a time (uploaded twice: once for the weights, once for the pyramids),
+with every frame's weights, their sum and one pyramid each of the image, its weights and
+the blend: about ``C * itemsize + 4 K + 4 + 4/3 * (8 C + 4)`` bytes a pixel for K frames
+(44 + 4 K for 8-bit RGB; :func:`hdrcl.core.mertens_bands.working_bytes`).
 """
 from __future__ import annotations
 
@@ -43,8 +44,8 @@ class MertensProcessor(OpenCLProcessor):
     def _kernels(self, dtype, nch: int, has_valid: bool):
         pix, scale = _PIXEL_T[dtype]
         opts = (f"-DPIXEL_T={pix}", f"-DNCH={nch}") + (("-DHAS_VALID",) if has_valid else ()) \
-            + (("-DINTEGER_CODES",) if pix != "float" else ())
-        names = ("weight_sum", "load", "pyr_down1", "pyr_downc", "blend", "blend_top", "collapse")
+            + ((f"-DINTEGER_CODES", f"-DSAT_T={'int' if pix == 'uchar' else 'long'}") if pix != "float" else ())
+        names = ("grey", "weight_sum", "load", "pyr_down1", "pyr_downc", "blend", "blend_top", "collapse")
         return {n: self.ctx.kernel("mertens", n, opts) for n in names}, np.float32(scale)
 
     def _prepare(self, frames: Sequence[np.ndarray], valid):
@@ -75,16 +76,17 @@ class MertensProcessor(OpenCLProcessor):
         gv = [self.buffer(f"gv{l}", sh * sw * 4) for l, (sh, sw) in enumerate(shapes)]
         args = (np.int32(w), np.int32(h), scale, np.float32(fw.contrast), np.float32(fw.saturation),
                 np.float32(fw.exposedness), np.float32(1.0 / (2.0 * fw.sigma ** 2)))
+        wk = [self.buffer(f"w{k}", h * w * 4) for k in range(len(frames))]
+        grey = self.buffer("grey", h * w * 4)
         for k, f in enumerate(frames):
             cl.enqueue_copy(q, codes, f, is_blocking=False)
             if has_valid:
                 cl.enqueue_copy(q, vbuf, masks[k], is_blocking=False)
-            knl["weight_sum"](q, _grid(w, h), None, codes, vbuf, wsum, *args, np.int32(k == 0))
+            knl["grey"](q, _grid(w, h), None, codes, grey, np.int32(w), np.int32(h))
+            knl["weight_sum"](q, _grid(w, h), None, codes, grey, vbuf, wk[k], wsum, *args, np.int32(k == 0))
         for k, f in enumerate(frames):
             cl.enqueue_copy(q, codes, f, is_blocking=False)
-            if has_valid:
-                cl.enqueue_copy(q, vbuf, masks[k], is_blocking=False)
-            knl["load"](q, _grid(w, h), None, codes, vbuf, wsum, gi[0], gv[0], *args)
+            knl["load"](q, _grid(w, h), None, codes, wk[k], wsum, gi[0], gv[0], np.int32(w), np.int32(h), scale)
             for lv in range(levels):
                 (sh, sw), (dh, dw) = shapes[lv], shapes[lv + 1]
                 dims = (np.int32(sw), np.int32(sh), np.int32(dw), np.int32(dh))

@@ -79,17 +79,17 @@ def to_unit(frame: np.ndarray) -> np.ndarray:
 
 
 def laplacian(frame: np.ndarray) -> np.ndarray:
-    """4-neighbour Laplacian of the grey of ``frame``'s codes, in [0, 1] units: taken per
-    channel (exact integers for integer codes) and then weighted as the grey, so a flat
-    or linear ramp of codes has exactly no contrast."""
+    """4-neighbour Laplacian of the grey of ``frame``'s codes, in [0, 1] units: of
+    ``1000 grey = 299 R + 587 G + 114 B`` in integers for integer codes (exact: a flat or
+    linear ramp of codes has exactly no contrast), then scaled."""
     f = np.asarray(frame)
     h, w, c = f.shape
     codes = f.astype(np.int64) if f.dtype.kind == "u" else f.astype(np.float64)
+    g = 1000 * codes[..., 0] if c == 1 else 299 * codes[..., 0] + 587 * codes[..., 1] + 114 * codes[..., 2]
     ry, rx = reflect101(np.arange(-1, h + 1), h), reflect101(np.arange(-1, w + 1), w)
-    g = codes[ry][:, rx]
-    lap = g[:-2, 1:-1] + g[2:, 1:-1] + g[1:-1, :-2] + g[1:-1, 2:] - 4 * codes
-    grey = lap[..., 0].astype(np.float64) if c == 1 else GREY[0] * lap[..., 0] + GREY[1] * lap[..., 1] + GREY[2] * lap[..., 2]
-    return grey * (to_unit(np.ones(1, f.dtype))[0] if f.dtype.kind == "u" else 1.0)
+    gg = g[ry][:, rx]
+    lap = gg[:-2, 1:-1] + gg[2:, 1:-1] + gg[1:-1, :-2] + gg[1:-1, 2:] - 4 * g
+    return lap * ((to_unit(np.ones(1, f.dtype))[0] if f.dtype.kind == "u" else 1.0) / 1000.0)
 
 
 def saturation(frame: np.ndarray) -> np.ndarray:
@@ -111,7 +111,7 @@ def weights(frame: np.ndarray, fw: FusionWeights, valid: Optional[np.ndarray] = 
     out = np.abs(laplacian(frame)) ** fw.contrast
     if c == 3:
         out = out * saturation(frame) ** fw.saturation
-    wexp = np.exp(-((img - 0.5) ** 2) / (2.0 * fw.sigma ** 2)).prod(axis=2)
+    wexp = np.exp(-((img - 0.5) ** 2).sum(axis=2) / (2.0 * fw.sigma ** 2))  # = prod_c exp(...)
     out = out * wexp ** fw.exposedness
     if valid is not None:
         out = np.where(np.asarray(valid, bool), out, 0.0)

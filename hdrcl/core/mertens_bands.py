@@ -39,16 +39,18 @@ BAND_LEVELS = 4
 #: Halo above and below a band, in units of 2^BAND_LEVELS rows (measured: 3 is the least
 #: that keeps bands equal to the whole image; 4 leaves a margin).
 HALO_UNITS = 4
-#: Working set (bytes) up to which an image is fused whole, in one pass.
-WHOLE_BYTES = 1_300_000_000
+#: Working set (bytes) up to which an image is fused whole, in one pass (24 MP x 7 frames
+#: of 8-bit RGB: 1.7 GB; OpenCV's MergeMertens holds 5.8 GB for them).
+WHOLE_BYTES = 2_000_000_000
 #: Working set (bytes) of one band, halo included, when the image is fused in bands.
 BAND_BYTES = 160_000_000
 
 
-def working_bytes(rows: int, width: int, channels: int, itemsize: int) -> int:
-    """Bytes the kernel path holds for ``rows`` rows: one frame's codes, the weight sum,
-    and the pyramids (4/3) of one image, one weight and the blend, in float32."""
-    return int(rows * width * (channels * itemsize + 4 + (4 * (2 * channels + 1) * 4) // 3))
+def working_bytes(rows: int, width: int, channels: int, itemsize: int, frames: int) -> int:
+    """Bytes the kernel path holds for ``rows`` rows: one frame's codes, every frame's
+    weights and their sum, and the pyramids (4/3) of one image, one weight and the
+    blend, in float32."""
+    return int(rows * width * (channels * itemsize + 4 * frames + 4 + (4 * (2 * channels + 1) * 4) // 3))
 
 
 class ArraySource:
@@ -120,13 +122,13 @@ def plan_bands(src, band_rows: Optional[int] = None) -> Tuple[int, int, int]:
     h, w = src.height, src.width
     top = max_level(h, w)
     item = np.dtype(src.dtype).itemsize
-    if band_rows is None and working_bytes(h, w, src.channels, item) <= WHOLE_BYTES:
+    if band_rows is None and working_bytes(h, w, src.channels, item, src.count) <= WHOLE_BYTES:
         return top, h, 0
     d = min(BAND_LEVELS, top)
     unit = 1 << d
     halo = HALO_UNITS * unit
     if band_rows is None:
-        fit = BAND_BYTES // max(1, working_bytes(1, w, src.channels, item)) - 2 * halo
+        fit = BAND_BYTES // max(1, working_bytes(1, w, src.channels, item, src.count)) - 2 * halo
         band_rows = max(unit, fit)
     band = max(unit, (int(band_rows) // unit) * unit)
     if band >= h:
