@@ -120,20 +120,27 @@ def speed(args) -> None:
     print(f"{args.frames} frames of {w}x{h} ({w * h / 1e6:.1f} MP); hdrcl on "
           f"{proc.name if proc else 'NumPy'}, OpenCV {cv2.__version__} on {cv2.getNumThreads()} threads")
     exposure_fusion([f[:64, :64] for f in frames])  # kernels built and cached before timing
-    ours, theirs = [], []
-    for _ in range(args.repeat):
-        t = time.perf_counter()
+    ours, theirs, ours_cpu, theirs_cpu = [], [], [], []
+    for _ in range(args.repeat):  # interleaved, so that a busy machine slows both alike
+        t, c = time.perf_counter(), time.process_time()
         a = exposure_fusion(frames)
         ours.append(time.perf_counter() - t)
+        ours_cpu.append(time.process_time() - c)
+        del a
         if not args.skip_opencv:
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             b = cv2.createMergeMertens(1.0, 1.0, 1.0).process(frames)
             theirs.append(time.perf_counter() - t)
-        print(f"  run: hdrcl {ours[-1]:.2f} s" + (f", OpenCV {theirs[-1]:.2f} s" if theirs else ""), flush=True)
-    print(f"hdrcl median {statistics.median(ours):.2f} s")
+            theirs_cpu.append(time.process_time() - c)
+            del b
+        print(f"  run: hdrcl {ours[-1]:.2f} s ({ours_cpu[-1]:.2f} s CPU)" +
+              (f", OpenCV {theirs[-1]:.2f} s ({theirs_cpu[-1]:.2f} s CPU)" if theirs else ""), flush=True)
+    med = statistics.median
+    print(f"hdrcl median {med(ours):.2f} s ({med(ours_cpu):.2f} s CPU, all threads)")
     if theirs:
-        print(f"OpenCV median {statistics.median(theirs):.2f} s: hdrcl is "
-              f"{statistics.median(theirs) / statistics.median(ours):.1f}x faster; last run {_levels(a, b)}")
+        print(f"OpenCV median {med(theirs):.2f} s ({med(theirs_cpu):.2f} s CPU): hdrcl is "
+              f"{med(theirs) / med(ours):.1f}x faster in wall time, {med(theirs_cpu) / med(ours_cpu):.1f}x in CPU time; "
+              f"{_levels(exposure_fusion(frames), cv2.createMergeMertens(1.0, 1.0, 1.0).process(frames))}")
 
 
 def memory(args) -> None:

@@ -176,8 +176,12 @@ def exposure_fusion(frames, valid=None, contrast: float = 1.0, saturation: float
 
     src = ArraySource(frames, valid)
     fw = FusionWeights(float(contrast), float(saturation), float(exposedness), float(sigma))
-    out = np.empty((src.height, src.width, src.channels), np.float32)
+    out = None
     for r0, r1, rows in fuse_bands(src, fw, backend(device, src.height * src.width * src.count), band_rows):
+        if r0 == 0 and r1 == src.height:
+            return rows  # the whole image at once: no copy
+        if out is None:
+            out = np.empty((src.height, src.width, src.channels), np.float32)
         out[r0:r1] = rows
     return out
 
