@@ -112,8 +112,10 @@ class MertensProcessor(OpenCLProcessor):
         self._pyramids(frames, valid, fw, levels, each)
         return out_i, out_v
 
-    def blend(self, frames, valid, fw, levels: int, top: Optional[np.ndarray] = None) -> np.ndarray:
-        """The fused window, float32 ``(h, w, c)``; ``top``: the coarse part at level ``levels``."""
+    def blend(self, frames, valid, fw, levels: int, top: Optional[np.ndarray] = None,
+              rows: Optional[Tuple[int, int]] = None) -> np.ndarray:
+        """The fused window, float32 ``(h, w, c)``, or only its ``rows = (i0, i1)``;
+        ``top``: the coarse part at level ``levels``."""
         q = self.queue
         f0 = np.asarray(frames[0])
         h, w, c = f0.shape
@@ -138,6 +140,7 @@ class MertensProcessor(OpenCLProcessor):
             (sh, sw), (ch, cw) = shapes[lv], shapes[lv + 1]
             knl["collapse"](q, _grid(sw, sh), None, acc[lv], acc[lv + 1], np.int32(sw), np.int32(sh), np.int32(cw),
                             np.int32(ch))
-        out = np.empty((h, w, c), np.float32)
-        cl.enqueue_copy(q, out, acc[0], is_blocking=True)
+        i0, i1 = rows or (0, h)
+        out = np.empty((i1 - i0, w, c), np.float32)
+        cl.enqueue_copy(q, out, acc[0], src_offset=i0 * w * c * 4, is_blocking=True)
         return out

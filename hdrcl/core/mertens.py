@@ -138,10 +138,11 @@ class NumpyFusion:
         gi, gv = tops(imgs, vs, levels)
         return [g.astype(np.float32) for g in gi], [g.astype(np.float32) for g in gv]
 
-    def blend(self, frames, valid, fw: FusionWeights, levels: int, top=None) -> np.ndarray:
+    def blend(self, frames, valid, fw: FusionWeights, levels: int, top=None, rows=None) -> np.ndarray:
         imgs = [to_unit(f) for f in frames]
         vs = normalised_weights(frames, fw, valid)
-        return blend(imgs, vs, levels, top).astype(np.float32)
+        out = blend(imgs, vs, levels, top)
+        return (out if rows is None else out[rows[0]:rows[1]]).astype(np.float32)
 
 
 def exposure_fusion(frames, valid=None, contrast: float = 1.0, saturation: float = 1.0,

@@ -43,14 +43,16 @@ HALO_UNITS = 4
 #: of 8-bit RGB: 1.7 GB; OpenCV's MergeMertens holds 5.8 GB for them).
 WHOLE_BYTES = 2_000_000_000
 #: Working set (bytes) of one band, halo included, when the image is fused in bands.
-BAND_BYTES = 160_000_000
+BAND_BYTES = 320_000_000
 
 
 def working_bytes(rows: int, width: int, channels: int, itemsize: int, frames: int) -> int:
-    """Bytes the kernel path holds for ``rows`` rows: one frame's codes, every frame's
-    weights and their sum, and the pyramids (4/3) of one image, one weight and the
+    """Bytes a window of ``rows`` rows costs on the kernel path: every frame's codes (the
+    source's rows, on the host) and one frame's on the device, every frame's weights,
+    their sum and the grey, and the pyramids (4/3) of one image, one weight and the
     blend, in float32."""
-    return int(rows * width * (channels * itemsize + 4 * frames + 4 + (4 * (2 * channels + 1) * 4) // 3))
+    return int(rows * width * ((frames + 1) * channels * itemsize + 4 * frames + 8
+                               + (4 * (2 * channels + 1) * 4) // 3))
 
 
 class ArraySource:
@@ -164,8 +166,7 @@ def fuse_bands(src, fw, backend, band_rows: Optional[int] = None
     gv = np.empty((k, hd, wd), np.float32)
     for r0, r1 in bands:
         a, b = max(0, r0 - halo), min(h, r1 + halo)
-        frames, valid = window(a, b)
-        ti, tv = backend.tops(frames, valid, fw, d)
+        ti, tv = backend.tops(*window(a, b), fw, d)
         c0, c1 = r0 >> d, (r1 >> d if r1 < h else hd)
         off = a >> d
         for i in range(k):
@@ -174,9 +175,11 @@ def fuse_bands(src, fw, backend, band_rows: Optional[int] = None
     coarse = blend([g.astype(np.float64) for g in gi], [g.astype(np.float64) for g in gv], top - d)
     coarse = coarse.astype(np.float32)
     del gi, gv
+    frames = valid = None
     for r0, r1 in bands:
         a, b = max(0, r0 - halo), min(h, r1 + halo)
-        frames, valid = window(a, b)
         off = a >> d
-        rows = backend.blend(frames, valid, fw, d, coarse[off:off + level_size(b - a, d)])
-        yield r0, r1, rows[r0 - a:r1 - a]
+        frames = valid = None  # the last band's rows go before this band's are made
+        frames, valid = window(a, b)
+        yield r0, r1, backend.blend(frames, valid, fw, d, coarse[off:off + level_size(b - a, d)],
+                                    rows=(r0 - a, r1 - a))
