@@ -76,6 +76,8 @@ def compare(args) -> None:
             theirs = cv2.createMergeMertens(*e).process([f.copy() for f in frames])  # RGB: its RGB2GRAY is ours
             print(f"{name} ({len(frames)} x {w}x{h}), exponents {e}: vs OpenCV {cv2.__version__}: "
                   f"{_levels(ours, theirs)}")
+        print(f"{name}: normalising after the pyramids instead (one pass, sum_k Lap(I_k) G(W_k) / G(sum_k W_k)), "
+              f"against the exact fusion: {_levels(_normalised_late(frames), ours)}")
         if shutil.which("enfuse"):
             with tempfile.TemporaryDirectory() as tmp:
                 out = os.path.join(tmp, "enfuse.tif")
@@ -86,6 +88,28 @@ def compare(args) -> None:
             print(f"{name}: vs enfuse (its own pyramid and contrast window): {_levels(ours, ef)}")
         else:
             print(f"{name}: enfuse is not installed here (apt-get install enblend-enfuse): not compared")
+
+
+def _normalised_late(frames) -> np.ndarray:
+    """The one-pass alternative to OpenCV's order (float64): the weights normalised per
+    level after their pyramids, ``sum_k Lap_l(I_k) G_l(W_k) / G_l(sum_k W_k)``."""
+    from hdrcl.core.mertens import FusionWeights, to_unit, weights
+    from hdrcl.core.pyramids import gaussian, max_level, pyr_up
+
+    fw = FusionWeights()
+    h, w = frames[0].shape[:2]
+    top = max_level(h, w)
+    num, wsum = None, None
+    for f in frames:
+        gi, gw = gaussian(to_unit(f), top), gaussian(weights(f, fw), top)
+        lap = [gi[lv] - pyr_up(gi[lv + 1], *gi[lv].shape[:2]) for lv in range(top)] + [gi[top]]
+        terms = [lap[lv] * gw[lv][..., None] for lv in range(top + 1)]
+        num = terms if num is None else [a + b for a, b in zip(num, terms)]
+        wsum = gw if wsum is None else [a + b for a, b in zip(wsum, gw)]
+    res = num[top] / wsum[top][..., None]
+    for lv in range(top - 1, -1, -1):
+        res = num[lv] / wsum[lv][..., None] + pyr_up(res, *num[lv].shape[:2])
+    return res.astype(np.float32)
 
 
 class Scene:

@@ -157,3 +157,53 @@ def test_cli_fuse_errors_are_one_line(tmp_path, write_frames):
     r = CliRunner().invoke(main, ["fuse", *paths, str(tmp_path / "missing.png"), "-o", str(tmp_path / "o.jpg")])
     assert r.exit_code == 3 and "missing.png" in r.output
     assert not (tmp_path / "o.jpg").exists()
+
+
+def test_large_images_go_in_bands_by_themselves(cl_device, monkeypatch):
+    """Over WHOLE_BYTES the fusion plans bands of BAND_BYTES (halo included) by itself,
+    and gives the whole image's result."""
+    frames = _bracket(160, 90, 3)
+    whole = M.exposure_fusion(frames)
+    src = B.ArraySource(frames)
+    monkeypatch.setattr(B, "WHOLE_BYTES", B.working_bytes(100, 90, 3, 1, 3))
+    monkeypatch.setattr(B, "BAND_BYTES", B.working_bytes(2 * 64 + 40, 90, 3, 1, 3))
+    assert B.plan_bands(src) == (4, 32, 64)
+    np.testing.assert_allclose(M.exposure_fusion(frames), whole, atol=2e-6, rtol=0)
+
+
+def test_cli_fuse_aligns_shifted_frames(tmp_path, cl_device):
+    """--align registers hand-held frames (shifted views of one textured scene) before the
+    fusion and crops to the common area: the result then matches the fusion of the
+    frames cut out in register, far better than the fusion without --align does."""
+    from test_align import textured_radiance  # texture at several scales: something to align on
+
+    from hdrcl.io.frames import read_image
+    from hdrcl.io.ldr import write_ldr
+
+    cam = s.Camera(a=1.1, x0=(1.0, 1.2, 0.8))
+    big = textured_radiance(300, 400, seed=21)
+    times = s.stops(3, 1.5, centre=1.0 / float(np.median(big)))
+    shifts = [(7, -12), (0, 0), (-9, 10)]  # the middle exposure is the reference
+    paths, still = [], []
+    for k, ((dy, dx), t) in enumerate(zip(shifts, times)):
+        view = big[60 + dy:240 + dy, 60 + dx:340 + dx]
+        frame = s.bracket(view, [t], cam, noise=0.5, seed=k)[0]
+        paths.append(str(tmp_path / f"h{k}.png"))
+        write_ldr(paths[-1], frame)
+        still.append(s.bracket(big[60:240, 60:340], [t], cam, noise=0.5, seed=k)[0])
+    out, plain = tmp_path / "aligned.png", tmp_path / "plain.png"
+    r = CliRunner().invoke(main, ["fuse", *paths, "-o", str(out), "--align", "--align-model", "shift"])
+    assert r.exit_code == 0, r.output
+    assert CliRunner().invoke(main, ["fuse", *paths, "-o", str(plain)]).exit_code == 0
+    got, unaligned = read_image(out).pixels, read_image(plain).pixels
+    assert got.shape[0] <= 180 - 16 and got.shape[1] <= 280 - 22  # cropped to what every frame sees
+    want = M.to_codes(M.exposure_fusion(still)).astype(int)
+
+    def best(img):  # mean code difference from the in-register fusion at the best offset, inside a margin
+        hh, ww = got.shape[0] - 32, got.shape[1] - 32
+        inner = img[16:16 + hh, 16:16 + ww].astype(int)
+        return min(np.abs(inner - want[y:y + hh, x:x + ww]).mean()
+                   for y in range(0, want.shape[0] - hh + 1) for x in range(0, want.shape[1] - ww + 1))
+
+    err_aligned, err_plain = best(got), best(unaligned[:got.shape[0], :got.shape[1]])
+    assert err_aligned < 2 and err_aligned < err_plain / 3, (err_aligned, err_plain)
