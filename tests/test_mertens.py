@@ -168,6 +168,11 @@ def test_large_images_go_in_bands_by_themselves(cl_device, monkeypatch):
     monkeypatch.setattr(B, "WHOLE_BYTES", B.working_bytes(100, 90, 3, 1, 3))
     monkeypatch.setattr(B, "BAND_BYTES", B.working_bytes(2 * 64 + 40, 90, 3, 1, 3))
     assert B.plan_bands(src) == (4, 32, 64)
+    # 24 MP x 7 frames held in memory are fused whole (1.8 GB), 100 MP x 5 made by bands in bands
+    assert B.working_bytes(4000, 6000, 3, 1, 7) <= 2_000_000_000
+    made = B.RowSource(8160, 12240, 3, 5, np.uint8, None)
+    monkeypatch.undo()
+    assert B.plan_bands(made) == (4, 176, 64)
     np.testing.assert_allclose(M.exposure_fusion(frames), whole, atol=2e-6, rtol=0)
 
 

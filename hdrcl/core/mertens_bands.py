@@ -46,17 +46,19 @@ WHOLE_BYTES = 2_000_000_000
 BAND_BYTES = 320_000_000
 
 
-def working_bytes(rows: int, width: int, channels: int, itemsize: int, frames: int) -> int:
-    """Bytes a window of ``rows`` rows costs on the kernel path: every frame's codes (the
-    source's rows, on the host) and one frame's on the device, every frame's weights,
-    their sum and the grey, and the pyramids (4/3) of one image, one weight and the
-    blend, in float32."""
-    return int(rows * width * ((frames + 1) * channels * itemsize + 4 * frames + 8
-                               + (4 * (2 * channels + 1) * 4) // 3))
+def working_bytes(rows: int, width: int, channels: int, itemsize: int, frames: int, made: bool = False) -> int:
+    """Bytes a window of ``rows`` rows costs on the kernel path: one frame's codes on the
+    device, every frame's weights, their sum and the grey, and the pyramids (4/3) of one
+    image, one weight and the blend, in float32; with ``made``, every frame's codes too
+    (a :class:`RowSource` makes them for the window; an :class:`ArraySource` lends views)."""
+    host = frames * channels * itemsize if made else 0
+    return int(rows * width * (host + channels * itemsize + 4 * frames + 8 + (4 * (2 * channels + 1) * 4) // 3))
 
 
 class ArraySource:
     """Frames held in memory: ``rows(k, a, b)`` is rows ``a .. b`` of frame ``k``."""
+
+    made = False  # rows are views of the caller's frames
 
     def __init__(self, frames, valid=None):
         if isinstance(frames, np.ndarray) and frames.ndim >= 3 and frames.dtype != object:
@@ -105,6 +107,8 @@ class RowSource:
     """Frames made or decoded on demand: ``read(k, a, b)`` returns rows ``a .. b`` of frame
     ``k`` as ``(b - a, width, channels)`` codes (generated frames, band readers)."""
 
+    made = True  # every window's rows are made for it: memory of the band
+
     def __init__(self, height: int, width: int, channels: int, count: int, dtype,
                  read: Callable[[int, int, int], np.ndarray]):
         self.height, self.width, self.channels, self.count = int(height), int(width), int(channels), int(count)
@@ -124,13 +128,13 @@ def plan_bands(src, band_rows: Optional[int] = None) -> Tuple[int, int, int]:
     h, w = src.height, src.width
     top = max_level(h, w)
     item = np.dtype(src.dtype).itemsize
-    if band_rows is None and working_bytes(h, w, src.channels, item, src.count) <= WHOLE_BYTES:
+    if band_rows is None and working_bytes(h, w, src.channels, item, src.count, src.made) <= WHOLE_BYTES:
         return top, h, 0
     d = min(BAND_LEVELS, top)
     unit = 1 << d
     halo = HALO_UNITS * unit
     if band_rows is None:
-        fit = BAND_BYTES // max(1, working_bytes(1, w, src.channels, item, src.count)) - 2 * halo
+        fit = BAND_BYTES // max(1, working_bytes(1, w, src.channels, item, src.count, src.made)) - 2 * halo
         band_rows = max(unit, fit)
     band = max(unit, (int(band_rows) // unit) * unit)
     if band >= h:
