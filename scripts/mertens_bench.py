@@ -77,7 +77,7 @@ def compare(args) -> None:
             print(f"{name} ({len(frames)} x {w}x{h}), exponents {e}: vs OpenCV {cv2.__version__}: "
                   f"{_levels(ours, theirs)}")
         print(f"{name}: normalising after the pyramids instead (one pass, sum_k Lap(I_k) G(W_k) / G(sum_k W_k)), "
-              f"against the exact fusion: {_levels(_normalised_late(frames), ours)}")
+              f"against the exact fusion: {_levels(_normalised_late(frames), exposure_fusion(frames))}")
         if shutil.which("enfuse"):
             with tempfile.TemporaryDirectory() as tmp:
                 out = os.path.join(tmp, "enfuse.tif")
