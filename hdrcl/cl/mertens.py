@@ -3,9 +3,9 @@
 Contract: :class:`hdrcl.core.mertens.NumpyFusion` (``tops`` and ``blend``; the float64
 twin). :mod:`hdrcl.core.mertens_bands` decides the windows. On the device one frame's
 codes are held at a time (uploaded twice: once for the weights, once for the pyramids),
-with every frame's weights, their sum and one pyramid each of the image, its weights and
-the blend: about ``C * itemsize + 4 K + 4 + 4/3 * (8 C + 4)`` bytes a pixel for K frames
-(44 + 4 K for 8-bit RGB; :func:`hdrcl.core.mertens_bands.working_bytes`).
+with every frame's weights, their sum, the grey and one pyramid each of the image, its
+weights and the blend: about ``C * itemsize + 4 K + 8 + 4/3 * (8 C + 4)`` bytes a pixel for
+K frames (48 + 4 K for 8-bit RGB; :func:`hdrcl.core.mertens_bands.working_bytes`).
 """
 from __future__ import annotations
 
