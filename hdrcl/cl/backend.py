@@ -70,8 +70,8 @@ def _info_once(key: str, msg: str) -> None:
 
 
 def get_processor(kind: str, device: Optional[str] = None, work: Optional[int] = None):
-    """The process-wide OpenCL processor of ``kind`` ('fusion', 'exposure', 'align' or
-    'tonemap'), or None.
+    """The process-wide OpenCL processor of ``kind`` ('fusion', 'exposure', 'align',
+    'tonemap' or 'mertens'), or None.
 
     None means: use the NumPy twins (:mod:`hdrcl.core.reference`, :mod:`hdrcl.core.align.mtb`).
 
@@ -129,6 +129,8 @@ def _get_processor(kind: str, device: Optional[str]):
             from hdrcl.cl.align import AlignProcessor as cls
         elif kind == "tonemap":
             from hdrcl.cl.tonemap import TonemapProcessor as cls
+        elif kind == "mertens":
+            from hdrcl.cl.mertens import MertensProcessor as cls
         else:
             from hdrcl.cl.exposure import ExposureProcessor as cls
         proc = cls(device=device)

@@ -217,6 +217,7 @@ COMMAND_MODULES = {
     "demo": "hdrcl.cli.core",
     "tonemap": "hdrcl.cli.output",
     "falsecolor": "hdrcl.cli.falsecolor",
+    "fuse": "hdrcl.cli.fuse",
     "glare": "hdrcl.cli.glare",
     "calibrate-luminance": "hdrcl.cli.glare",
     "calibrate-luminance": "hdrcl.cli.glare",
