@@ -212,3 +212,37 @@ def test_cli_fuse_aligns_shifted_frames(tmp_path, cl_device):
 
     err_aligned, err_plain = best(got), best(unaligned[:got.shape[0], :got.shape[1]])
     assert err_aligned < 2 and err_aligned < err_plain / 3, (err_aligned, err_plain)
+
+
+def test_deliver_fusion_in_merge_and_batch(tmp_path, write_frames, cl_device):
+    """Issue 35: exposure fusion delivered by merge and by batch (`--deliver fusion`) beside
+    the radiance map, the frames' fusion as `hdrcl fuse` makes it (JPEG rounding apart),
+    counted in report.json, and made again from the frames when missing on a rerun."""
+    import json
+
+    from hdrcl.io.frames import read_image
+
+    frames = _bracket(41, 57, 3)
+    paths = write_frames(tmp_path / "in", frames)
+    times = "1/60,1/15,1/4"
+    want = M.to_codes(M.exposure_fusion(frames)).astype(int)
+    r = CliRunner().invoke(main, ["merge", *paths, "--times", times, "-o", str(tmp_path / "m.exr"),
+                                  "--deliver", "fusion"])
+    assert r.exit_code == 0, r.output
+    got = read_image(tmp_path / "m.fusion.jpg").pixels.astype(int)
+    assert got.shape == want.shape and np.median(np.abs(got - want)) <= 2
+    (tmp_path / "in" / "times.txt").write_text("".join(f"{os.path.basename(p)} {t}\n"
+                                                       for p, t in zip(paths, times.split(","))))
+    out = tmp_path / "out"
+    for rerun in (False, True):
+        r = CliRunner().invoke(main, ["batch", str(tmp_path / "in"), "-o", str(out), "--deliver", "fusion"])
+        assert r.exit_code == 0, r.output
+        rep = json.loads((out / "report.json").read_text())
+        (s,) = rep["sets"]
+        (d,) = s["deliverables"]
+        assert d["kind"] == "fusion" and rep["summary"]["deliverables"] == {"fusion": 1}
+        got = read_image(d["path"]).pixels.astype(int)
+        assert np.median(np.abs(got - want)) <= 2
+        if not rerun:
+            os.remove(d["path"])
+    assert any("fusion missing: made from the frames" in w for w in s["warnings"])

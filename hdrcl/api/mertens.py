@@ -14,10 +14,10 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from hdrcl.core.mertens import FusionWeights, exposure_fusion, to_codes
+from hdrcl.core.mertens import FusionWeights, exposure_fusion, read_frames, to_codes
 from hdrcl.errors import UsageError
 
-__all__ = ["exposure_fusion", "fuse_files", "FusionWeights"]
+__all__ = ["exposure_fusion", "fuse_files", "read_frames", "FusionWeights"]
 
 logger = logging.getLogger(__name__)
 
@@ -42,9 +42,8 @@ def fuse_files(paths: Sequence, output, *, contrast: float = 1.0, saturation: fl
     InputError
         A frame cannot be read, or the frames differ in size, channels or depth.
     """
-    from hdrcl.core.bracket import parse_ignore_color, with_ignore
+    from hdrcl.core.bracket import parse_ignore_color
     from hdrcl.io.atomic import check_output
-    from hdrcl.io.frames import read_images
     from hdrcl.io.ldr import LDR_EXTENSIONS, write_ldr
 
     paths = [os.fspath(p) for p in paths]
@@ -58,16 +57,11 @@ def fuse_files(paths: Sequence, output, *, contrast: float = 1.0, saturation: fl
     FusionWeights(contrast, saturation, exposedness, sigma)  # checked before any decoding
     rgb = parse_ignore_color(ignore_color)
     t0 = time.perf_counter()
-    images = read_images(paths)
-    frames = [im.pixels for im in images]
-    valid = [im.valid for im in images]
-    del images
-    if rgb is not None:
-        valid = with_ignore(frames, valid, rgb)
+    frames, valid = read_frames(paths, rgb)
     if align:
-        frames, valid = _aligned(frames, valid, paths, align_model, device)
-    if all(v is None for v in valid):
-        valid = None
+        frames, valid = _aligned(frames, valid or [None] * len(frames), paths, align_model, device)
+        if all(v is None for v in valid):
+            valid = None
     fused = exposure_fusion(frames, valid, contrast=contrast, saturation=saturation, exposedness=exposedness,
                             device=device, sigma=sigma)
     bits = 8 if ext in (".jpg", ".jpeg") or frames[0].dtype == np.uint8 else 16

@@ -207,7 +207,7 @@ def merge(images, output, response, save_response, response_cache, times, times_
         response, save_response = _from_cache(response_cache, images, response, save_response)
     res = merge_files(list(images), output, opts, times=times, times_file=times_file, response=response,
                       ghost_mask=ghost_mask, clip_mask=clip_mask, thumbnail=512 if report else 0,
-                      keep_frames=bool(report), owner=owner, save_response=save_response, chain=chain,
+                      keep_frames=bool(report) or "fusion" in delivery.kinds, owner=owner, save_response=save_response, chain=chain,
                       keep_radiance=bool(delivery))
     h, w_, c = res.shape
     if chain is not None:  # the file holds the calibrated N x N map
@@ -247,8 +247,9 @@ def merge(images, output, response, save_response, response_cache, times, times_
     if delivery:
         from hdrcl.api.support import deliver_beside
 
-        for d in deliver_beside(output, res.radiance, delivery):
-            say(f"  wrote {d['path']}: {d['kind']}, {d['bytes']} bytes, headroom {d['headroom']:g} stops")
+        for d in deliver_beside(output, res.radiance, delivery, frames=_frames_of(res, ignore_color)):
+            say(f"  wrote {d['path']}: {d['kind']}, {d['bytes']} bytes"
+                + (f", headroom {d['headroom']:g} stops" if "headroom" in d else ""))
         res.radiance = None
     if report:
         from hdrcl.api.support import format_figures, write_quality_report
@@ -257,6 +258,20 @@ def merge(images, output, response, save_response, response_cache, times, times_
         say(f"quality report: {os.path.join(report, 'index.html')}")
         for label, text in format_figures(fig):
             say(f"  {label}: {text}")
+
+
+def _frames_of(res, ignore_color):
+    """``frames()`` for ``--deliver fusion``: the whole frames the merge kept (aligned ones
+    included), else the files decoded again."""
+    def frames():
+        if res.kept is not None and not res.kept[2]:  # whole frames, not the sampling grid
+            valid = list(res.kept[1])
+            return list(res.kept[0]), (None if all(v is None for v in valid) else valid)
+        from hdrcl.api.mertens import read_frames
+
+        return read_frames(res.paths, ignore_color)
+
+    return frames
 
 
 def _say_exposure_lists(images) -> None:

@@ -379,4 +379,5 @@ def deliver_options(f):
     return click.option("--deliver", default="", metavar="LIST",
                         help="Also write pictures for HDR screens beside the radiance map, a comma list of: "
                              "uhdr (<stem>.uhdr.jpg, Ultra HDR JPEG: the tone-mapped SDR picture plus a gain "
-                             "map), avif (<stem>.avif), jxl (<stem>.jxl); see docs/deliver.md.")(f)
+                             "map), avif (<stem>.avif), jxl (<stem>.jxl), fusion (<stem>.fusion.jpg: exposure fusion "
+                             "of the frames); see docs/deliver.md.")(f)

@@ -24,6 +24,8 @@ strips: :mod:`hdrcl.core.mertens_bands` runs the fusion in horizontal bands with
 """
 from __future__ import annotations
 
+import os
+
 import logging
 from dataclasses import dataclass
 from typing import List, Optional, Sequence
@@ -193,6 +195,23 @@ def backend(device: Optional[str] = None, work: Optional[int] = None):
 
     proc = get_processor("mertens", device, work=work)
     return NumpyFusion() if proc is None else proc
+
+
+def read_frames(paths, ignore_color=None):
+    """``(frames, valid)`` of the files ``paths`` as exposure fusion takes them: decoded
+    whole, alpha and ``ignore_color`` (R, G, B in 8-bit units) marking pixels that weigh
+    nothing (``valid`` None when every pixel counts)."""
+    from hdrcl.core.bracket import parse_ignore_color, with_ignore
+    from hdrcl.io.frames import read_images
+
+    images = read_images([os.fspath(p) for p in paths])
+    frames = [im.pixels for im in images]
+    valid = [im.valid for im in images]
+    del images
+    rgb = parse_ignore_color(ignore_color)
+    if rgb is not None:
+        valid = with_ignore(frames, valid, rgb)
+    return frames, (None if all(v is None for v in valid) else valid)
 
 
 def to_codes(fused: np.ndarray, bits: int = 8) -> np.ndarray:

@@ -108,7 +108,7 @@ class MergeOptions:
 
 #: Pictures for HDR screens a merge can deliver beside its radiance map
 #: (:mod:`hdrcl.report.deliver` holds what each is and its writer; docs/deliver.md).
-DELIVERABLE_NAMES = ("uhdr", "avif", "jxl")
+DELIVERABLE_NAMES = ("uhdr", "avif", "jxl", "fusion")
 
 
 @dataclass(frozen=True)
@@ -144,13 +144,12 @@ class DeliverOptions:
         object.__setattr__(self, "headroom", float(o["headroom"]))
         object.__setattr__(self, "transfer", str(o["hdr_transfer"]))
         object.__setattr__(self, "bits", int(o["hdr_bits"]))
-        if kinds:  # refused before any merge, not after it
+        if any(k != "fusion" for k in kinds):  # refused before any merge, not after it (fusion needs no codec)
             from hdrcl.io.hdrdisplay import codecs_available
 
             why = codecs_available()
             if why:
                 raise UsageError(f"--deliver: {why}")
-
 
     def identity(self) -> str:
         """What the pictures are made with, as text (recorded beside the map: a rerun remakes

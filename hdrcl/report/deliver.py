@@ -60,12 +60,15 @@ class Rendering:
     """
 
     def __init__(self, radiance: np.ndarray, options: DeliverOptions, orientation: int = 1,
-                 device: Optional[str] = None):
+                 device: Optional[str] = None, frames=None):
         rad = np.asarray(radiance)
         if rad.ndim == 2:
             rad = rad[:, :, None]
         self.radiance = rad[:, :, :3]
         self.options, self.orientation, self.device = options, orientation, device
+        #: ``frames()`` -> ``(frames, valid)``: the photographs themselves, for exposure
+        #: fusion (decoded again, or the aligned frames a merge holds); None: not at hand.
+        self.frames = frames
         self.h, self.w = rad.shape[:2]
         self.params = statistics(self.radiance, "reinhard" if options.tonemap == "reinhard-local" else options.tonemap)
         #: Multiplier to reference-white units (0 for a black map).
@@ -197,12 +200,35 @@ def _signal_writer(kind: str):
 
 
 #: Name -> deliverable.
+def _write_fusion(path: str, r: Rendering) -> dict:
+    """Exposure fusion of the photographs (Mertens 2007, :func:`hdrcl.core.mertens.exposure_fusion`,
+    exponents 1, 1, 1), 8-bit JPEG, upright as the previews; no radiance step."""
+    from hdrcl.core.mertens import exposure_fusion, to_codes
+    from hdrcl.io.exif import to_display
+    from hdrcl.io.ldr import write_ldr
+
+    if r.frames is None:
+        from hdrcl.errors import UsageError
+
+        raise UsageError("--deliver fusion: the frames are not at hand for this map")
+    frames, valid = r.frames()
+    codes = to_codes(exposure_fusion(frames, valid, device=r.device), 8)
+    del frames, valid
+    write_ldr(path, to_display(codes, r.orientation), metadata={"fusion": "Mertens 2007"})
+    return {"bytes": os.path.getsize(path), "method": "Mertens 2007, exponents 1, 1, 1"}
+
+
 DELIVERABLES: Dict[str, Deliverable] = {d.name: d for d in (
     Deliverable("uhdr", ".uhdr.jpg", "Ultra HDR JPEG: the SDR rendering plus an ISO 21496-1 gain map",
                 _write_uhdr),
     Deliverable("avif", ".avif", "AVIF, PQ or HLG, 10/12-bit, BT.709 primaries", _signal_writer("avif")),
     Deliverable("jxl", ".jxl", "JPEG XL, PQ or HLG, 10/12-bit, BT.709 primaries", _signal_writer("jxl")),
+    Deliverable("fusion", ".fusion.jpg", "exposure fusion of the frames (Mertens 2007), 8-bit JPEG, no radiance "
+                "step", _write_fusion),
 )}
+
+#: Deliverables that need no HDR codec (imagecodecs).
+PLAIN = ("fusion",)
 
 
 def paths_for(output: str, options: DeliverOptions) -> Dict[str, str]:
@@ -213,7 +239,7 @@ def paths_for(output: str, options: DeliverOptions) -> Dict[str, str]:
 
 
 def deliver(output: str, radiance: np.ndarray, options: DeliverOptions, orientation: int = 1,
-            device: Optional[str] = None) -> List[dict]:
+            device: Optional[str] = None, frames=None) -> List[dict]:
     """Write every deliverable of ``options`` beside ``output`` (each atomically); one
     record per file: ``kind``, ``path``, ``bytes`` and what the writer reports (headroom,
     transfer, light level, gain range)."""
@@ -221,12 +247,12 @@ def deliver(output: str, radiance: np.ndarray, options: DeliverOptions, orientat
         return []
     from hdrcl.io.hdrdisplay import codecs_available
 
-    why = codecs_available()
+    why = codecs_available() if any(k not in PLAIN for k in options.kinds) else None
     if why:
         from hdrcl.errors import UsageError
 
         raise UsageError(f"--deliver: {why}")
-    r = Rendering(radiance, options, orientation, device)
+    r = Rendering(radiance, options, orientation, device, frames)
     out = []
     for kind, path in paths_for(output, options).items():
         rec = DELIVERABLES[kind].write(path, r)
@@ -234,9 +260,9 @@ def deliver(output: str, radiance: np.ndarray, options: DeliverOptions, orientat
     return out
 
 
-def deliver_beside(output: str, radiance: np.ndarray, options: DeliverOptions) -> List[dict]:
+def deliver_beside(output: str, radiance: np.ndarray, options: DeliverOptions, frames=None) -> List[dict]:
     """:func:`deliver` for a radiance map just written at ``output`` (``hdrcl merge``), upright
-    as that file's orientation says."""
+    as that file's orientation says; ``frames()``: the photographs, for exposure fusion."""
     from hdrcl.io.outmeta import read_orientation
 
-    return deliver(output, radiance, options, read_orientation(output)) if options else []
+    return deliver(output, radiance, options, read_orientation(output), frames=frames) if options else []

@@ -114,9 +114,15 @@ def _current_deliverables(job: SetJob, options: BatchOptions, warnings: list, ra
         from hdrcl.io.radiance import read_radiance
 
         rad = radiance if radiance is not None else read_radiance(job.output)[0]
-        out += deliver(job.output, rad, dataclasses.replace(opts, kinds=missing), orientation_after_reading(job.output))
-        warnings.append(f"{', '.join(missing)} {'made with other settings' if stale else 'missing'}: "
-                        "made from the EXR")
+        from hdrcl.core.mertens import read_frames
+
+        out += deliver(job.output, rad, dataclasses.replace(opts, kinds=missing), orientation_after_reading(job.output),
+                       frames=lambda: read_frames(job.files, options.ignore_color))
+        why = "made with other settings" if stale else "missing"
+        for source, kinds in (("the EXR", [k for k in missing if k != "fusion"]),
+                              ("the frames", [k for k in missing if k == "fusion"])):
+            if kinds:
+                warnings.append(f"{', '.join(kinds)} {why}: made from {source}")
     return sorted(out, key=lambda d: list(paths).index(d["kind"]))
 
 
@@ -429,8 +435,18 @@ class SetMerge(MergeJob):
             with self.timed("deliver"):
                 self.delivered = deliver(self.step.job.output, self.full.array, self.opts.deliver_options,
                                          common_orientation(i.orientation for i in self.inputs.infos),
-                                         device=self.opts.device)
+                                         device=self.opts.device, frames=self.fusion_frames)
             self.full = None  # the map's memory, before the EXR is closed
+
+    def fusion_frames(self):
+        """The photographs for ``--deliver fusion``: the aligned (and cropped) frames the
+        merge holds, else decoded again from the merged files."""
+        if hasattr(self.source, "frames"):
+            valid = list(self.source.valid)
+            return list(self.source.frames), (None if all(v is None for v in valid) else valid)
+        from hdrcl.core.mertens import read_frames
+
+        return read_frames(self.inputs.paths, self.opts.ignore_color)
 
     def quality_bracket(self):
         """The frames the fusion saw, for the quality report: kept as they streamed, or
