@@ -246,3 +246,21 @@ def test_deliver_fusion_in_merge_and_batch(tmp_path, write_frames, cl_device):
         if not rerun:
             os.remove(d["path"])
     assert any("fusion missing: made from the frames" in w for w in s["warnings"])
+
+
+def test_quality_report_links_the_deliverables(tmp_path, write_frames, cl_device):
+    """Issue 35: the quality report shows the deliverables (linked from the set's card)."""
+    import json
+
+    paths = write_frames(tmp_path / "in", _bracket(41, 57, 3))
+    (tmp_path / "in" / "times.txt").write_text("".join(f"{os.path.basename(p)} {t}\n"
+                                                       for p, t in zip(paths, ("1/60", "1/15", "1/4"))))
+    out, rep_dir = tmp_path / "out", tmp_path / "out" / "quality"
+    r = CliRunner().invoke(main, ["batch", str(tmp_path / "in"), "-o", str(out), "--deliver", "fusion",
+                                  "--report", str(rep_dir)])
+    assert r.exit_code == 0, r.output
+    (card,) = [json.loads(p.read_text()) for p in rep_dir.glob("*.json")]
+    (d,) = card["deliverables"]
+    assert d["kind"] == "fusion" and (rep_dir / d["file"]).resolve() == (out / "f0.fusion.jpg").resolve()
+    html = (rep_dir / "index.html").read_text()
+    assert 'data-kind="fusion"' in html and "f0.fusion.jpg" in html

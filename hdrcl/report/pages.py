@@ -87,12 +87,16 @@ class ReportEntry:
     error: Optional[str] = None
     camera: Dict[str, str] = field(default_factory=dict)
     inputs: List[dict] = field(default_factory=list)
+    #: ``--deliver`` pictures beside the set's map: ``kind``, ``file`` (relative to the report
+    #: folder), ``bytes``.
+    deliverables: List[dict] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {"format": REPORT_FORMAT, "version": REPORT_VERSION, "name": self.name, "status": self.status,
                 "label": status_label(self.status), "error": self.error, "warnings": list(self.warnings),
                 "files": dict(self.files),
                 "camera": dict(self.camera), "inputs": [dict(r) for r in self.inputs],
+                "deliverables": [dict(d) for d in self.deliverables],
                 "figures": None if self.figures is None else self.figures.to_dict()}
 
 
@@ -142,6 +146,7 @@ def write_set_report(
     preview_size: int = IMAGE_SIZE,
     bracket=None,
     alignment=None,
+    deliverables: Sequence[dict] = (),
 ) -> ReportEntry:
     """Write one set's report files into ``folder`` and return its contact-sheet entry.
 
@@ -168,6 +173,8 @@ def write_set_report(
     alignment : list of dict, optional
         ``MergeResult.alignment`` of an aligned merge: each frame's motion model and
         residual misalignment go under its thumbnail.
+    deliverables : sequence of dict, optional
+        The ``--deliver`` records (``kind``, ``path``, ``bytes``): linked from the card.
     """
     from hdrcl.io.ldr import write_ldr
     from hdrcl.report.inputs import camera_summary, write_inputs
@@ -205,8 +212,10 @@ def write_set_report(
             if row.get("file") in moved:
                 row["align"] = alignment_text(moved[row["file"]])
     files["json"] = stem + ".json"
+    delivered = [{"kind": d["kind"], "file": os.path.relpath(d["path"], folder), "bytes": int(d.get("bytes", 0))}
+                 for d in deliverables if d.get("path")]
     entry = ReportEntry(name=name, status=status, figures=figures, files=files, warnings=list(warnings),
-                        camera=camera, inputs=inputs)
+                        camera=camera, inputs=inputs, deliverables=delivered)
     _write_json(os.path.join(folder, files["json"]), entry.to_dict())
     return entry
 
@@ -220,7 +229,9 @@ def _entry_from_dict(d: dict, folder: str, name: str) -> ReportEntry:
             r["thumb"] = None
     return ReportEntry(name=d.get("name", name), status=d.get("status", STATUS_DONE), figures=figs,
                        files=files, warnings=list(d.get("warnings") or []), error=d.get("error"),
-                       camera=dict(d.get("camera") or {}), inputs=inputs)
+                       camera=dict(d.get("camera") or {}), inputs=inputs,
+                       deliverables=[x for x in (d.get("deliverables") or []) if isinstance(x, dict)
+                                     and isinstance(x.get("file"), str) and isinstance(x.get("kind"), str)])
 
 
 #: What a damaged entry can raise while it is rebuilt or drawn (it is then skipped).

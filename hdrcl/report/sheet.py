@@ -354,6 +354,10 @@ def _card(entry, index: int) -> str:
     if entry.warnings:
         out.append('<h3>Warnings</h3><ul class="warnings">'
                    + "".join(f"<li>{_e(w)}</li>" for w in entry.warnings) + "</ul>")
+    if entry.deliverables:  # --deliver: the pictures beside the map
+        out.append('<p class="deliverables">Deliverables: ' + ", ".join(
+            f'<a href="{_href(d["file"])}" data-kind="{_e(d["kind"])}">{_e(d["kind"])}</a> '
+            f'({int(d.get("bytes", 0)) / 1e6:.2f} MB)' for d in entry.deliverables) + "</p>")
     if "json" in files:
         out.append(f'<p><a href="{_href(files["json"])}">figures (JSON)</a></p>')
     out.append("</div></div>")

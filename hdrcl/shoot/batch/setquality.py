@@ -108,7 +108,7 @@ def _quality_for(res: SetResult, job: SetJob, bracket, resp: Response, times, ra
                           stride=stride, shape=shape)
         stem = _report_stem(job)
         entry = write_set_report(opts.report_dir, stem, fig, resp, radiance, fig.coverage, warnings=res.warnings,
-                                 bracket=bracket)
+                                 bracket=bracket, deliverables=res.deliverables)
         payload = entry.to_dict()
         payload[DIGEST_KEY] = res.digest
         _atomic_json(os.path.join(opts.report_dir, file_stem(stem) + ".json"), payload)
