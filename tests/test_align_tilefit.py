@@ -106,6 +106,9 @@ def test_two_chains_that_agree_give_their_mean(monkeypatch):
     error): the frame takes the mean, 0.1 px off; before, the neighbour's 0.4."""
     m, truth = _chain(monkeypatch, (0.4, 0.0), (-0.2, 0.0))
     assert np.allclose(m, np.array([[1, 0, 0.1], [0, 1, 0], [0, 0, 1]]) @ truth, atol=1e-9)
+    # the shorter chain's lower residual does not make it the whole answer (it was)
+    m, truth = _chain(monkeypatch, (0.4, 0.0), (-0.2, 0.0), res=(0.2, 0.1))
+    assert np.allclose(m, np.array([[1, 0, 0.1], [0, 1, 0], [0, 0, 1]]) @ truth, atol=1e-9)
 
 
 def test_two_chains_that_disagree_keep_the_rules(monkeypatch):

@@ -200,13 +200,12 @@ def register_chained(reg, out, links, mats, j: int, ref: int, model: str, names)
     """``(anchor, model, fit, residual, why)`` of frame ``j`` (:func:`register`) against
     its nearest measured neighbour toward the reference; and (with the model that fit
     chose) against that neighbour's own nearest measured neighbour when that one is
-    fewer fits from the reference: when
-    the two put the frame more than :data:`SKIP_PX` apart (median over the frame) and
-    the shorter chain's fit has the lower residual, the neighbour is the odd one and the
-    shorter chain is taken, so that one frame's own
+    fewer fits from the reference. When the two agree within :data:`AGREE_PX` (median
+    over the frame), the frame takes the mean of the two (:func:`_both`); when they put
+    the frame further apart and the shorter chain's fit has the lower residual, the
+    neighbour is the odd one and the shorter chain is taken, so that one frame's own
     misregistration does not carry into every frame beyond it (Memorial's tripod 0067
-    sits 0.77 px off 0068 and 0.51 px off 0066, while 0066 sits 0.15 px off 0068).
-    Otherwise, when both agree, the frame takes the mean of the two (:func:`_both`)."""
+    sits 0.77 px off 0068 and 0.51 px off 0066, while 0066 sits 0.15 px off 0068)."""
     step = 1 if j < ref else -1
 
     def measured(k):
@@ -232,24 +231,27 @@ def register_chained(reg, out, links, mats, j: int, ref: int, model: str, names)
     def res(x):
         return x[3] if np.isfinite(x[3]) else np.inf
 
-    if apart > SKIP_PX and res(alt) < res(got):
-        return alt
-    return _both(got, alt, mats, near, far, apart)
+    both = _both(got, alt, mats, near, far, apart)
+    if both is not None:
+        return both
+    return alt if apart > SKIP_PX and res(alt) < res(got) else got
 
 
 def _both(got, alt, mats, near: int, far: int, apart: float):
     """``got`` (against ``near``) with its matrix made the mean of the two chains'
     (through ``near`` and through ``far``) when both are affine and land within
-    :data:`AGREE_PX` of each other (``apart``): two trusted measurements of one motion
-    whose errors are largely their own (each link's matching noise, a neighbour's own
-    non-rigid difference), so their mean is closer than either (Memorial moved, seed 4,
-    1.5 degrees: 0.20 -> 0.17 stops RMS from the tripod merge). The mean of two affine
-    matrices is affine, of two similarities a similarity."""
+    :data:`AGREE_PX` of each other (``apart``), else None: two trusted measurements of
+    one motion whose errors are largely their own (each link's matching noise, a
+    neighbour's own non-rigid difference), so their mean is closer than either
+    (Memorial moved, seed 3, 1.5 degrees: 0.20 -> 0.17 stops RMS from the tripod merge;
+    taking the shorter chain alone when they were over :data:`SKIP_PX` apart chained
+    1.0-1.4 px of error into its five darkest frames). The mean of two affine matrices
+    is affine, of two similarities a similarity."""
     from dataclasses import replace
 
     a, b = got[2].matrix @ mats[near], alt[2].matrix @ mats[far]
     if apart > AGREE_PX or np.any(a[2, :2]) or np.any(b[2, :2]):
-        return got
+        return None
     mean = 0.5 * (a + b)
     return got[:2] + (replace(got[2], matrix=mean @ np.linalg.inv(mats[near])),) + got[3:]
 
