@@ -175,14 +175,17 @@ def test_memorial_moved_merges_close_to_the_tripod(cl_device, memorial, tmp_path
     assert rms < RMS_CI, rms
 
 
-#: Stops RMS the CI seed must stay under. Issue 27 asks 0.15 over the sweep; today's
-#: sweep gives 0.164-0.222 (``python tests/moved.py``; this seed: 0.176). Two floors under it: the moved set
-#: merged with the *true* matrices is already 0.12 from the tripod merge (two
-#: resamplings at the windows' hard edges), and the real film frames differ among
-#: themselves by up to 0.7 px (0067 -> 0068: Gauss-Newton, block matching and, per the
-#: issue, feature matches agree), which registration undoes and the tripod merge keeps.
-RMS_CI = 0.25
-#: The sweep's bound (the worst of the 20 cases today: 0.222).
+#: Stops RMS the CI seed must stay under (it was 0.176 before issue 32's tile refit and
+#: chain means; 0.151 black, 0.148 ignore colour now). Issue 32 asks 0.16 over the sweep;
+#: ``python tests/moved.py`` gives 0.142-0.168, but for seed 5 at 1.5 degrees (0.210-0.217:
+#: its dark frame 0074 cannot be measured and takes 0073's motion, 38 px from its own).
+#: Two floors under it: the moved set merged with the *true* matrices is already 0.12
+#: from the tripod merge (two resamplings at the windows' hard edges), and the real film
+#: frames differ among themselves non-rigidly (0067 -> 0068 on the tripod: tile shifts
+#: from -1.1 to +1.2 px across the frame), which registration partly undoes and the
+#: tripod merge keeps.
+RMS_CI = 0.17
+#: The sweep's bound (the worst of the 20 cases today: 0.217).
 RMS_SWEEP = 0.25
 
 

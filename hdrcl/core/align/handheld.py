@@ -9,6 +9,9 @@ Stages, per frame:
    images, coarse to fine on a pyramid of at most a few megapixels. Each frame is
    registered to its neighbour in exposure on the way to the reference (they share the
    most well-exposed pixels), already registered, and the matrices are composed.
+   The fit is then refitted to the frame's tiles, each tile once, where held-out tiles
+   confirm it (:mod:`hdrcl.core.align.tilefit`: the frame as a whole, not its strongest
+   edges).
 3. **Model choice** (``auto``): the translation, unless the similarity lowers the
    residual misalignment by more than :data:`CLEAR_GAIN_PX` and :data:`CLEAR_GAIN_FRAC`
    of it; then the homography, only when it also lands the frame's tiles, block-matched
