@@ -62,6 +62,9 @@ SKIPPED = (INHERITED, LEFT_OUT)
 #: the start's reach), the frame is not dark. (Memorial's dark frames on their pedestal
 #: share 7 %; a count such as :data:`FEW_SAMPLES` would call them plenty.)
 PLENTY_FRAC = 0.25
+#: ... and a fit that keeps fewer than this share of them lost its way; one that keeps
+#: more is only short of samples (a small image: 1826 of 2059 on a 96x64 tripod frame).
+LOST_FRAC = 0.5
 
 
 class Unaligned(InputError):
@@ -328,8 +331,9 @@ def register(reg, anchor: int, j: int, model: str, names):
             if est is None else f"a second estimate (block matching) puts it {gap:.1f} px away")
         raise Unaligned(names[j], names[anchor], anchor, why)
     shared = shared_at_start(reg, anchor, j, m0)
-    if shared >= PLENTY_FRAC * reg.levels(anchor)[0].ok.size:
-        # Not a dark frame: it shares plenty where it started, and the fit lost it.
+    if shared >= PLENTY_FRAC * reg.levels(anchor)[0].ok.size and f.samples < LOST_FRAC * shared:
+        # Not a dark frame: it shares plenty where it started, and the fit lost it. (A fit
+        # that kept them is only short of samples on a small image: a still tripod frame.)
         why = _refusal(f, r, f.matrix, h, w) or (
             f"the fit keeps {f.samples} of the {shared} well-exposed pixels it shares with it at the start, and "
             + ("no second estimate confirms it" if est is None else
