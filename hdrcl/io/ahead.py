@@ -27,6 +27,7 @@ import atexit
 import logging
 import os
 import threading
+import time
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 logger = logging.getLogger(__name__)
@@ -37,6 +38,8 @@ AHEAD_NICE = 10
 
 _lock = threading.Lock()
 _pending: Dict[Tuple[str, ...], "_Ahead"] = {}
+#: Notified whenever a set leaves the registry (taken, discarded, cancelled).
+_freed = threading.Condition(_lock)
 _exit_hook: List[bool] = []  # cancel_all registered with atexit
 
 
@@ -126,6 +129,7 @@ def take(paths: Sequence) -> Optional[_Ahead]:
     key = _key(paths)
     with _lock:
         job = _pending.pop(key, None)
+        _freed.notify_all()
     if job is None:
         return None
     job.stop.set()
@@ -144,6 +148,7 @@ def discard(paths: Sequence) -> None:
     key = _key(paths)
     with _lock:
         job = _pending.pop(key, None)
+        _freed.notify_all()
     if job is not None:
         job.stop.set()
         job.thread.join(timeout=2.0)
@@ -154,10 +159,27 @@ def cancel_all() -> None:
     with _lock:
         jobs = list(_pending.values())
         _pending.clear()
+        _freed.notify_all()
     for job in jobs:
         job.stop.set()
     for job in jobs:  # the frame in hand finishes (its decoder closes itself); not waited past that
         job.thread.join(timeout=2.0)
+
+
+def wait_turn(stop=None, timeout: Optional[float] = None) -> bool:
+    """Wait until no set is ahead (the one before was taken or dropped), so that the next
+    set can be decoded ahead: one set at a time, without losing the turn to a race with
+    the merge that takes the set before. False when ``stop`` is set or ``timeout`` passed
+    first; ``stop`` (a :class:`threading.Event`) is checked at each notification and at
+    least every second."""
+    deadline = None if timeout is None else time.monotonic() + timeout
+    with _freed:
+        while _pending and not (stop is not None and stop.is_set()):
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0:
+                return False
+            _freed.wait(1.0 if left is None else min(1.0, left))
+        return not (stop is not None and stop.is_set())
 
 
 def pending() -> int:

@@ -105,6 +105,12 @@ logger = logging.getLogger(__name__)
 
 
 
+#: How long the read-ahead waits for the set before it to be taken before it gives up
+#: decoding the next one ahead (the merge takes it when it opens its frames, or drops it
+#: after its turn): a bound, never reached by a merge that runs.
+AHEAD_WAIT_SECONDS = 600.0
+
+
 def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult], None]) -> None:
     """Run sets in this process, hashing and opening the next set during the merge.
 
@@ -122,14 +128,15 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
     def read(job, ahead: bool):
         started[job.index] = _time.perf_counter()
         step = _read_stage(job, ctx)
-        if ahead and isinstance(step, _Opening):
-            # Decode its frames too, at low priority, while the current set fuses and encodes.
+        if ahead and isinstance(step, _Opening) and wait_turn(stop, timeout=AHEAD_WAIT_SECONDS):
+            # Decode its frames too, at low priority, while the current set fuses and encodes
+            # (once the merge before has taken its own: one set ahead at a time).
             decode_ahead(job.files, step.opened.infos, open_reader, stop)
         return step
 
     from functools import partial
 
-    from hdrcl.io.ahead import cancel_all, decode_ahead, discard
+    from hdrcl.io.ahead import cancel_all, decode_ahead, discard, wait_turn
     from hdrcl.io.reader import BracketReader
 
     open_reader = partial(BracketReader, ahead=False)
