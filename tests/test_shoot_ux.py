@@ -322,3 +322,26 @@ def test_response_cache_keeps_out_frames_that_name_no_camera(tmp_path, cl_device
         (resp,) = json.loads((tmp_path / out / "report.json").read_text())["responses"]
         assert resp["source"] != "cached"
     assert not cache.exists() or not list(cache.iterdir())
+
+
+def test_merge_and_batch_refuse_the_same_cached_curves(per_set, tmp_path):
+    """One rule decides whether a cached curve stands for calibrating (issue 33:
+    hdrcl.core.response_cache): batch took a curve that names no camera for any camera's
+    frames, which merge refused. Both now say the same reason and calibrate again."""
+    cache = tmp_path / "cache"
+    one = run("batch", per_set, "-o", tmp_path / "one", "--response-cache", cache, "--no-preview", "--sets", "0")
+    assert one.exit_code == 0, one.output
+    (path,) = cache.iterdir()
+    doc = json.loads(path.read_text())
+    doc["camera"] = None  # a curve that names no camera, in this camera's place
+    doc.pop("calibration", None)
+    path.write_text(json.dumps(doc))
+    again = run("batch", per_set, "-o", tmp_path / "two", "--response-cache", cache, "--no-preview", "--sets", "0")
+    assert again.exit_code == 0, again.output
+    assert "a response of an unnamed camera, but" in again.stderr and "calibrating" in again.stderr, again.stderr
+    (resp,) = json.loads((tmp_path / "two" / "report.json").read_text())["responses"]
+    assert resp["source"] != "cached"
+    frames = sorted(str(p) for p in (per_set / "hall").iterdir())
+    path.write_text(json.dumps(doc))
+    merged = run("merge", *frames, "-o", tmp_path / "m.exr", "--response-cache", path)
+    assert merged.exit_code == 0 and "a response of an unnamed camera, but" in merged.stderr, merged.output

@@ -31,6 +31,7 @@ _WHERE = {
     "chain_or_none": "hdrcl.core.luminance.fisheye",
     "parse_patch": "hdrcl.core.radiometry",
     "Response": "hdrcl.core.response",
+    "misfit": "hdrcl.core.response_cache",
     "DEFAULT_SMOOTHNESS": "hdrcl.core.response",
     "DEFAULT_WEIGHT": "hdrcl.core.weights",
     "WEIGHTS": "hdrcl.core.weights",

@@ -295,7 +295,6 @@ def _from_cache(path, images, response, save_response):
     calibrated from them (a file that does not fit is replaced, with a warning)."""
     import logging
 
-    from hdrcl.core.params import check_response_fits
     from hdrcl.api.support import Response, read_info
     from hdrcl.errors import HdrclError, UsageError
 
@@ -303,17 +302,15 @@ def _from_cache(path, images, response, save_response):
         raise UsageError("--response-cache stands for --response and --save-response: give it alone")
     if not os.path.isfile(path):
         return None, path
+    from hdrcl.api.support import misfit
+
     try:
         resp = Response.load(path)
-        first = read_info(images[0])
-        check_response_fits(resp, path, images[0], first.bits, 3 if first.nchannels >= 3 else 1)
-        cached, taken = (" ".join(str(m or "").split()) for m in ((resp.camera or {}).get("model"), first.model))
-        if cached != taken:
-            raise HdrclError(f"{path}: a response of {cached or 'an unnamed camera'}, but {images[0]} "
-                             f"is from {taken or 'an unnamed camera'}")
+        why = misfit(resp, path, images[0], read_info(images[0]))
     except HdrclError as exc:
-        logging.getLogger("hdrcl.cli").warning("%s; calibrating from these frames and replacing it",
-                                               str(exc).splitlines()[0])
+        why = str(exc).splitlines()[0]
+    if why is not None:
+        logging.getLogger("hdrcl.cli").warning("%s; calibrating from these frames and replacing it", why)
         return None, path
     say(f"response: {path} (cached)")
     return path, None

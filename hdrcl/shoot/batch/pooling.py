@@ -14,6 +14,7 @@ import numpy as np
 
 from hdrcl.core.exposure.fit import UNTRUSTED
 from hdrcl.core.response import Response
+from hdrcl.core.response_cache import misfit
 from hdrcl.errors import HdrclError, InputError
 from hdrcl.io.jsondoc import read_state
 from hdrcl.shoot.batch.jobs import (
@@ -331,14 +332,10 @@ def _cached(group: str, cache: str, first_info) -> "ResponseEntry | None":
         resp = None
     if resp is None:
         return None
-    if first_info is not None and first_info.bits != resp.bits:
-        logger.warning("%s: a %d-bit response, the frames of %s are %d-bit; calibrating it again",
-                       path, resp.bits, group, first_info.bits)
-        return None
-    model = " ".join(str((resp.camera or {}).get("model") or "").split())
-    if first_info is not None and model and model != " ".join((first_info.model or "").split()):
-        logger.warning("%s: a response of a %s, the frames of %s are a %s's; calibrating it again",
-                       path, model, group, first_info.model)
+    why = None if first_info is None else misfit(resp, path, os.path.basename(getattr(first_info, "path", "") or group),
+                                                   first_info)
+    if why is not None:  # the rule merge --response-cache applies too (hdrcl.core.response_cache)
+        logger.warning("%s; calibrating %s again", why, group)
         return None
     payload = {k: v for k, v in saved.items() if k != "calibration"}
     calib = saved.get("calibration")
