@@ -125,3 +125,29 @@ def test_a_batch_set_gets_the_metadata_a_merge_gets(tmp_path, cl_device):
     meta = read_metadata(str(out / exr[0]))
     assert meta.get("colorspace") == "rec709" and meta.get("units") == "relative"
     assert meta.get("inputHash") and meta.get("exposureRef")
+
+
+def test_leave_one_out_runs_the_plan_without_frame_k(monkeypatch, caplog):
+    """The report's leave-one-out is the bracket's plan less one frame, run by the executor
+    as a measuring device: no checks of the user's frames, nothing logged, the figure as
+    the frame rendered from the others."""
+    from hdrcl.core import executor, synthetic
+    from hdrcl.core.bracket import Bracket
+    from hdrcl.report import quality as q
+
+    plans = []
+    real = executor.prepare
+    monkeypatch.setattr(executor, "prepare", lambda plan: plans.append(plan) or real(plan))
+    cam = synthetic.Camera(a=1.1, x0=(1.0, 1.15, 0.85))
+    rad = synthetic.radiance_field(31, 47, decades=3.0, seed=3) * 60.0
+    times = np.array([1 / 1000, 1 / 250, 1 / 60, 1 / 15, 1 / 4])
+    frames = synthetic.bracket(rad, times, cam, seed=1)
+    frames[2] = np.roll(frames[2], 5, axis=1)  # a moved frame: the user's merge would say so, the measure not
+    caplog.set_level("WARNING")
+    rows = q.leave_one_out_all(Bracket(frames=frames, times=times, valid=[None] * 5), fit_exposures="off")
+    assert [r.index for r in rows] == [1, 2, 3] and len(plans) == 3
+    assert all(p.checks is False and len(p.bracket.frames) == 4 for p in plans)
+    assert [float(p.inputs.times[1]) for p in plans] == [1 / 60, 1 / 250, 1 / 250]
+    assert all(np.isfinite(r.rmse) and r.pixels > 0 for r in rows)
+    assert rows[1].rmse > 2 * max(rows[0].rmse, rows[2].rmse)  # the moved frame renders worst
+    assert not [r for r in caplog.records if r.levelname == "WARNING"]

@@ -1,7 +1,8 @@
 """The one place a merge's stages run, in this order, and its result is built:
 
     open -> load (align) -> sample -> respond -> measure       (prepare: "open", "calibrate")
-         -> agreement -> stage the response file -> scale -> fuse   (start: the writer left open)
+         -> agreement -> stage the response file -> scale -> fuse   (proceed; start = prepare + proceed:
+                                                                     the writer left open)
          -> commit -> the response file, the kept frames          (finish: the result)
 
 :func:`execute` runs a :class:`hdrcl.core.plan.MergePlan` whole. :func:`start` and
@@ -55,10 +56,17 @@ def _prepare(run: RunState) -> None:
 def start(plan: MergePlan) -> RunState:
     """Every stage up to the fusion; for a file, the writer is left open for :func:`finish`
     (or :func:`abort`)."""
-    run = RunState(plan)
+    return proceed(prepare(plan))
+
+
+def proceed(run: RunState) -> RunState:
+    """A prepared run (:func:`prepare`) on to the fusion, as :func:`start` goes on: the
+    agreement check, the response file staged, the scale, the fusion (a caller that
+    shares a device between threads prepares on several at once and proceeds on one)."""
+    plan = run.plan
     try:
-        _prepare(run)
-        stages.agreement(run)  # do the frames agree? (findings; hdrcl.core.agreement)
+        if plan.checks:
+            stages.agreement(run)  # do the frames agree? (findings; hdrcl.core.agreement)
         run.t_fuse = time.perf_counter()
         if plan.extras.save_response is not None:
             # A second output is staged first: a full disk fails here, before the radiance exists.

@@ -68,7 +68,8 @@ class MergePlan:
     by name (``run.sinks``). ``tap``, when set, wraps a streamed source for the first pass
     (``tap(source, h, w, nch)``: a batch keeps the quality report's frames as they stream
     past). ``metadata`` is what the file gets besides the merge's own;
-    ``record_findings`` adds the findings known when the file is opened.
+    ``record_findings`` adds the findings known when the file is opened. ``checks`` off:
+    a merge run as a measuring device (a leave-one-out), not of the user's frames.
     """
 
     inputs: Inputs
@@ -84,6 +85,7 @@ class MergePlan:
     record_findings: bool = False
     findings: Tuple = ()  # hdrcl.core.findings.Finding known before the merge (a batch's scan)
     reference_from_exposures: bool = False  # the reference exposure from the exposures measured
+    checks: bool = True  # the checks of the user's frames (brightness order, agreement); off to measure
 
     def describe(self) -> dict:
         """The plan in words (a dry run's line)."""
