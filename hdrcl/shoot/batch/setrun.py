@@ -306,7 +306,7 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
         if opts.report_dir:
             # After the EXR is committed: the report never holds back or spoils an output.
             t3 = _time.perf_counter()
-            reduced = run.sinks.get("preview") or run.sinks.get("reduced")
+            reduced = run.sinks["preview"] if "preview" in run.sinks else run.sinks["reduced"]
             _quality_for(out, job, _quality_bracket(run, step, opts), res.response, res.times, reduced.result(),
                          opts)
             seconds["quality"] = _time.perf_counter() - t3
