@@ -109,7 +109,7 @@ def test_batch_fails_the_set_naming_the_file(tmp_path):
 def test_warm_up_is_waited_for_at_exit():
     """A set that fails before its fusion leaves the OpenCL build running; a daemon
     thread there crashed the Intel runtime at exit (rc 134/139)."""
-    from hdrcl.core import engine
+    from hdrcl.core import stages
 
     started = []
     real = threading.Thread.start
@@ -120,7 +120,7 @@ def test_warm_up_is_waited_for_at_exit():
 
     threading.Thread.start = spy
     try:
-        engine._warm_up("numpy").join()
+        stages.warm_up("numpy").join()
     finally:
         threading.Thread.start = real
     assert [t.daemon for t in started if t.name == "hdrcl-warm-up"] == [False]

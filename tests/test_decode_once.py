@@ -349,9 +349,9 @@ def test_lost_response_of_a_one_set_camera_is_solved_again(tmp_path, cl_device):
 
 def test_warm_up_opens_the_device_while_the_frames_decode(monkeypatch):
     """The warm-up thread opens the device the job will use, decided by the job's size
-    alone (hdrcl.core.engine.fusion_processor): a large job opens it, a small one not."""
+    alone (hdrcl.core.pipeline.fusion_processor): a large job opens it, a small one not."""
     import hdrcl.cl.backend as backend
-    from hdrcl.core.engine import _warm_up
+    from hdrcl.core.stages import warm_up as _warm_up
 
     seen = []
     monkeypatch.setattr(backend, "get_processor", lambda kind, device=None, work=None: seen.append(kind))

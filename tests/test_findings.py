@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from hdrcl.cli import main
-from hdrcl.core.engine import MergeJob
+from hdrcl.core import stages
 from hdrcl.core.findings import CHECK, NOTE, Finding, causes, needs_check
 
 try:
@@ -31,15 +31,15 @@ def test_finding_round_trip_and_severity():
 @pytest.fixture
 def flagging(monkeypatch):
     """Every merge finds a 'check' finding naming its first frame (and a 'note')."""
-    measure = MergeJob.measure
+    measure = stages.measure
 
-    def flagged(self):
-        measure(self)
-        name = os.path.basename(self.inputs.paths[0])
-        self.find(Finding("test", f"{name}: planted finding", severity=CHECK, file=name, figure=1.5))
-        self.find(Finding("test", f"{name}: planted note", severity=NOTE, file=name))
+    def flagged(run):
+        measure(run)
+        name = os.path.basename(run.inputs.paths[0])
+        run.find(Finding("test", f"{name}: planted finding", severity=CHECK, file=name, figure=1.5))
+        run.find(Finding("test", f"{name}: planted note", severity=NOTE, file=name))
 
-    monkeypatch.setattr(MergeJob, "measure", flagged)
+    monkeypatch.setattr(stages, "measure", flagged)
 
 
 def test_batch_marks_check_names_it_and_keeps_it_on_rerun(tmp_path, flagging, cl_device):

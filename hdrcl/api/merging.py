@@ -184,9 +184,10 @@ def merge(images: Sequence[PathOrArray], times: Optional[Sequence[float]] = None
         raise UsageError(f"{name}: a response for {resp.bits}-bit frames, but the frames are "
                          f"{8 * br.frames[0].dtype.itemsize}-bit")
     from hdrcl.core.sources import GivenResponse, ResponseSource
-    from hdrcl.core.inmemory import MemoryJob
+    from hdrcl.core.executor import execute
+    from hdrcl.core.plan import plan_merge
 
     source = ResponseSource() if resp is None else GivenResponse(
         resp, os.fspath(response) if isinstance(response, (str, os.PathLike)) else "given")
-    radiance = MemoryJob(br, o, source).run().radiance
+    radiance = execute(plan_merge(None, o, source, bracket=br)).radiance
     return to_rgb([radiance], channel_order)[0]

@@ -5,7 +5,7 @@ every pixel both measure: ``ln E = g(Z) - ln t``. Where they do not, either the 
 moved between them (the disagreement sits at every edge and a small shift of one frame
 explains it) or something in the scene moved (a compact region disagrees, whatever the
 shift). This check measures both on the sampling grid the merge already holds
-(:attr:`hdrcl.core.engine.MergeJob.grid`, every k-th row and column), in one channel
+(:attr:`hdrcl.core.runstate.RunState.grid`, every k-th row and column), in one channel
 (green, or the only one), so it costs a few hundredths of the fusion.
 
 Per pair of frames ``a`` (shorter) and ``b`` (next longer), over the pixels both hold in
@@ -406,7 +406,7 @@ def _odd_frame(pairs: List[PairAgreement], worst: PairAgreement, paths, notes: S
 
 
 def check_job(job) -> None:
-    """The check on a merge (:class:`hdrcl.core.engine.MergeJob`) once its exposures are
+    """The check on a merge (:class:`hdrcl.core.runstate.RunState`) once its exposures are
     known: findings through ``job.find``, time as ``job.seconds["agreement"]``. Without a
     sampling grid (a given response, ``--fit-exposures off``) the aligned frames in memory
     are sampled; a streamed set is skipped, with the reason in the log."""

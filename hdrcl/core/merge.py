@@ -39,15 +39,16 @@ def merge_bracket(
     (then with the exposures that calibration refined, see :func:`calibrate`).
     ``deghost``, ``ghost_threshold`` and ``ghost_reference`` as
     :func:`hdrcl.core.fusion.fuse_frames`."""
-    from hdrcl.core.sources import response_source
-    from hdrcl.core.inmemory import MemoryJob
+    from hdrcl.core.executor import execute
     from hdrcl.core.params import check_options
+    from hdrcl.core.plan import plan_merge
+    from hdrcl.core.sources import response_source
 
     o = MergeOptions(weight=weight, samples=samples, smoothness=smoothness, seed=seed, device=device,
                      fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance, deghost=deghost,
                      ghost_threshold=ghost_threshold, ghost_reference=ghost_reference)
     check_options(frames=len(bracket.frames), ghost_reference=ghost_reference)
-    return MemoryJob(bracket, o, response_source(response)).run()
+    return execute(plan_merge(None, o, response_source(response), bracket=bracket))
 
 
 def merge_files(paths: Sequence[Union[str, os.PathLike]], output: Union[str, os.PathLike],
@@ -66,8 +67,8 @@ def merge_files(paths: Sequence[Union[str, os.PathLike]], output: Union[str, os.
 
     ``options`` is a :class:`hdrcl.core.options.MergeOptions`; its fields may also be given
     as keywords (``weight=``, ``align=`` ...; they override ``options``'s). The other
-    keywords are the extras of :class:`hdrcl.core.engine.Extras`. The merge runs on the
-    engine (:class:`hdrcl.core.engine.MergeJob`).
+    keywords are the extras of :class:`hdrcl.core.plan.Extras`. The merge is planned
+    (:func:`hdrcl.core.plan.plan_merge`) and run by :func:`hdrcl.core.executor.execute`.
 
     Parameters
     ----------
@@ -149,7 +150,8 @@ def merge_files(paths: Sequence[Union[str, os.PathLike]], output: Union[str, os.
         ``result.vertical_illuminance`` holds the lux at the lens for ``-vta`` views.
         ``result.radiance`` and the thumbnail stay the full merged map.
     """
-    from hdrcl.core.engine import Extras, MergeJob
+    from hdrcl.core.executor import execute
+    from hdrcl.core.plan import Extras, plan_merge
     from hdrcl.core.sources import Inputs, response_source
     from hdrcl.core.options import MergeOptions
     from hdrcl.core.params import check_images, check_options
@@ -167,7 +169,7 @@ def merge_files(paths: Sequence[Union[str, os.PathLike]], output: Union[str, os.
         logger.warning("%s", line)
     source = response_source(response)
     inputs = Inputs.open(paths, times, times_file)
-    return MergeJob(inputs, options, source, output, extras).run()
+    return execute(plan_merge(inputs, options, source, output, extras=extras))
 
 
 def check_targets(paths, output, options, extras, response) -> str:

@@ -1,6 +1,6 @@
 """What a merge starts from: its inputs (:class:`Inputs`: frames, headers, exposures and
 where they came from) and where its response comes from (:class:`ResponseSource`: solved
-from the frames, or given), for the merge engine (:mod:`hdrcl.core.engine`)."""
+from the frames, or given), for a merge's plan (:mod:`hdrcl.core.plan`)."""
 from __future__ import annotations
 
 import os
@@ -107,7 +107,7 @@ class ResponseSource:
     def given(self):
         return None
 
-    def solve(self, job: "MergeJob", grid):
+    def solve(self, job: "RunState", grid):
         from hdrcl.core.calibrate import calibrate
 
         o = job.options

@@ -63,8 +63,8 @@ import numpy as np
 from hdrcl.core.bracket import Bracket
 from hdrcl.core.calibrate import calibrate, exposures_used
 from hdrcl.core.exposure.virtual import render
-from hdrcl.core.fusion import fuse_frames
 from hdrcl.core.response import Response
+from hdrcl.core.sources import ResponseSource
 from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.errors import UsageError
 from hdrcl.report.clipping import NO_DATA, WORKING_HIGH, WORKING_LOW, clipping_figures
@@ -100,41 +100,63 @@ def leave_one_out(
 ) -> LeaveOneOut:
     """RMSE (8-bit levels) of frame ``index`` rendered from a merge of the others.
 
-    The merge calibrates its own response from the remaining frames (with
-    ``fit_exposures`` as :func:`hdrcl.core.calibrate.calibrate`) and renders the missing frame at
+    The merge is the bracket's plan without frame ``index``
+    (:func:`hdrcl.core.plan.plan_merge` on the remaining frames, run by
+    :mod:`hdrcl.core.executor`): it calibrates its own response from them (with
+    ``fit_exposures`` as :func:`hdrcl.core.calibrate.calibrate`), fuses them at the
+    exposures that curve used, and the missing frame is rendered at
     ``bracket.times[index]``: pass refined times to measure a refined set. Pixel-channels
     count where the real frame reads within ``[low, high]`` (8-bit units; scaled for
     16-bit data) and the pixel is valid in that frame. ``grid``, with ``fit_exposures="off"``:
     the bracket's sampling grid (:func:`hdrcl.core.sampling.grid_stride`, contiguous), which
     the curve's sample selection would decimate to: the same curve, no copy per solve.
     """
+    from hdrcl.core.executor import finish, prepare, proceed
+    from hdrcl.core.options import MergeOptions
+    from hdrcl.core.plan import plan_merge
+
     keep = [k for k in range(len(bracket.frames)) if k != index]
     times = np.asarray(bracket.times, np.float64)
     sub = Bracket(frames=[bracket.frames[k] for k in keep], times=times[keep],
                   valid=[bracket.valid[k] for k in keep])
-    # warn=False: the re-solves' curves are a measuring device, not the user's response.
-    if fit_exposures == "off":
-        # What calibrate() does with fit_exposures="off", less its checks for the user's
-        # frames (nothing measurable, identical exposures): the same curve.
+    options = MergeOptions(weight=weight, samples=samples, smoothness=smoothness, device=device,
+                           fit_exposures=fit_exposures)
+    plan = plan_merge(None, options, _Remeasured(keep, grid), bracket=sub, checks=False)
+    run = prepare(plan)  # the curve: solved on several threads at once
+    with _DEVICE_LOCK:  # the OpenCL kernels' arguments are shared: the fusions and renderings take turns
+        res = finish(proceed(run))
+        rendered = render(res.radiance, res.response, float(bracket.times[index]), device=device)
+    del res, run
+    rmse, n = _rmse_levels(bracket.frames[index], rendered, bracket.valid[index], low, high)
+    return LeaveOneOut(index=index, time=float(bracket.times[index]), rmse=rmse, pixels=n)
+
+
+class _Remeasured(ResponseSource):
+    """The curve of a leave-one-out merge, solved from its frames as the merge's own
+    calibration would be, with ``warn=False``: the re-solves' curves are a measuring
+    device, not the user's response. With ``fit_exposures="off"``: what calibrate() does
+    then, less its checks for the user's frames (nothing measurable, identical
+    exposures), on the given sampling grid (``grid``, the whole bracket's; ``keep``
+    the frames merged) when there is one: the same curve."""
+
+    name = "leave-one-out"
+    raw_linear = False
+
+    def __init__(self, keep, grid: Optional[Bracket]):
+        self.keep, self.grid = keep, grid
+
+    def solve(self, run, sub):
+        o = run.options
+        if o.fit_exposures != "off":
+            return calibrate(sub, smoothness=o.smoothness, samples=o.samples, weight=o.weight,
+                             fit_exposures=o.fit_exposures, warn=False)
         from hdrcl.core.solve import recover_response
 
-        cal = sub if grid is None else Bracket(frames=[grid.frames[k] for k in keep], times=sub.times,
-                                               valid=[grid.valid[k] for k in keep])
-        resp = recover_response(cal.frames, cal.times, valid=cal.valid_all, samples=samples, smoothness=smoothness,
-                                weight=weight, warn=False, decimate=grid is None)
-    else:
-        resp = calibrate(sub, smoothness=smoothness, samples=samples, weight=weight, fit_exposures=fit_exposures,
-                         warn=False)
-    times_used = exposures_used(resp, sub.times)
-    real = bracket.frames[index]
-    # The others fused at the exposures the curve used (the merge's own when not refitted),
-    # straight through the fusion (no second exposure measurement, as a merge of them would).
-    with _DEVICE_LOCK:  # the curves solve on several threads; the OpenCL kernels' arguments are shared
-        rad = fuse_frames(sub.frames, times_used, resp, weight=weight, valid=sub.valid, device=device).radiance
-        rendered = render(rad, resp, float(bracket.times[index]), device=device)
-    del rad
-    rmse, n = _rmse_levels(real, rendered, bracket.valid[index], low, high)
-    return LeaveOneOut(index=index, time=float(bracket.times[index]), rmse=rmse, pixels=n)
+        g = self.grid
+        cal = sub if g is None else Bracket(frames=[g.frames[k] for k in self.keep], times=sub.times,
+                                            valid=[g.valid[k] for k in self.keep])
+        return recover_response(cal.frames, cal.times, valid=cal.valid_all, samples=o.samples,
+                                smoothness=o.smoothness, weight=o.weight, warn=False, decimate=g is None)
 
 
 #: Serialises the leave-one-out fusions and renderings on the OpenCL device.

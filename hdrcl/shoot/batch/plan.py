@@ -436,7 +436,7 @@ def _references_of_one_set(firsts, groups, given=None) -> set:
     """The groups whose reference exposure :func:`_camera_references` takes from one set's
     labels alone (a camera with one set in the shoot; the shoot's only camera-less set):
     that set's merge takes it from the exposures it measured instead, so that one wrong
-    label does not move the whole map (:class:`hdrcl.shoot.batch.setrun.SetMerge`)."""
+    label does not move the whole map (:func:`hdrcl.shoot.batch.setrun.set_plan`)."""
     if given is not None:
         return set()
     named = {g for g, indices in groups.items()

@@ -13,8 +13,8 @@ from typing import Dict, Iterator, List, Optional
 
 import numpy as np
 
-from hdrcl.core.engine import Extras, MergeJob
 from hdrcl.core.findings import Finding
+from hdrcl.core.fusestage import FINDINGS_KEY
 from hdrcl.core.sources import GivenResponse, Inputs, ResponseSource
 from hdrcl.errors import HdrclError, InputError
 from hdrcl.shoot.batch.jobs import (
@@ -127,9 +127,9 @@ def _current_deliverables(job: SetJob, options: BatchOptions, warnings: list, ra
 
 
 #: EXR attributes of a batch set (``hdrcl:`` names): the findings its merge knew when the
-#: file was opened (the scan's, the exposure trust, alignment, agreement, orientation),
-#: and the settings its deliverables were made with.
-FINDINGS_KEY, DELIVER_KEY = "findings", "deliver"
+#: file was opened (:data:`hdrcl.core.fusestage.FINDINGS_KEY`: the scan's, the exposure
+#: trust, alignment, agreement, orientation), and the settings its deliverables were made with.
+DELIVER_KEY = "deliver"
 
 
 def _recorded_findings(job: SetJob, meta: dict) -> List[dict]:
@@ -277,28 +277,38 @@ def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResu
 def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetResult:
     """Decode, fuse and write the set strip by strip; preview; commit the EXR.
 
-    The merge engine (:class:`hdrcl.core.engine.MergeJob`) does it, as for ``hdrcl merge``:
-    :class:`SetMerge` only adds the batch's response source (pooled, cached, given or
-    solved by this set alone), its digest and exposure reference in the metadata, the
-    preview and the frames kept for the quality report.
+    The set's plan (:func:`set_plan`) runs on the executor (:mod:`hdrcl.core.executor`),
+    as ``hdrcl merge``'s does; between the fusion and the commit the preview and the
+    deliverables are written (:func:`_before_commit`), so the EXR, moved into place last,
+    marks the set complete.
     """
+    from hdrcl.core.executor import abort, finish, start
+
     job, opts = step.job, ctx.options
     seconds = step.seconds
     try:
-        merge = SetMerge(step, ctx)
+        plan = set_plan(step, ctx)
         t0 = _time.perf_counter()
         with _FUSE_LOCK:
-            res = merge.run()
-        seconds["merge"] = _time.perf_counter() - t0 - merge.seconds.get("preview", 0.0) \
-            - merge.seconds.get("write", 0.0) - merge.seconds.get("deliver", 0.0)
-        for k, v in merge.seconds.items():
+            run = start(plan)
+            try:
+                delivered = _before_commit(run, step, opts)
+            except BaseException:
+                abort(run)
+                raise
+            res = finish(run)
+        seconds["merge"] = _time.perf_counter() - t0 - run.seconds.get("preview", 0.0) \
+            - run.seconds.get("write", 0.0) - run.seconds.get("deliver", 0.0)
+        for k, v in run.seconds.items():
             if k not in ("open", "calibrate"):
                 seconds[k] = seconds.get(k, 0.0) + v
-        out = merge.set_result(res)
+        out = _set_result(step, opts, run, res, delivered)
         if opts.report_dir:
             # After the EXR is committed: the report never holds back or spoils an output.
             t3 = _time.perf_counter()
-            _quality_for(out, job, merge.quality_bracket(), res.response, res.times, merge.reduced.result(), opts)
+            reduced = run.sinks["preview"] if "preview" in run.sinks else run.sinks["reduced"]
+            _quality_for(out, job, _quality_bracket(run, step, opts), res.response, res.times, reduced.result(),
+                         opts)
             seconds["quality"] = _time.perf_counter() - t3
         return out
     except Exception as exc:
@@ -333,157 +343,119 @@ def response_source_of(entry, job: SetJob, infos, options) -> ResponseSource:
     return GivenResponse(_response_of(entry), os.path.basename(entry.file) if entry.file else entry.group)
 
 
-class SetMerge(MergeJob):
-    """One set of a batch on the merge engine: the shoot's exposure reference, the set's
-    digest in the metadata, the preview written before the EXR commits it, and the frames
-    the quality report reads (kept as they stream past, or the aligned frames)."""
+def set_plan(step: _Opening, ctx: _Context):
+    """The set's :class:`hdrcl.core.plan.MergePlan`: the shoot's exposure reference, its
+    camera's response (deferred, cached, given or pooled) with what the pool says of the
+    set's exposures, the preview (or the quality report's reduced map) and the full map
+    for the deliverables as sinks, the quality report's frames kept as they stream past,
+    the scan's findings, and the set's digest and settings in the metadata."""
+    from hdrcl.core.plan import Extras, plan_merge, response_plan
+    from hdrcl.report.preview import AreaAverage
+    from hdrcl.shoot.batch.pooling import trust_findings
 
-    def __init__(self, step: _Opening, ctx: _Context):
-        job, opened, opts = step.job, step.opened, ctx.options
-        self.step, self.opts = step, opts
-        entry = ctx.responses[job.group]
-        inputs = Inputs(list(job.files), opened.infos, np.asarray(opened.times, np.float64), reference=job.reference,
-                        reference_exposure=job.exposure_ref, timestamp=opened.stamp)
-        super().__init__(inputs, opts.merge, response_source_of(entry, job, opened.infos, opts), job.output,
-                         Extras(chain=opts.luminance_chain()))
-        self.kept = None
-        self.entry = entry
+    job, opened, opts = step.job, step.opened, ctx.options
+    entry = ctx.responses[job.group]
+    inputs = Inputs(list(job.files), opened.infos, np.asarray(opened.times, np.float64), reference=job.reference,
+                    reference_exposure=job.exposure_ref, timestamp=opened.stamp)
+    kind = "deferred" if entry.deferred else {"cached": "cached", "given": "given"}.get(entry.source, "pooled")
+    response = response_plan(response_source_of(entry, job, opened.infos, opts), kind,
+                             trust=lambda grid: trust_findings(entry, job, grid, opts))
+    sinks = []
+    if job.preview is not None:  # the preview's reduced map (the quality report's too)
+        sinks.append(("preview", lambda h, w, nch: AreaAverage(h, w, nch, opts.preview_size)))
+    elif opts.report_dir:  # the quality report's own
+        sinks.append(("reduced", lambda h, w, nch: AreaAverage(h, w, nch, REPORT_IMAGE_SIZE)))
+    if opts.deliver_options:  # the deliverables need the map at full size
+        from hdrcl.core.pipeline import ArraySink
 
-    def respond(self) -> None:
-        super().respond()
-        # What calibrate would say of the set's exposure metadata (its group's pool asked).
-        from hdrcl.shoot.batch.pooling import trust_findings
+        sinks.append(("full", ArraySink))
+    meta = {DIGEST_KEY: step.digest, "evOffset": round(opened.ev_offset, 6),
+            "exposureRef": _reference_text(job.reference)}
+    if opts.deliver_options:  # what the deliverables beside it are made with
+        meta[DELIVER_KEY] = opts.deliver_options.identity()
+    tap = None
+    if opts.report_dir:  # the quality report keeps the frames (or their grid) as they stream past
+        def tap(source, h, w, nch):
+            return _KeptFrames(source, _quality_stride(len(inputs.paths), h, w, nch, source.dtype))
+    return plan_merge(inputs, opts.merge, response, job.output, extras=Extras(chain=opts.luminance_chain()),
+                      sinks=tuple(sinks), tap=tap, metadata=tuple(meta.items()), record_findings=True,
+                      findings=tuple(Finding.from_dict(d) for d in job.findings),
+                      reference_from_exposures=bool(job.exposure_ref_own))
 
-        for finding in trust_findings(self.entry, self.step.job, self.grid, self.opts):
-            self.find(finding)
 
-    def open(self) -> None:
-        super().open()
-        from hdrcl.core.findings import Finding
+def _before_commit(run, step: _Opening, opts: BatchOptions) -> list:
+    """Between the fusion and the commit: the preview, then the deliverables (returned)."""
+    from hdrcl.io.exif import common_orientation
 
-        for d in self.step.job.findings:  # what the scan found (hdrcl.shoot.grouping.strays)
-            self.find(Finding.from_dict(d))
+    small, full = run.sinks.get("preview"), run.sinks.pop("full", None)
+    if small is not None:
+        from hdrcl.io.exif import to_display
+        from hdrcl.io.ldr import write_ldr
+        from hdrcl.report.preview import encode
 
-    def fuse(self) -> None:
-        from hdrcl.report.preview import AreaAverage
+        with run.timed("preview"):  # upright: turned as the frames' EXIF Orientation says
+            upright = to_display(encode(small.result(), opts.tonemap),
+                                 common_orientation(i.orientation for i in run.inputs.infos))
+            write_ldr(step.job.preview, upright, metadata=_preview_metadata(step.digest, opts, run.counts))
+    if full is None:
+        return []
+    from hdrcl.report.deliver import deliver
 
-        if self.step.job.exposure_ref_own:
-            # The camera's reference came from this set's labels alone: take it from the
-            # exposures the merge measured, as `hdrcl merge` does, so one wrong label does
-            # not move the whole map (issue 32).
-            from hdrcl.core.encode import default_reference
+    with run.timed("deliver"):
+        delivered = deliver(step.job.output, full.array, opts.deliver_options,
+                            common_orientation(i.orientation for i in run.inputs.infos),
+                            device=opts.device, frames=lambda: _fusion_frames(run, opts))
+    del full  # the map's memory, before the EXR is closed
+    return delivered
 
-            self.inputs.reference_exposure = default_reference(self.times)
-        h, w, nch = self.h, self.w, self.nch
-        # The preview's reduced map; the quality report's own without a preview.
-        self.small = AreaAverage(h, w, nch, self.opts.preview_size) if self.step.job.preview is not None else None
-        self.reduced = self.small if self.small is not None or not self.opts.report_dir else \
-            AreaAverage(h, w, nch, REPORT_IMAGE_SIZE)
-        self.extras.sinks = [self.reduced]
-        self.full = None
-        if self.opts.deliver_options:  # the deliverables need the map at full size
-            from hdrcl.core.pipeline import ArraySink
 
-            self.full = ArraySink(h, w, nch)
-            self.extras.sinks.append(self.full)
-        super().fuse()
+def _fusion_frames(run, opts: BatchOptions):
+    """The photographs for ``--deliver fusion``: the aligned (and cropped) frames the
+    merge holds, else decoded again from the merged files."""
+    if hasattr(run.source, "frames"):
+        valid = list(run.source.valid)
+        return list(run.source.frames), (None if all(v is None for v in valid) else valid)
+    from hdrcl.core.mertens import read_frames
 
-    def metadata(self) -> dict:
-        from hdrcl.core.merge import provenance
+    return read_frames(run.inputs.paths, opts.ignore_color)
 
-        step = self.step
-        meta = provenance(self.result, self.source_name)
-        if self.factors is not None:
-            meta.update(self.units)
-        meta.update({DIGEST_KEY: step.digest, "evOffset": round(step.opened.ev_offset, 6),
-                     "exposureRef": _reference_text(step.job.reference)})
-        meta.update(self.alignment_meta())
-        if self.unit == "relative":
-            meta["referenceExposure"] = self.t_ref
-        if self.findings:  # what the checks found so far: a rerun that skips the set says it again
-            meta[FINDINGS_KEY] = json.dumps([f.to_dict() for f in self.findings], sort_keys=True)
-        if self.opts.deliver_options:  # what the deliverables beside it are made with
-            meta[DELIVER_KEY] = self.opts.deliver_options.identity()
-        return meta
 
-    def tap(self, source):
-        if self.opts.report_dir and not hasattr(source, "frames"):
-            # The quality report keeps the frames (or their sampling grid) as they stream past.
-            self.kept = _KeptFrames(source, _quality_stride(len(self.inputs.paths), self.h, self.w, self.nch,
-                                                            source.dtype))
-            return self.kept
-        return source
+def _quality_bracket(run, step: _Opening, opts: BatchOptions):
+    """The frames the fusion saw, for the quality report: kept as they streamed, or
+    the aligned (and cropped) frames themselves."""
+    from hdrcl.core.bracket import Bracket
 
-    def before_commit(self, counts: dict) -> None:
-        # Preview first: the EXR, moved into place last, marks the set complete.
-        if self.small is not None:
-            from hdrcl.io.ldr import write_ldr
-            from hdrcl.report.preview import encode
+    job, opened = step.job, step.opened
+    if run.tapped is not None:
+        return run.tapped.bracket(job.files, opened.infos, opened.times, opts.ignore_color)
+    inp = run.inputs  # the frames merged: an alignment may have left some out
+    return Bracket(frames=list(run.source.frames), times=np.asarray(inp.times, np.float64),
+                   valid=list(run.source.valid), paths=list(inp.paths), infos=list(inp.infos))
 
-            from hdrcl.io.exif import common_orientation, to_display
 
-            with self.timed("preview"):  # upright: turned as the frames' EXIF Orientation says
-                upright = to_display(encode(self.small.result(), self.opts.tonemap),
-                                     common_orientation(i.orientation for i in self.inputs.infos))
-                write_ldr(self.step.job.preview, upright,
-                          metadata=_preview_metadata(self.step.digest, self.opts, counts))
-        self.delivered = []
-        if self.full is not None:
-            from hdrcl.io.exif import common_orientation
-            from hdrcl.report.deliver import deliver
-
-            with self.timed("deliver"):
-                self.delivered = deliver(self.step.job.output, self.full.array, self.opts.deliver_options,
-                                         common_orientation(i.orientation for i in self.inputs.infos),
-                                         device=self.opts.device, frames=self.fusion_frames)
-            self.full = None  # the map's memory, before the EXR is closed
-
-    def fusion_frames(self):
-        """The photographs for ``--deliver fusion``: the aligned (and cropped) frames the
-        merge holds, else decoded again from the merged files."""
-        if hasattr(self.source, "frames"):
-            valid = list(self.source.valid)
-            return list(self.source.frames), (None if all(v is None for v in valid) else valid)
-        from hdrcl.core.mertens import read_frames
-
-        return read_frames(self.inputs.paths, self.opts.ignore_color)
-
-    def quality_bracket(self):
-        """The frames the fusion saw, for the quality report: kept as they streamed, or
-        the aligned (and cropped) frames themselves."""
-        from hdrcl.core.bracket import Bracket
-
-        job, opened = self.step.job, self.step.opened
-        if self.kept is not None:
-            return self.kept.bracket(job.files, opened.infos, opened.times, self.opts.ignore_color)
-        inp = self.inputs  # the frames merged: an alignment may have left some out
-        return Bracket(frames=list(self.source.frames), times=np.asarray(inp.times, np.float64),
-                       valid=list(self.source.valid), paths=list(inp.paths), infos=list(inp.infos))
-
-    def set_result(self, res) -> SetResult:
-        """The batch's record of the merged set."""
-        step, opts = self.step, self.opts
-        job, counts = step.job, res.counts
-        notes = (list(step.notes) + list(step.opened.notes) + self.notes + list(res.response.warnings)
-                 + self.check_notes + self.write_warnings)
-        if counts.get("no_data"):
-            notes.append(f"{counts['no_data']} pixel-channels are invalid in every frame and were set to 0")
-        notes += [f.message for f in res.findings if f.message not in notes]
-        keys = ("clipped_high", "clipped_low", "no_data") + (("ghost", "ghost_unresolved") if opts.deghost else ())
-        out = SetResult(index=job.index, files=list(job.files), status=STATUS_DONE, output=job.output,
-                        preview=job.preview, warnings=notes, seconds=step.seconds,
-                        counts={k: int(counts.get(k, 0)) for k in keys},
-                        ev_offset=round(step.opened.ev_offset, 6), digest=step.digest, response=job.group,
-                        storage=res.storage_note, findings=[f.to_dict() for f in res.findings])
-        out.deliverables = list(getattr(self, "delivered", []))
-        if out.needs_check:
-            out.status = STATUS_CHECK
-        if res.alignment is not None:
-            out.alignment = res.alignment  # per frame: hdrcl.core.align.handheld.describe
-        if res.vertical_illuminance is not None:  # a fisheye luminance map with a -vta/-vth view
-            out.vertical_illuminance = res.vertical_illuminance
-            out.glare = _glare_figures(job.output, notes)
-        return out
+def _set_result(step: _Opening, opts: BatchOptions, run, res, delivered) -> SetResult:
+    """The batch's record of the merged set."""
+    job, counts = step.job, res.counts
+    notes = (list(step.notes) + list(step.opened.notes) + run.notes + list(res.response.warnings)
+             + run.check_notes + run.write_warnings)
+    if counts.get("no_data"):
+        notes.append(f"{counts['no_data']} pixel-channels are invalid in every frame and were set to 0")
+    notes += [f.message for f in res.findings if f.message not in notes]
+    keys = ("clipped_high", "clipped_low", "no_data") + (("ghost", "ghost_unresolved") if opts.deghost else ())
+    out = SetResult(index=job.index, files=list(job.files), status=STATUS_DONE, output=job.output,
+                    preview=job.preview, warnings=notes, seconds=step.seconds,
+                    counts={k: int(counts.get(k, 0)) for k in keys},
+                    ev_offset=round(step.opened.ev_offset, 6), digest=step.digest, response=job.group,
+                    storage=res.storage_note, findings=[f.to_dict() for f in res.findings])
+    out.deliverables = list(delivered)
+    if out.needs_check:
+        out.status = STATUS_CHECK
+    if res.alignment is not None:
+        out.alignment = res.alignment  # per frame: hdrcl.core.align.handheld.describe
+    if res.vertical_illuminance is not None:  # a fisheye luminance map with a -vta/-vth view
+        out.vertical_illuminance = res.vertical_illuminance
+        out.glare = _glare_figures(job.output, notes)
+    return out
 
 
 def _glare_figures(path: str, notes: list) -> Optional[dict]:
@@ -511,11 +483,12 @@ def _rebuild_quality(res: SetResult, job: SetJob, ctx: _Context, radiance=None) 
     from hdrcl.io.radiance import read_radiance
     from hdrcl.report.preview import downscale
 
+    from hdrcl.core.executor import prepare
+
     opts = ctx.options
     try:
-        merge = SetMerge(_Opening(job, res.digest, _open_set(job), {}), ctx)
+        merge = prepare(set_plan(_Opening(job, res.digest, _open_set(job), {}), ctx))
         try:
-            merge.prepare()
             src = merge.source
             if hasattr(src, "frames"):  # aligned: the frames as merged
                 frames, valid, stride = list(src.frames), list(src.valid), 1
