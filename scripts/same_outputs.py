@@ -17,7 +17,9 @@ import subprocess
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-DATA = os.path.join(HERE, "..", "..", "shared", "data")
+#: The shared camera files: HDRCL_DATA, else ../shared/data beside the checkout, else /work/shared/data.
+DATA = next((d for d in (os.environ.get("HDRCL_DATA"), os.path.join(HERE, "..", "..", "shared", "data"),
+                         "/work/shared/data") if d and os.path.isdir(d)), os.path.join(HERE, "..", "..", "shared", "data"))
 #: Header attributes that differ between two runs of the same merge.
 VOLATILE = ("DateTime", "Software", "hdrcl:seconds", "hdrcl:version", "hdrcl:stages", "capDate",
             "hdrcl:created", "hdrcl:host", "hdrcl:command")
