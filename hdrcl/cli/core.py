@@ -298,7 +298,8 @@ def _from_cache(path, images, response, save_response):
 @device_option
 def expose(radiance, output, response, time_, bits, motion_blur, device):
     """Render a virtual photograph from a radiance map."""
-    from hdrcl.api.support import Response, expose_file
+    from hdrcl.api.pictures import expose_file
+    from hdrcl.api.support import Response
     from hdrcl.core.params import check_expose
 
     check_inputs_not_outputs([radiance, response], output)
