@@ -180,7 +180,7 @@ def field_option(name: str, **variant):
         attrs["show_default"] = True
     if kind == "bool":
         attrs["is_flag"] = True
-    elif meta["choice"]:
+    elif kind == "choice":
         attrs["type"] = click.Choice(list(choices(name)), case_sensitive=meta["case_sensitive"])
     elif kind != "text":
         attrs["type"] = Checked(name)

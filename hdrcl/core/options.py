@@ -2,8 +2,10 @@
 that shapes the radiance, checked once, when the object is made, by the option table
 (:mod:`hdrcl.core.params`).
 
-``merge`` (CLI), ``batch`` (``BatchOptions`` wraps one), :func:`hdrcl.merge` and
-:func:`hdrcl.merge_files` all build a :class:`MergeOptions` and hand it to the merge engine
+Each option is declared once, as a field (:func:`option`: default, help, spelling; its kind
+and range are the option table's). ``merge`` and ``batch`` (``BatchOptions`` holds one)
+make their click options from the fields, and they, :func:`hdrcl.merge` and
+:func:`hdrcl.merge_files` build a :class:`MergeOptions` and hand it to the merge engine
 (:mod:`hdrcl.core.engine`). The rules that tie options together live here and nowhere
 else: ``crop`` needs ``align`` (refused), ``ghost_threshold``/``ghost_reference`` need
 ``deghost`` (refused), ``absolute`` and ``reference_patch`` exclude each other
@@ -18,7 +20,7 @@ from typing import Any, Dict, List, Optional, Tuple
 
 from hdrcl.core.deghost import THRESHOLD
 from hdrcl.core.response import DEFAULT_SMOOTHNESS
-from hdrcl.core.weights import DEFAULT_WEIGHT, WEIGHTS
+from hdrcl.core.weights import DEFAULT_WEIGHT
 
 #: What an option is part of in a batch's output identity (``BatchOptions.output_params``):
 #: ``always`` recorded, ``changed`` recorded when it is not the default (the digests of
@@ -28,24 +30,19 @@ ALWAYS, CHANGED = "always", "changed"
 
 
 def option(default: Any, help: str, *, metavar: Optional[str] = None, show_default: bool = False,
-           choice: bool = False, case_sensitive: bool = True, solve: bool = False, identity: Optional[str] = None):
+           case_sensitive: bool = True, solve: bool = False, identity: Optional[str] = None):
     """One option of a merge, declared once: its default, help and command-line spelling
     (``--`` + the field's name with dashes), its kind and range from the option table
     (:data:`hdrcl.core.params.TABLE`, by the field's name: no second copy of a range).
 
-    ``choice``: the command line lists the table's choices (``case_sensitive``);
+    ``case_sensitive``: of a choice, on the command line;
     ``solve``: an option of the response solve too (``hdrcl calibrate`` takes it);
     ``identity``: :data:`ALWAYS` or :data:`CHANGED` (part of a batch output's digest).
     The click options of ``merge``, ``batch`` and ``calibrate`` are made from these
     (:func:`hdrcl.cli.options.merge_options`); docs/development.md says how to add one.
     """
     return dataclasses.field(default=default, metadata={
-        "help": help, "metavar": metavar, "show_default": show_default, "choice": choice,
-        "case_sensitive": case_sensitive, "solve": solve, "identity": identity})
-
-
-ALIGN_HELP = ("Align hand-held frames to the middle exposure (shift, rotation, scale; see --align-model) "
-              "before merging; a frame that cannot be aligned fails the merge.")
+        "help": help, "metavar": metavar, "show_default": show_default, "case_sensitive": case_sensitive, "solve": solve, "identity": identity})
 
 
 @dataclass(frozen=True)
@@ -59,7 +56,7 @@ class MergeOptions:
     """
 
     weight: str = option(DEFAULT_WEIGHT, "Weighting of code values: gaussian (measured best on real data), "
-                         "or the paper's hat.", show_default=True, choice=True, solve=True, identity=ALWAYS)
+                         "or the paper's hat.", show_default=True, solve=True, identity=ALWAYS)
     ignore_color: Optional[Tuple[int, int, int]] = option(
         None, "Treat pixels of exactly this colour (8-bit units) as invalid, e.g. 0,0,255.", metavar="R,G,B",
         solve=True, identity=ALWAYS)
@@ -72,7 +69,7 @@ class MergeOptions:
     seed: int = option(0, "Seed of the sample choice (0 or more).", show_default=True, solve=True)
     fit_exposures: str = option(
         "auto", "Estimate each frame's exposure from the pixels (with --response: measured through that curve): "
-        "auto uses the estimate only where the metadata is clearly wrong, on always, off never.", show_default=True, choice=True, solve=True, identity=CHANGED)
+        "auto uses the estimate only where the metadata is clearly wrong, on always, off never.", show_default=True, solve=True, identity=CHANGED)
     exposure_tolerance: Optional[float] = option(
         None, "Report frames whose metadata the pixels contradict by more than this [default: 0.5].",
         metavar="STOPS", solve=True, identity=CHANGED)
@@ -90,20 +87,22 @@ class MergeOptions:
                                   metavar="X,Y,W,H=VALUE", identity=CHANGED)
     absolute: bool = option(False, "Approximate absolute scale (cd/m^2) from f-number and ISO (meter constant "
                             "K = 12.5).", identity=CHANGED)
-    align: bool = option(False, ALIGN_HELP, identity=CHANGED)
+    align: bool = option(False, "Align hand-held frames to the middle exposure (shift, rotation, scale; see "
+                         "--align-model) before merging; a frame that cannot be aligned fails the merge.",
+                         identity=CHANGED)
     align_model: str = option("auto", "With --align: the motion model; auto picks the simplest one the residuals "
-                              "allow (shift, similarity, homography for wide lenses).", show_default=True, choice=True,
+                              "allow (shift, similarity, homography for wide lenses).", show_default=True,
                               identity=CHANGED)
     crop: bool = option(False, "With --align: crop to the area every frame covers.", identity=CHANGED)
     dtype: str = option("auto", "EXR sample type. auto: half when every merged value fits half floats "
                         "(measured on the data), else float. half: half always, rescaled by a power of two "
                         "recorded as hdrcl:halfScale when needed (other tools then read it scaled). "
-                        "float: float.", show_default=True, choice=True, identity=ALWAYS)
+                        "float: float.", show_default=True, identity=ALWAYS)
     compression: str = option("piz", "EXR compression: none, zip, zips, piz, pxr24, b44, b44a, dwaa, dwab (dwaa:45 "
                               "sets a level).", show_default=True, identity=ALWAYS)
     colorspace: str = option("rec709", "Colour space of the radiance file: linear Rec.709/sRGB primaries, or ACEScg "
                              "(AP1, for VFX pipelines; EXR or HDR), converted with OpenImageIO's colour "
-                             "management and tagged.", show_default=True, choice=True, case_sensitive=False,
+                             "management and tagged.", show_default=True, case_sensitive=False,
                              identity=CHANGED)
     reference_exposure: Optional[float] = option(
         None, "A value of 1.0 in the output is what a frame of this exposure (at the first frame's f-number and "
