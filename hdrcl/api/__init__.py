@@ -9,8 +9,11 @@ Nothing is loaded until a name is used (the command line's start-up stays light)
 - :mod:`hdrcl.api.batch` -- a whole shoot: ``run_batch``, ``describe_batch``,
   ``BatchOptions``, scanning and manifests;
 - :mod:`hdrcl.api.devices` -- the OpenCL devices;
-- :mod:`hdrcl.api.support` -- the small helpers the command line shares with the library
-  (time formats, option defaults, output checks).
+- :mod:`hdrcl.api.options` -- ``MergeOptions`` (each merge option declared once) and
+  ``DeliverOptions``;
+- :mod:`hdrcl.api.support`, :mod:`hdrcl.api.reports`, :mod:`hdrcl.api.pictures` -- the
+  library's functions as the command line calls them (messages naming its flags), and the
+  helpers it shares with the library (time formats, output checks), imported plainly.
 
 The command line (:mod:`hdrcl.cli`) imports only this package, the option table
 (:mod:`hdrcl.core.params`) and :mod:`hdrcl.errors` (``tests/test_layers.py``)::

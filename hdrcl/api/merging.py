@@ -161,11 +161,12 @@ def merge(images: Sequence[PathOrArray], times: Optional[Sequence[float]] = None
     Every option is checked before any file is decoded (:mod:`hdrcl.core.params`), a
     patch against the frames' size too.
     """
-    from hdrcl.core.params import check_image_size, check_images, check_options, to_rgb
+    from hdrcl.core.params import check, check_image_size, check_images, to_rgb
 
     images = check_images(images)
-    o = options.replace(**kwargs) if options is not None else MergeOptions(**kwargs)
-    check_options(frames=len(images), ghost_reference=o.ghost_reference, channel_order=channel_order)
+    o = options.replace(**kwargs) if options is not None else MergeOptions(**kwargs)  # checked once, here
+    o.check_frames(len(images))
+    check("channel_order", channel_order)
     arrays = bool(images) and all(isinstance(im, np.ndarray) for im in images)
     if o.absolute and arrays:
         raise UsageError("absolute needs the frames' f-number and ISO: give image files, not arrays")

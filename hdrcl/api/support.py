@@ -1,57 +1,31 @@
-"""The library's entry points as the command line calls them, loaded on first use.
+"""The library's entry points as the command line's ``merge`` and ``calibrate`` call them,
+and the helpers every command shares: time formats, exposure lists, the frames' headers,
+output checks, the luminance chain's options.
 
 The names of :mod:`hdrcl.api` itself rewrite their messages for Python callers
 (``times: ...`` rather than ``--times: ...``); the command line takes the same
-functions from here, where messages keep naming its flags. Besides them: the time
-format, the option defaults, output checks, the luminance chain's options, the report's
-figures. Each name is the library's own object (the table below says where it lives);
-nothing here has behaviour of its own.
+functions from here, where messages keep naming its flags. Each name is the library's
+own object, imported plainly (the layer test sees what the command line depends on);
+nothing here has behaviour of its own. The command line imports this module inside its
+commands, not at start-up. What only some commands need is in :mod:`hdrcl.api.reports`
+(``merge --report``, ``--deliver``) and :mod:`hdrcl.api.pictures` (``expose``,
+``tonemap``, ``falsecolor``, ``glare``, ``calibrate-luminance``).
 """
 from __future__ import annotations
 
-import importlib
+from hdrcl.core.bracket import read_infos
+from hdrcl.core.calibrate import calibrate
+from hdrcl.core.luminance.fisheye import chain_or_none
+from hdrcl.core.merge import merge_files
+from hdrcl.core.options import DeliverOptions, MergeOptions
+from hdrcl.core.response import Response
+from hdrcl.core.response_cache import misfit
+from hdrcl.io.atomic import check_output, check_output_folder
+from hdrcl.io.exposure_lists import parse_times
+from hdrcl.io.frames import read_info
+from hdrcl.io.metadata import format_time, header_exposures
+from hdrcl.io.outmeta import inapplicable_options
 
-#: name -> module that defines it.
-_WHERE = {
-    "MergeOptions": "hdrcl.core.options",
-    "DeliverOptions": "hdrcl.core.options",
-    "deliver_beside": "hdrcl.report.deliver",
-    "merge_files": "hdrcl.core.merge",
-    "calibrate": "hdrcl.core.calibrate",
-    "tonemap_file": "hdrcl.report.tonemap",
-    "write_quality_report": "hdrcl.report.merge_report",
-    "format_time": "hdrcl.io.metadata",
-    "parse_times": "hdrcl.io.exposure_lists",
-    "header_exposures": "hdrcl.io.metadata",
-    "read_info": "hdrcl.io.frames",
-    "read_infos": "hdrcl.core.bracket",
-    "check_output": "hdrcl.io.atomic",
-    "check_output_folder": "hdrcl.io.atomic",
-    "inapplicable_options": "hdrcl.io.outmeta",
-    "chain_or_none": "hdrcl.core.luminance.fisheye",
-    "parse_patch": "hdrcl.core.radiometry",
-    "Response": "hdrcl.core.response",
-    "misfit": "hdrcl.core.response_cache",
-    "DEFAULT_SMOOTHNESS": "hdrcl.core.response",
-    "DEFAULT_WEIGHT": "hdrcl.core.weights",
-    "WEIGHTS": "hdrcl.core.weights",
-    "THRESHOLD": "hdrcl.core.deghost",
-    "format_figures": "hdrcl.report.pages",
-    "falsecolor_file": "hdrcl.report.falsecolor",
-    "glare_of_file": "hdrcl.core.luminance.glare",
-    "glare_metrics": "hdrcl.core.luminance.glare",
-    "calibrate_luminance_file": "hdrcl.core.luminance.glare",
-    "calibrate_luminance_file": "hdrcl.core.luminance.glare",
-    "expose_file": "hdrcl.core.exposure.virtual",
-}
-
-__all__ = sorted(_WHERE)
-
-
-def __getattr__(name):
-    where = _WHERE.get(name)
-    if where is None:
-        raise AttributeError(f"module 'hdrcl.api.support' has no attribute {name!r}")
-    value = getattr(importlib.import_module(where), name)
-    globals()[name] = value
-    return value
+__all__ = ["DeliverOptions", "MergeOptions", "Response", "calibrate", "chain_or_none", "check_output",
+           "check_output_folder", "format_time", "header_exposures", "inapplicable_options",
+           "merge_files", "misfit", "parse_times", "read_info", "read_infos"]

@@ -9,32 +9,30 @@ import click
 
 from hdrcl.cli.group import main, say
 from hdrcl.cli.options import (
-    ALIGN_HELP,
-    align_model_option,
     Checked,
-    luminance_options,
-    deliver_options,
     InputFile,
     OutputFile,
     OutputFolder,
+    bits_option,
     check_inputs_not_outputs,
-    colorspace_option,
-    deghost_option,
+    deliver_options,
     device_option,
     exposure_options,
-    fit_options,
-    ghost_options,
-    output_options,
-    reference_exposure_option,
+    field_option,
+    json_option,
+    luminance_options,
+    merge_options,
+    report_option,
+    response_cache_option,
+    response_option,
     seconds_callback,
+    size_option,
     warn_inapplicable,
-    solve_options,
-    weight_option,
 )
 
 
 @main.command()
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@json_option()
 def devices(as_json):
     """List the OpenCL devices, the one hdrcl would use, and why the others were passed over.
 
@@ -94,11 +92,8 @@ def _alignment_line(a: dict) -> str:
 @click.option("-o", "--output", required=True, type=OutputFile((".json", ".rsp"), "response curve"),
               help="Response to write: hdrcl's JSON, or hdrgen's polynomials (.rsp).")
 @exposure_options
-@solve_options
-@weight_option
-@fit_options
-def calibrate(images, output, times, times_file, ignore_color, samples, smoothness, seed, weight, fit_exposures,
-              exposure_tolerance):
+@merge_options(solve=True)
+def calibrate(images, output, times, times_file, **solve):
     """Recover the camera response curve from one bracket set."""
     from hdrcl.api.support import calibrate as _calibrate
 
@@ -113,9 +108,7 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
                              "write the response as .json")
     if times is None and times_file is None:
         _say_exposure_lists(images)
-    resp = _calibrate(list(images), times, times_file=times_file, samples=samples, smoothness=smoothness,
-                      weight=weight, ignore_color=ignore_color, seed=seed, fit_exposures=fit_exposures,
-                      exposure_tolerance=exposure_tolerance)
+    resp = _calibrate(list(images), times, times_file=times_file, **solve)
     fit = resp.save(output)
     t = resp.tables()
     say(f"wrote {output}: {resp.bits}-bit response, channels {''.join(resp.channels)}, "
@@ -134,71 +127,43 @@ def calibrate(images, output, times, times_file, ignore_color, samples, smoothne
 @click.option("-o", "--output", required=True,
               type=OutputFile((".exr", ".hdr", ".tif", ".tiff", ".pfm"), "radiance map"),
               help="Radiance file: .exr, .hdr, .tif or .pfm.")
-@click.option("--response", "response", type=InputFile("response file"),
-              help="Response JSON from 'hdrcl calibrate' [default: calibrate from these images].")
+@response_option(help="Response JSON from 'hdrcl calibrate' [default: calibrate from these images].")
 @click.option("--save-response", type=OutputFile((".json",), "response curve"),
               help="Also write the response used.")
-@click.option("--response-cache", "response_cache", type=OutputFile((".json",), "response curve"),
-              help="Response JSON used as --response when it exists and fits these frames (bit depth, "
-                   "channels, camera model); otherwise calibrate from them and write the curve there (as "
-                   "hdrgen -r).")
+@response_cache_option(type=OutputFile((".json",), "response curve"),
+                       help="Response JSON used as --response when it exists and fits these frames (bit depth, "
+                            "channels, camera model); otherwise calibrate from them and write the curve there (as "
+                            "hdrgen -r).")
 @exposure_options
-@solve_options
-@weight_option
-@fit_options
-@deghost_option
+@merge_options
 @click.option("--ghost-mask", type=OutputFile((".png", ".tif", ".tiff"), "ghost mask"),
               help="With --deghost: write the ghost mask (PNG).")
 @click.option("--clip-mask", type=OutputFile((".png", ".tif", ".tiff"), "clip mask"),
               help="Write the pixels clipped in every frame (PNG): 255 clipped high (the value is the "
                    "lower bound the shortest frame proves), 128 black in every frame.")
-@ghost_options
-@click.option("--neutral", type=Checked("neutral"), metavar="X,Y,W,H",
-              help="White balance: make this patch (pixels) neutral grey.")
-@click.option("--reference-patch", type=Checked("reference_patch"), metavar="X,Y,W,H=VALUE",
-              help="Absolute scale: this patch's mean luminance is VALUE cd/m^2.")
-@click.option("--absolute", is_flag=True,
-              help="Approximate absolute scale (cd/m^2) from f-number and ISO (meter constant K = 12.5).")
-@click.option("--align", is_flag=True, help=ALIGN_HELP)
-@align_model_option
-@click.option("--crop", is_flag=True, help="With --align: crop to the area every frame covers.")
-@click.option("--report", "report", type=OutputFolder("report folder"),
-              help="Write a quality report here (sets accumulate in one folder): preview, input frames, "
-                   "camera settings, response, histogram and coverage plots, figures, index.html.")
-@output_options
-@reference_exposure_option
-@colorspace_option
+@report_option(help="Write a quality report here (sets accumulate in one folder): preview, input frames, "
+                    "camera settings, response, histogram and coverage plots, figures, index.html.")
 @click.option("--owner", default=None, metavar="TEXT",
               help="Owner / copyright recorded in the file [default: the frames' EXIF Copyright].")
 @luminance_options
 @deliver_options
-@device_option
-def merge(images, output, response, save_response, response_cache, times, times_file, ignore_color, samples, smoothness,
-          seed, weight, fit_exposures, exposure_tolerance, deghost, ghost_mask, clip_mask, ghost_threshold,
-          ghost_reference,
-          neutral, reference_patch, absolute, align, align_model, crop, report, dtype, compression,
-          reference_exposure, colorspace, owner, lens_circle, resize, fisheye_projection, vignetting, nd_filter, calibration_factor,
-          view, deliver, headroom, hdr_transfer, hdr_bits, device):
+def merge(images, output, response, save_response, response_cache, times, times_file, ghost_mask, clip_mask, report,
+          owner, lens_circle, resize, fisheye_projection, vignetting, nd_filter, calibration_factor, view, deliver,
+          headroom, hdr_transfer, hdr_bits, **options):
     """Merge one bracket set into a radiance map."""
     from hdrcl.api.support import DeliverOptions, MergeOptions, chain_or_none, format_time, merge_files
-    from hdrcl.core.params import check_options
 
     # Every option once, in the options object (hdrcl.core.options: the rules that tie
     # options together too), and a frame number against the images given, before any
     # warning or decoding.
-    opts = MergeOptions(weight=weight, ignore_color=ignore_color, samples=samples, smoothness=smoothness, seed=seed,
-                        fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance, deghost=deghost,
-                        ghost_threshold=ghost_threshold, ghost_reference=ghost_reference, neutral=neutral,
-                        reference_patch=reference_patch, absolute=absolute, align=align, align_model=align_model,
-                        crop=crop, dtype=dtype, compression=compression, colorspace=colorspace.lower(),
-                        reference_exposure=reference_exposure, device=device)
-    check_options(frames=len(images), ghost_reference=ghost_reference)
+    opts = MergeOptions.from_params(options)
+    opts.check_frames(len(images))
     delivery = DeliverOptions(deliver, headroom, hdr_transfer.lower(), int(hdr_bits))
     check_inputs_not_outputs(list(images) + [response, times_file], output, save_response, ghost_mask, clip_mask,
                              response_cache)
-    warn_inapplicable(output, dtype=dtype, compression=compression)
+    warn_inapplicable(output, "dtype", "compression")
     chain = chain_or_none(lens_circle=lens_circle, resize=resize, projection=fisheye_projection, vignetting=vignetting,
-                          nd_filter=nd_filter, calibration_factor=calibration_factor, view=view, device=device,
+                          nd_filter=nd_filter, calibration_factor=calibration_factor, view=view, device=opts.device,
                           output=output)  # factors checked against what the output's format holds
     delivery.refuse_with_luminance(chain is not None)
     if times is None and times_file is None:
@@ -237,24 +202,25 @@ def merge(images, output, response, save_response, response_cache, times, times_
     elif res.shifts is not None:
         say("  aligned: " + ", ".join(f"{os.path.basename(p)} ({dy:+d}, {dx:+d})"
                                       for p, (dy, dx) in zip(res.paths, res.shifts)) + " (dy, dx px)")
-    if deghost:
+    if opts.deghost:
         unresolved = cnt.get("ghost_unresolved")
         say(f"  ghosts: {100.0 * cnt.get('ghost', 0) / max(res.shape[0] * res.shape[1], 1):.2f} % of pixels taken from the "
-            f"{ghost_reference or 'middle'} exposure"
+            f"{opts.ghost_reference or 'middle'} exposure"
             + (f" ({unresolved} pixel-channels unresolved)" if unresolved else ""))
     if cnt.get("clipped_high") or cnt.get("clipped_low"):
         say(f"  clipped in every frame: {cnt['clipped_high']} high, {cnt['clipped_low']} low (pixel-channels)")
     if delivery:
-        from hdrcl.api.support import deliver_beside
+        from hdrcl.api.reports import deliver_beside
 
-        for d in deliver_beside(output, res.radiance, delivery, frames=_frames_of(res, ignore_color)):
+        for d in deliver_beside(output, res.radiance, delivery, frames=_frames_of(res, opts.ignore_color)):
             say(f"  wrote {d['path']}: {d['kind']}, {d['bytes']} bytes"
                 + (f", headroom {d['headroom']:g} stops" if "headroom" in d else ""))
         res.radiance = None
     if report:
-        from hdrcl.api.support import format_figures, write_quality_report
+        from hdrcl.api.reports import format_figures, write_quality_report
 
-        fig, _entry = write_quality_report(res, report, ignore_color=ignore_color, weight=weight, device=device)
+        fig, _entry = write_quality_report(res, report, ignore_color=opts.ignore_color, weight=opts.weight,
+                                           device=opts.device)
         say(f"quality report: {os.path.join(report, 'index.html')}")
         for label, text in format_figures(fig):
             say(f"  {label}: {text}")
@@ -320,17 +286,17 @@ def _from_cache(path, images, response, save_response):
 @click.argument("radiance", type=InputFile("radiance map"))
 @click.option("-o", "--output", required=True,
               type=OutputFile((".jpg", ".jpeg", ".png", ".tif", ".tiff"), "photograph"), help=".jpg, .png or .tif")
-@click.option("--response", required=True, type=InputFile("response file"), help="Response JSON.")
+@response_option(required=True)
 @click.option("--time", "time_", required=True, callback=seconds_callback, metavar="SECONDS",
               help="Exposure time of the virtual photograph, e.g. 1/30.")
-@click.option("--bits", type=click.Choice(["8", "16"]), default=None,
-              help="Output depth [default: the response's; JPEG is always 8].")
+@bits_option(default=None, help="Output depth [default: the response's; JPEG is always 8].")
 @click.option("--motion-blur", type=Checked("motion_blur"), metavar="DX,DY", default=None,
               help="Blur the radiance along this vector (pixels) before the exposure, as a moving camera would.")
 @device_option
 def expose(radiance, output, response, time_, bits, motion_blur, device):
     """Render a virtual photograph from a radiance map."""
-    from hdrcl.api.support import Response, expose_file
+    from hdrcl.api.pictures import expose_file
+    from hdrcl.api.support import Response
     from hdrcl.core.params import check_expose
 
     check_inputs_not_outputs([radiance, response], output)
@@ -343,9 +309,9 @@ def expose(radiance, output, response, time_, bits, motion_blur, device):
 
 @main.command()
 @click.argument("folder", type=OutputFolder("demo folder"))
-@click.option("--size", "size", type=Checked("size"), default="768x512", show_default=True, metavar="WxH")
+@size_option(default="768x512")
 @click.option("--frames", type=Checked("frames"), default=7, show_default=True, help="2 to 32.")
-@click.option("--seed", type=Checked("seed"), default=0, show_default=True)
+@field_option("seed", help=None)
 @click.option("--no-shoot", is_flag=True, help="Skip the sample shoot and its batch.")
 @device_option
 def demo(folder, size, frames, seed, no_shoot, device):

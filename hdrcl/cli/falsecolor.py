@@ -33,7 +33,7 @@ def falsecolor(luminance_map, output, scale, hi, lo, palette_name, contour, ndiv
     """False-colour picture of a luminance map (.hdr in Radiance's 179 lm/W convention,
     or an EXR in cd/m2 written by 'hdrcl merge --absolute' or the fisheye chain), in
     Radiance's colours."""
-    from hdrcl.api.support import falsecolor_file
+    from hdrcl.api.pictures import falsecolor_file
 
     check_inputs_not_outputs([luminance_map], output)
     lo, hi = falsecolor_file(luminance_map, output, scale=scale, lo=lo, hi=hi, palette_name=palette_name,

@@ -5,8 +5,7 @@ from __future__ import annotations
 import click
 
 from hdrcl.cli.group import main, say
-from hdrcl.cli.options import (ALIGN_HELP, InputFile, OutputFile, align_model_option, check_inputs_not_outputs,
-                               device_option, ignore_color_option)
+from hdrcl.cli.options import InputFile, OutputFile, check_inputs_not_outputs, device_option, field_option
 
 _EXPONENT = click.FloatRange(0, 100)
 
@@ -22,9 +21,10 @@ _EXPONENT = click.FloatRange(0, 100)
 @click.option("--exposedness", type=_EXPONENT, default=1.0, show_default=True, metavar="W",
               help="Exponent of the well-exposedness measure (closeness to mid-grey, sigma 0.2); "
                    "0 turns it off (OpenCV's MergeMertens default).")
-@click.option("--align", is_flag=True, help=ALIGN_HELP.replace("merging", "fusing").replace("the merge", "the fusion"))
-@align_model_option
-@ignore_color_option
+@field_option("align", help=("Align hand-held frames to the middle exposure (shift, rotation, scale; see "
+                             "--align-model) before fusing; a frame that cannot be aligned fails the fusion."))
+@field_option("align_model")
+@field_option("ignore_color")
 @device_option
 def fuse(images, output, contrast, saturation, exposedness, align, align_model, ignore_color, device):
     """Fuse bracketed photographs into one natural-looking picture (exposure fusion:

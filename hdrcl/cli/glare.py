@@ -8,21 +8,20 @@ import json
 import click
 
 from hdrcl.cli.group import main, say
-from hdrcl.cli.options import InputFile, OutputFile, check_inputs_not_outputs
+from hdrcl.cli.options import InputFile, OutputFile, check_inputs_not_outputs, json_option, view_option
 
 
 @main.command()
 @click.argument("luminance_map", type=InputFile("luminance map"))
-@click.option("--json", "as_json", is_flag=True, help="Print the figures and the sources as one JSON object.")
-@click.option("--view", default=None, metavar="VIEW",
-              help="Radiance view of the map (e.g. '-vta -vh 180 -vv 180') [default: its VIEW=].")
+@json_option(help="Print the figures and the sources as one JSON object.")
+@view_option(help="Radiance view of the map (e.g. '-vta -vh 180 -vv 180') [default: its VIEW=].")
 @click.option("--threshold", type=float, default=2000.0, show_default=True, metavar="B",
               help="Glare source threshold as evalglare's -b: above 100 a luminance in cd/m2, "
                    "otherwise a factor of the map's average luminance (evalglare's older default: 5).")
 def glare(luminance_map, as_json, view, threshold):
     """Glare metrics of a calibrated fisheye map with VIEW= (hdrcl's luminance chain, or a
     Radiance picture in its 179 lm/W convention): as evalglare computes them."""
-    from hdrcl.api.support import glare_of_file
+    from hdrcl.api.pictures import glare_of_file
 
     res = glare_of_file(luminance_map, view=view, threshold=threshold)
     if as_json:
@@ -48,11 +47,11 @@ def glare(luminance_map, as_json, view, threshold):
               help="Luminance measured on a patch (cd/m2), against the map's mean over --patch.")
 @click.option("--patch", default=None, metavar="COLUMN,ROW,RADIUS",
               help="The measured spot in pixels of the map (from its top left).")
-@click.option("--view", default=None, metavar="VIEW", help="Radiance view of the map [default: its VIEW=].")
+@view_option(help="Radiance view of the map [default: its VIEW=].")
 def calibrate_luminance(luminance_map, output, illuminance, luminance, patch, view):
     """Derive the calibration factor K from a measured vertical illuminance or patch
     luminance and write it as a .cal (give it to --calibration-factor, or to pcomb -f)."""
-    from hdrcl.api.support import calibrate_luminance_file
+    from hdrcl.api.pictures import calibrate_luminance_file
 
     check_inputs_not_outputs([luminance_map], output)
     r = calibrate_luminance_file(luminance_map, output, illuminance=illuminance, luminance=luminance, patch=patch,

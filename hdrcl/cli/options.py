@@ -1,4 +1,4 @@
-"""Options shared by several commands (defined once, used everywhere), and the
+"""Options shared by several commands (declared once, used everywhere), and the
 parameter types that check files the way the error contract wants: one line naming the
 file, exit 3 for an input that cannot be read, exit 2 for an output that cannot be
 written (click's own path checks print three lines and always exit 2).
@@ -9,7 +9,7 @@ import os
 
 import click
 
-from hdrcl.api.support import DEFAULT_SMOOTHNESS, DEFAULT_WEIGHT, WEIGHTS
+from hdrcl.api.options import MergeOptions
 
 
 class Checked(click.ParamType):
@@ -152,63 +152,90 @@ def check_inputs_not_outputs(inputs, *outputs) -> None:
             check_output(out, [p for p in inputs if p is not None])
 
 
+def shared(*decls, **attrs):
+    """One declaration of a flag that several commands take: ``shared(...)(**variant)`` is
+    its click decorator, ``variant`` what one command declares otherwise (its ``help``
+    where the meaning differs, a default, a type; a parameter name as ``names``)."""
+    def option(*names, **variant):
+        return click.option(*decls, *names, **{**attrs, **variant})
+
+    return option
+
+
+_FIELDS = {f.name: f for f in MergeOptions.declared()}
+
+
+def field_option(name: str, **variant):
+    """The click option of the merge option ``name``, made from its one declaration
+    (:class:`hdrcl.core.options.MergeOptions`: default, help, metavar; kind and choices from
+    the option table); ``variant`` as :func:`shared`'s."""
+    from hdrcl.core.params import TABLE, choices
+
+    f, kind = _FIELDS[name], TABLE[name].kind
+    meta = f.metadata
+    attrs = {"default": f.default, "help": meta["help"]}
+    if meta["metavar"]:
+        attrs["metavar"] = meta["metavar"]
+    if meta["show_default"]:
+        attrs["show_default"] = True
+    if kind == "bool":
+        attrs["is_flag"] = True
+    elif kind == "choice":
+        attrs["type"] = click.Choice(list(choices(name)), case_sensitive=meta["case_sensitive"])
+    elif kind != "text":
+        attrs["type"] = Checked(name)
+    return click.option("--" + name.replace("_", "-"), name, **{**attrs, **variant})
+
+
+def merge_options(f=None, *, solve: bool = False):
+    """Every merge option (``merge``, ``batch``), or with ``solve`` those of the response
+    solve (``calibrate``), in the order declared; the command takes them as keywords and
+    makes one :class:`~hdrcl.core.options.MergeOptions` of them (``MergeOptions.from_params``)."""
+    def decorate(fn):
+        for name in reversed(list(_FIELDS)):
+            if not solve or _FIELDS[name].metadata["solve"]:
+                fn = field_option(name)(fn)
+        return fn
+
+    return decorate if f is None else decorate(f)
+
+
+def device_option(f):
+    """``--device`` (commands without the merge options)."""
+    return field_option("device")(f)
+
+
+#: ``--times-file`` (merge, calibrate, batch, scan); batch and scan take it for the frames it lists.
+times_file_option = shared("--times-file", type=InputFile("times file"),
+                           help="Exposure list: HDRShop columns (file, seconds, 1/shutter, f-stop, gain dB, ND) "
+                                "or 'file seconds' lines; it wins over EXIF [default: for frames without EXIF "
+                                "exposure time, image_list.txt or times.txt beside them].")
+FOR_THE_FRAMES_IT_LISTS = ("Exposure list: HDRShop columns or 'file seconds' lines; it wins over EXIF for the "
+                           "frames it lists [default: for frames without EXIF exposure time, image_list.txt or "
+                           "times.txt beside them].")
+#: ``--json``: what is printed as JSON, said by each command.
+json_option = shared("--json", "as_json", is_flag=True, help="Print JSON.")
+#: ``--response``: a response file (what it is used for, said by each command).
+response_option = shared("--response", "response", type=InputFile("response file"), help="Response JSON.")
+#: ``--response-cache``: merge's is a file, batch's a folder of them.
+response_cache_option = shared("--response-cache", "response_cache")
+#: ``--report``: the quality report's folder.
+report_option = shared("--report", type=OutputFolder("report folder"))
+#: ``--size``: WxH of what a command generates.
+size_option = shared("--size", "size", type=Checked("size"), show_default=True, metavar="WxH")
+#: ``--bits``: depth of a written photograph.
+bits_option = shared("--bits", type=click.Choice(["8", "16"]))
+#: ``--view``: a Radiance view of a luminance map.
+view_option = shared("--view", default=None, metavar="VIEW")
+
+
 def exposure_options(f):
-    f = click.option("--ignore-color", type=Checked("ignore_color"), metavar="R,G,B",
-                     help="Treat pixels of exactly this colour (8-bit units) as invalid, e.g. 0,0,255.")(f)
-    f = click.option("--times-file", type=InputFile("times file"),
-                     help="Exposure list: HDRShop columns (file, seconds, 1/shutter, f-stop, gain dB, ND) "
-                          "or 'file seconds' lines; it wins over EXIF [default: for frames without EXIF "
-                          "exposure time, image_list.txt or times.txt beside them].")(f)
+    """``--times`` and ``--times-file`` (``calibrate``, ``merge``)."""
+    f = times_file_option()(f)
     f = click.option("--times", callback=_times, metavar="T1,T2,...",
                      help="Exposure times in seconds, one per image, e.g. 1/250,1/60,1/15 "
                           "(overrides --times-file and EXIF).")(f)
     return f
-
-
-def solve_options(f):
-    f = click.option("--seed", type=Checked("seed"), default=0, show_default=True,
-                     help="Seed of the sample choice (0 or more).")(f)
-    f = click.option("--smoothness", type=Checked("smoothness"), default=None,
-                     help="Smoothness lambda of the response solve [default: "
-                          + ", ".join(f"{v:g} with --weight {k}" for k, v in DEFAULT_SMOOTHNESS.items())
-                          + "; 0.001 to 1e6].")(f)
-    f = click.option("--samples", type=Checked("samples"), default=None,
-                     help="Calibration pixels [default: enough for the bit depth, at least 1000].")(f)
-    return f
-
-
-def weight_option(f):
-    return click.option("--weight", type=click.Choice(WEIGHTS), default=DEFAULT_WEIGHT, show_default=True,
-                        help="Weighting of code values: gaussian (measured best on real data), "
-                             "or the paper's hat.")(f)
-
-
-def device_option(f):
-    return click.option("--device", default=None, metavar="ID|NAME",
-                        help="OpenCL device: 'P:D' from 'hdrcl devices', or part of its name "
-                             "[default: PYOPENCL_CTX, else the first GPU, else the first CPU driver that "
-                             "builds the kernels: Intel's CPU runtime, then PoCL (HDRCL_CPU_DRIVERS "
-                             "changes the order)].")(f)
-
-
-def output_options(f):
-    f = click.option("--compression", type=Checked("compression"), default="piz", show_default=True,
-                     help="EXR compression: none, zip, zips, piz, pxr24, b44, b44a, dwaa, dwab (dwaa:45 sets a level).")(f)
-    f = click.option("--dtype", type=click.Choice(["auto", "half", "float"]), default="auto", show_default=True,
-                     help="EXR sample type. auto: half when every merged value fits half floats "
-                          "(measured on the data), else float. half: half always, rescaled by a power of two "
-                          "recorded as hdrcl:halfScale when needed (other tools then read it scaled). "
-                          "float: float.")(f)
-    return f
-
-
-def reference_exposure_option(f):
-    """What 1.0 means in the output (``merge`` and ``batch``)."""
-    return click.option("--reference-exposure", type=Checked("reference_exposure"), default=None, metavar="SECONDS",
-                        help="A value of 1.0 in the output is what a frame of this exposure (at the first "
-                             "frame's f-number and ISO; batch: the shoot's) records as white [default: the "
-                             "power of two nearest the middle exposure; batch: one per camera for the "
-                             "whole shoot]. Recorded as expTime / EXPOSURE=.")(f)
 
 
 seconds_callback = _seconds
@@ -227,93 +254,12 @@ def grouping_options(f):
     return f
 
 
-def batch_merge_options(f):
-    """The options of ``merge`` that ``batch`` applies to every set."""
-    f = click.option("--times-file", type=InputFile("times file"),
-                     help="Exposure list: HDRShop columns or 'file seconds' lines; it wins over EXIF for the "
-                          "frames it lists [default: for frames without EXIF exposure time, image_list.txt or "
-                          "times.txt beside them].")(f)
-    f = click.option("--fit-exposures", type=click.Choice(["auto", "on", "off"]), default="auto",
-                     show_default=True,
-                     help="Measure each frame's exposure from the pixels through the set's (pooled or given) "
-                          "response: auto uses the measured value only where the metadata is clearly wrong "
-                          "(and says so per frame), on always, off never (as merge).")(f)
-    f = click.option("--exposure-tolerance", type=Checked("exposure_tolerance"), default=None, metavar="STOPS",
-                     help="Report frames whose metadata the pixels contradict by more than this [default: 0.5], "
-                          "as merge.")(f)
-    f = click.option("--neutral", type=Checked("neutral"), metavar="X,Y,W,H",
-                     help="White balance every set: make this patch (pixels) neutral grey.")(f)
-    f = click.option("--crop", is_flag=True, help="With --align: crop to the area every frame covers.")(f)
-    f = align_model_option(f)
-    f = click.option("--align", is_flag=True, help=ALIGN_HELP)(f)
-    return f
-
-
-ALIGN_HELP = ("Align hand-held frames to the middle exposure (shift, rotation, scale; see --align-model) "
-              "before merging; a frame that cannot be aligned fails the merge.")
-
-
-def align_model_option(f):
-    """``--align-model``: the motion model of ``--align`` (hdrcl.core.align.mtb)."""
-    return click.option("--align-model", type=click.Choice(["auto", "shift", "similarity", "homography"]),
-                        default="auto", show_default=True,
-                        help="With --align: the motion model; auto picks the simplest one the residuals "
-                             "allow (shift, similarity, homography for wide lenses).")(f)
-
-
 def output_format_option(f):
     """``--format``: the file type of batch outputs."""
     return click.option("--format", "output_format", type=click.Choice(["exr", "hdr"]), default="exr",
                         show_default=True,
                         help="File type of the outputs: OpenEXR, or Radiance RGBE (.hdr; with the luminance "
                              "options, Radiance's 179 lm/W convention).")(f)
-
-
-def ignore_color_option(f):
-    """``--ignore-color`` alone (commands without --times), parsed to an (R, G, B) tuple."""
-    return click.option("--ignore-color", type=Checked("ignore_color"), metavar="R,G,B",
-                        help="Treat pixels of exactly this colour (8-bit units) as invalid, e.g. 0,0,255.")(f)
-
-
-def fit_options(f):
-    f = click.option("--exposure-tolerance", type=Checked("exposure_tolerance"), default=None, metavar="STOPS",
-                     help="Report frames whose metadata the pixels contradict by more than this [default: 0.5].")(f)
-    f = click.option("--fit-exposures", type=click.Choice(["auto", "on", "off"]), default="auto",
-                     show_default=True,
-                     help="Estimate each frame's exposure from the pixels (with --response: measured "
-                          "through that curve): auto uses the estimate only where the metadata is clearly "
-                          "wrong, on always, off never.")(f)
-    return f
-
-
-def deghost_option(f):
-    """``--deghost`` (the flag alone; ``merge`` adds ``--ghost-mask`` for its one output)."""
-    return click.option("--deghost", is_flag=True,
-                        help="Take pixels where the frames disagree (moving objects) beyond the set's own "
-                             "learnt residuals from one exposure alone.")(f)
-
-
-def ghost_options(f):
-    """``--ghost-threshold`` and ``--ghost-reference`` (with ``--deghost``)."""
-    from hdrcl.api.support import THRESHOLD
-
-    f = click.option("--ghost-threshold", type=Checked("ghost_threshold"), default=None,
-                     help="With --deghost: departure, in robust spreads of the set's own frame-to-frame "
-                          f"residuals, that makes a ghost [default: {THRESHOLD:g}].")(f)
-    f = click.option("--ghost-reference", type=Checked("ghost_reference"), metavar="middle|shortest|longest|N",
-                     default=None,
-                     help="With --deghost: the frame ghost pixels are taken from; N counts the images "
-                          "as given, from 0 [default: middle].")(f)
-    return f
-
-
-def colorspace_option(f):
-    """``--colorspace`` of radiance outputs (``merge``, ``batch``)."""
-    return click.option("--colorspace", type=click.Choice(["rec709", "acescg"], case_sensitive=False),
-                        default="rec709", show_default=True,
-                        help="Colour space of the radiance file: linear Rec.709/sRGB primaries, or ACEScg "
-                             "(AP1, for VFX pipelines; EXR or HDR), converted with OpenImageIO's colour "
-                             "management and tagged.")(f)
 
 
 def given(name: str):
@@ -325,13 +271,14 @@ def given(name: str):
     return ctx.params.get(name)
 
 
-def warn_inapplicable(output: str, **options) -> None:
-    """Warn (once each) about explicitly given options the output type ignores."""
+def warn_inapplicable(output: str, *names: str) -> None:
+    """Warn (once each) about the options ``names`` the output type ignores, where given
+    explicitly."""
     import logging
 
     from hdrcl.api.support import inapplicable_options
 
-    for msg in inapplicable_options(output, **{k: given(k) for k in options}):
+    for msg in inapplicable_options(output, **{k: given(k) for k in names}):
         logging.getLogger("hdrcl.cli").warning("%s", msg)
 
 
@@ -355,8 +302,8 @@ def luminance_options(f):
         click.option("--calibration-factor", metavar="FILE.cal|K",
                      help="With --lens-circle: photometric calibration factor against a luminance meter, or its "
                           ".cal file."),
-        click.option("--view", metavar='"-vta -vh 186 -vv 186"',
-                     help="With --lens-circle: the Radiance VIEW= of the map [default with --fisheye-projection: "
+        view_option(metavar='"-vta -vh 186 -vv 186"',
+                    help="With --lens-circle: the Radiance VIEW= of the map [default with --fisheye-projection: "
                           "-vta -vh 180 -vv 180]; -vta views get the vertical illuminance."),
     ]
     for opt in reversed(opts):

@@ -4,7 +4,7 @@ from __future__ import annotations
 import click
 
 from hdrcl.cli.group import main, say
-from hdrcl.cli.options import Checked, InputFile, OutputFile, check_inputs_not_outputs, device_option
+from hdrcl.cli.options import Checked, InputFile, OutputFile, bits_option, check_inputs_not_outputs, device_option
 
 
 @main.command()
@@ -18,8 +18,7 @@ from hdrcl.cli.options import Checked, InputFile, OutputFile, check_inputs_not_o
                    "Drago 2003 adaptive logarithmic, or Hable's filmic curve.")
 @click.option("--exposure", type=Checked("exposure"), default=0.0, show_default=True, metavar="EV",
               help="Brighten (+) or darken (-) the scene by this many stops before the operator.")
-@click.option("--bits", type=click.Choice(["8", "16"]), default="8", show_default=True,
-              help="Output depth (JPEG holds 8 bits only).")
+@bits_option(default="8", show_default=True, help="Output depth (JPEG holds 8 bits only).")
 @device_option
 def tonemap(radiance, output, operator, exposure, bits, device):
     """Tone-map a radiance map (EXR, HDR, TIFF, PFM) into a picture for display.
@@ -29,7 +28,7 @@ def tonemap(radiance, output, operator, exposure, bits, device):
     """
     import time
 
-    from hdrcl.api.support import tonemap_file
+    from hdrcl.api.pictures import tonemap_file
 
     check_inputs_not_outputs([radiance], output)
     t0 = time.perf_counter()

@@ -16,25 +16,24 @@ import click
 from hdrcl.cli.group import main, say
 from hdrcl.cli.group import quiet as is_quiet
 from hdrcl.cli.options import (
+    FOR_THE_FRAMES_IT_LISTS,
     Checked,
-    InputFile,
     InputPath,
     OutputFile,
     OutputFolder,
     sets_callback,
-    colorspace_option,
     deliver_options,
-    deghost_option,
-    device_option,
+    field_option,
     grouping_options,
-    ignore_color_option,
-    batch_merge_options,
+    json_option,
     luminance_options,
+    merge_options,
     output_format_option,
-    output_options,
-    reference_exposure_option,
-    solve_options,
-    weight_option,
+    report_option,
+    response_cache_option,
+    response_option,
+    size_option,
+    times_file_option,
 )
 
 # ------------------------------------------------------------------------- scan
@@ -45,14 +44,12 @@ from hdrcl.cli.options import (
 @grouping_options
 @click.option("-o", "--output", type=OutputFile((".json",), "manifest"),
               help="Write the manifest (JSON, paths relative to its folder) for 'hdrcl batch'.")
-@click.option("--json", "as_json", is_flag=True, help="Print the grouping as one JSON object.")
+@json_option(help="Print the grouping as one JSON object.")
 @click.option("--explain", is_flag=True,
               help="Show every frame with the reason it joined its set, and why each set ended.")
 @click.option("--content/--no-content", default=True, show_default=True,
               help="Compare the frames' content (small exposure-normalised thumbnails) as well as their headers.")
-@click.option("--times-file", type=InputFile("times file"),
-              help="Exposure list; it wins over EXIF for the frames it lists [default: for frames without "
-                   "EXIF exposure time, image_list.txt or times.txt beside them].")
+@times_file_option(help=FOR_THE_FRAMES_IT_LISTS)
 @click.pass_context
 def scan(ctx, source, recursive, frames_per_set, gap, output, as_json, explain, content, times_file):
     """Group the photographs of a folder into bracket sets.
@@ -184,8 +181,7 @@ class _Progress:
 @click.argument("source", type=InputPath("manifest"))
 @click.option("-o", "--output", "out_dir", required=True, type=OutputFolder("output folder"),
               help="Output folder (created): one EXR and one JPEG preview per set, report.json.")
-@click.option("--response", type=InputFile("response file"),
-              help="Response JSON for every set [default: calibrate one per camera and ISO (sets without "
+@response_option(help="Response JSON for every set [default: calibrate one per camera and ISO (sets without "
                    "camera make and model: one per folder), pooled over the shoot].")
 @click.option("--sets", "sets", metavar="A-B[,C...]", callback=sets_callback,
               help="Only these manifest indices (ranges are clamped to the sets that exist), "
@@ -205,17 +201,16 @@ class _Progress:
 @click.option("--dry-run", is_flag=True,
               help="Print the plan (each set's frames, exposures, output, response) and exit; nothing is "
                    "merged or written. With --json, as JSON.")
-@click.option("--response-cache", "response_cache", type=OutputFolder("response cache"),
-              help="Folder of responses, one per camera and ISO (<camera>_ISO_<n>.response.json): one found "
+@response_cache_option(type=OutputFolder("response cache"),
+                       help="Folder of responses, one per camera and ISO (<camera>_ISO_<n>.response.json): one found "
                    "there that fits is used as it is, else the curve is calibrated and saved there.")
 @click.option("--calibrate-only", is_flag=True,
               help="Only solve (or load) and save the responses, e.g. once before submitting farm chunks.")
-@click.option("--report", "report_dir", type=OutputFolder("report folder"),
-              help="Write a quality report into this folder: per set a response plot, a coverage map, a "
+@report_option("report_dir", help="Write a quality report into this folder: per set a response plot, a coverage map, a "
                    "preview and the figures; an HTML contact sheet (index.html) over the shoot.")
 @click.option("--report-json", "report_json", type=OutputFile((".json",), "JSON report", check_folder=False),
               help="Write the JSON report here [default: OUT_DIR/report.json].")
-@click.option("--json", "as_json", is_flag=True, help="Print the report JSON on stdout.")
+@json_option(help="Print the report JSON on stdout.")
 @click.option("--preview/--no-preview", default=True, show_default=True,
               help="Write a tone-mapped JPEG beside each EXR.")
 @click.option("--preview-size", type=Checked("preview_size"), default=512, show_default=True, metavar="PIXELS",
@@ -223,26 +218,16 @@ class _Progress:
 @click.option("--tonemap", type=click.Choice(["reinhard", "reinhard-local", "drago", "filmic"]), default="reinhard",
               show_default=True, help="Tone-mapping operator of the previews (as 'hdrcl tonemap').")
 @grouping_options
-@solve_options
-@weight_option
-@ignore_color_option
-@deghost_option
-@batch_merge_options
-@output_options
-@reference_exposure_option
-@colorspace_option
+@times_file_option(help=FOR_THE_FRAMES_IT_LISTS)
+@merge_options
 @output_format_option
 @luminance_options
 @deliver_options
-@device_option
 @click.pass_context
 def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force, name, dry_run, response_cache,
-          calibrate_only, report_dir,
-          report_json, as_json, preview, preview_size, tonemap, recursive, frames_per_set, gap, samples, smoothness,
-          seed, weight, ignore_color, deghost, align, align_model, crop, neutral, exposure_tolerance, fit_exposures,
-          times_file, dtype,
-          compression, reference_exposure, colorspace, output_format, lens_circle, resize, fisheye_projection,
-          vignetting, nd_filter, calibration_factor, view, deliver, headroom, hdr_transfer, hdr_bits, device):
+          calibrate_only, report_dir, report_json, as_json, preview, preview_size, tonemap, recursive, frames_per_set,
+          gap, times_file, output_format, lens_circle, resize, fisheye_projection, vignetting, nd_filter,
+          calibration_factor, view, deliver, headroom, hdr_transfer, hdr_bits, **options):
     """Merge every bracket set of a folder or manifest into OUT_DIR.
 
     SOURCE is a folder of photographs (grouped as 'hdrcl scan' does; a folder whose
@@ -259,7 +244,8 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
     finish the rest).
     """
     from hdrcl.api.batch import BatchOptions, Cancelled, run_batch
-    from hdrcl.api.support import MergeOptions, chain_or_none
+    from hdrcl.api.options import MergeOptions
+    from hdrcl.api.support import chain_or_none
 
     def _cal(value):  # a .cal file by its absolute path: workers may run elsewhere
         return os.path.abspath(value) if isinstance(value, str) and value.lower().endswith(".cal") else value
@@ -276,15 +262,9 @@ def batch(ctx, source, out_dir, response, sets, jobs, scheduler, retries, force,
         from hdrcl.api.support import check_output
 
         check_output(report_json, what="JSON report")  # before any set is merged
-    merge = MergeOptions(weight=weight, samples=samples, smoothness=smoothness, seed=seed, ignore_color=ignore_color,
-                         deghost=deghost, dtype=dtype, compression=compression, colorspace=colorspace.lower(),
-                         device=device, align=align, crop=crop, neutral=neutral, fit_exposures=fit_exposures,
-                         reference_exposure=reference_exposure, align_model=align_model,
-                         exposure_tolerance=exposure_tolerance)
-    opts = BatchOptions.wrap(merge, preview=preview, preview_size=preview_size, tonemap=tonemap,
-                             report_dir=report_dir, output_format=output_format, luminance=luminance,
-                             deliver=deliver, headroom=headroom, hdr_transfer=hdr_transfer.lower(),
-                             hdr_bits=int(hdr_bits))
+    opts = BatchOptions(MergeOptions.from_params(options), preview=preview, preview_size=preview_size,
+                        tonemap=tonemap, report_dir=report_dir, output_format=output_format, luminance=luminance,
+                        deliver=deliver, headroom=headroom, hdr_transfer=hdr_transfer.lower(), hdr_bits=int(hdr_bits))
     if dry_run:
         from hdrcl.api.batch import describe_batch
 
@@ -391,9 +371,8 @@ def _summary(rep) -> None:
 
 @main.command("sample-shoot")
 @click.argument("folder", type=OutputFolder("folder"))
-@click.option("--size", type=Checked("size"), default="192x128", show_default=True, metavar="WxH",
-              help="Size of each photograph.")
-@click.option("--seed", type=Checked("seed"), default=0, show_default=True)
+@size_option(default="192x128", help="Size of each photograph.")
+@field_option("seed", help=None)
 def sample_shoot(folder, size, seed):
     """Write a small sample shoot of JPEGs with EXIF to try scan and batch on.
 

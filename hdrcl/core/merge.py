@@ -14,40 +14,28 @@ from hdrcl.core.calibrate import calibrate, exposures_used
 from hdrcl.core.options import MergeOptions
 from hdrcl.core.result import MergeResult, provenance  # noqa: F401 (public here too)
 from hdrcl.core.response import Response
-from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.errors import UsageError
 
 logger = logging.getLogger(__name__)
 
 
-def merge_bracket(
-    bracket: Bracket,
-    response: Optional[Response] = None,
-    *,
-    weight: str = DEFAULT_WEIGHT,
-    samples: Optional[int] = None,
-    smoothness: Optional[float] = None,
-    seed: int = 0,
-    device: Optional[str] = None,
-    fit_exposures: str = "auto",
-    exposure_tolerance: Optional[float] = None,
-    deghost: bool = False,
-    ghost_threshold: Optional[float] = None,
-    ghost_reference=None,
-) -> MergeResult:
+def merge_bracket(bracket: Bracket, response: Optional[Response] = None, options: Optional[MergeOptions] = None,
+                  **kwargs) -> MergeResult:
     """Fuse a loaded :class:`Bracket`, calibrating from it when no response is given
     (then with the exposures that calibration refined, see :func:`calibrate`).
-    ``deghost``, ``ghost_threshold`` and ``ghost_reference`` as
-    :func:`hdrcl.core.fusion.fuse_frames`."""
+
+    ``options`` is a :class:`hdrcl.core.options.MergeOptions`; its fields may also be given
+    as keywords (``weight=``, ``deghost=``, ``ghost_reference=`` ...; they override
+    ``options``'s; an unknown keyword is a TypeError). In memory the response solve's
+    options, ``fit_exposures``/``exposure_tolerance``, the deghosting's and ``device``
+    apply (as :func:`hdrcl.core.fusion.fuse_frames`); the file's and the alignment's are
+    :func:`merge_files`'s."""
     from hdrcl.core.executor import execute
-    from hdrcl.core.params import check_options
     from hdrcl.core.plan import plan_merge
     from hdrcl.core.sources import response_source
 
-    o = MergeOptions(weight=weight, samples=samples, smoothness=smoothness, seed=seed, device=device,
-                     fit_exposures=fit_exposures, exposure_tolerance=exposure_tolerance, deghost=deghost,
-                     ghost_threshold=ghost_threshold, ghost_reference=ghost_reference)
-    check_options(frames=len(bracket.frames), ghost_reference=ghost_reference)
+    o = options.replace(**kwargs) if options is not None else MergeOptions(**kwargs)
+    o.check_frames(len(bracket.frames))
     return execute(plan_merge(None, o, response_source(response), bracket=bracket))
 
 
@@ -154,16 +142,16 @@ def merge_files(paths: Sequence[Union[str, os.PathLike]], output: Union[str, os.
     from hdrcl.core.plan import Extras, plan_merge
     from hdrcl.core.sources import Inputs, response_source
     from hdrcl.core.options import MergeOptions
-    from hdrcl.core.params import check_images, check_options
+    from hdrcl.core.params import check_images
 
     paths = check_images(paths, "paths", arrays=False)
     if options is None:
-        options, rest = MergeOptions.split(kwargs)
+        options, rest = MergeOptions.split(kwargs)  # the options checked once, here
     else:
         options, rest = options.replace(**{k: v for k, v in kwargs.items() if k in options.asdict()}), {
             k: v for k, v in kwargs.items() if k not in options.asdict()}
     extras = Extras(**rest)  # TypeError naming an unknown keyword, as before
-    check_options(frames=len(paths), ghost_reference=options.ghost_reference)
+    options.check_frames(len(paths))
     output = check_targets(paths, output, options, extras, response)
     for line in options.ignored(output, chain=extras.chain is not None):
         logger.warning("%s", line)

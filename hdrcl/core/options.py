@@ -2,8 +2,10 @@
 that shapes the radiance, checked once, when the object is made, by the option table
 (:mod:`hdrcl.core.params`).
 
-``merge`` (CLI), ``batch`` (``BatchOptions`` wraps one), :func:`hdrcl.merge` and
-:func:`hdrcl.merge_files` all build a :class:`MergeOptions` and hand it to the merge engine
+Each option is declared once, as a field (:func:`option`: default, help, spelling; its kind
+and range are the option table's). ``merge`` and ``batch`` (``BatchOptions`` holds one)
+make their click options from the fields, and they, :func:`hdrcl.merge` and
+:func:`hdrcl.merge_files` build a :class:`MergeOptions` and hand it to the merge engine
 (:mod:`hdrcl.core.engine`). The rules that tie options together live here and nowhere
 else: ``crop`` needs ``align`` (refused), ``ghost_threshold``/``ghost_reference`` need
 ``deghost`` (refused), ``absolute`` and ``reference_patch`` exclude each other
@@ -14,57 +16,126 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, fields
-from typing import Any, List, Optional, Tuple
+from typing import Any, Dict, List, Optional, Tuple
 
+from hdrcl.core.deghost import THRESHOLD
+from hdrcl.core.response import DEFAULT_SMOOTHNESS
 from hdrcl.core.weights import DEFAULT_WEIGHT
+
+#: What an option is part of in a batch's output identity (``BatchOptions.output_params``):
+#: ``always`` recorded, ``changed`` recorded when it is not the default (the digests of
+#: plain merges stay as they were), absent: not part of it (the solve's options are in the
+#: calibration key instead; the device changes no pixel).
+ALWAYS, CHANGED = "always", "changed"
+
+
+def option(default: Any, help: str, *, metavar: Optional[str] = None, show_default: bool = False,
+           case_sensitive: bool = True, solve: bool = False, identity: Optional[str] = None):
+    """One option of a merge, declared once: its default, help and command-line spelling
+    (``--`` + the field's name with dashes), its kind and range from the option table
+    (:data:`hdrcl.core.params.TABLE`, by the field's name: no second copy of a range).
+
+    ``case_sensitive``: of a choice, on the command line;
+    ``solve``: an option of the response solve too (``hdrcl calibrate`` takes it);
+    ``identity``: :data:`ALWAYS` or :data:`CHANGED` (part of a batch output's digest).
+    The click options of ``merge``, ``batch`` and ``calibrate`` are made from these
+    (:func:`hdrcl.cli.options.merge_options`); docs/development.md says how to add one.
+    """
+    return dataclasses.field(default=default, metadata={
+        "help": help, "metavar": metavar, "show_default": show_default, "case_sensitive": case_sensitive, "solve": solve, "identity": identity})
 
 
 @dataclass(frozen=True)
 class MergeOptions:
-    """How a bracket is merged and written (the option table's names and defaults).
+    """How a bracket is merged and written: each option declared once, here (see :func:`option`).
 
     Every field is checked and normalised by :func:`hdrcl.core.params.check_options` when
-    the object is made (``UsageError`` naming the option); ``ignore_color`` becomes an
+    the object is made (``UsageError`` naming the option), once; ``ignore_color`` becomes an
     ``(R, G, B)`` tuple, ``colorspace`` and ``align_model`` lower case, a
     ``reference_exposure`` given as ``"1/125"`` seconds.
     """
 
-    weight: str = DEFAULT_WEIGHT
-    ignore_color: Optional[Tuple[int, int, int]] = None
-    samples: Optional[int] = None
-    smoothness: Optional[float] = None
-    seed: int = 0
-    fit_exposures: str = "auto"
-    exposure_tolerance: Optional[float] = None
-    deghost: bool = False
-    ghost_threshold: Optional[float] = None
-    ghost_reference: Any = None
-    neutral: Any = None
-    reference_patch: Any = None
-    absolute: bool = False
-    align: bool = False
-    align_model: str = "auto"
-    crop: bool = False
-    dtype: str = "auto"
-    compression: str = "piz"
-    colorspace: str = "rec709"
-    reference_exposure: Optional[float] = None
-    device: Optional[str] = None
+    weight: str = option(DEFAULT_WEIGHT, "Weighting of code values: gaussian (measured best on real data), "
+                         "or the paper's hat.", show_default=True, solve=True, identity=ALWAYS)
+    ignore_color: Optional[Tuple[int, int, int]] = option(
+        None, "Treat pixels of exactly this colour (8-bit units) as invalid, e.g. 0,0,255.", metavar="R,G,B",
+        solve=True, identity=ALWAYS)
+    samples: Optional[int] = option(None, "Calibration pixels [default: enough for the bit depth, at least 1000].",
+                                    solve=True)
+    smoothness: Optional[float] = option(
+        None, "Smoothness lambda of the response solve [default: "
+        + ", ".join(f"{v:g} with --weight {k}" for k, v in DEFAULT_SMOOTHNESS.items()) + "; 0.001 to 1e6].",
+        solve=True)
+    seed: int = option(0, "Seed of the sample choice (0 or more).", show_default=True, solve=True)
+    fit_exposures: str = option(
+        "auto", "Estimate each frame's exposure from the pixels (with --response: measured through that curve): "
+        "auto uses the estimate only where the metadata is clearly wrong, on always, off never.", show_default=True, solve=True, identity=CHANGED)
+    exposure_tolerance: Optional[float] = option(
+        None, "Report frames whose metadata the pixels contradict by more than this [default: 0.5].",
+        metavar="STOPS", solve=True, identity=CHANGED)
+    deghost: bool = option(False, "Take pixels where the frames disagree (moving objects) beyond the set's own "
+                           "learnt residuals from one exposure alone.", identity=CHANGED)
+    ghost_threshold: Optional[float] = option(
+        None, "With --deghost: departure, in robust spreads of the set's own frame-to-frame "
+        f"residuals, that makes a ghost [default: {THRESHOLD:g}].", identity=CHANGED)
+    ghost_reference: Any = option(None, "With --deghost: the frame ghost pixels are taken from; N counts the images "
+                                  "as given, from 0 [default: middle].", metavar="middle|shortest|longest|N",
+                                  identity=CHANGED)
+    neutral: Any = option(None, "White balance: make this patch (pixels) neutral grey.", metavar="X,Y,W,H",
+                          identity=CHANGED)
+    reference_patch: Any = option(None, "Absolute scale: this patch's mean luminance is VALUE cd/m^2.",
+                                  metavar="X,Y,W,H=VALUE", identity=CHANGED)
+    absolute: bool = option(False, "Approximate absolute scale (cd/m^2) from f-number and ISO (meter constant "
+                            "K = 12.5).", identity=CHANGED)
+    align: bool = option(False, "Align hand-held frames to the middle exposure (shift, rotation, scale; see "
+                         "--align-model) before merging; a frame that cannot be aligned fails the merge.",
+                         identity=CHANGED)
+    align_model: str = option("auto", "With --align: the motion model; auto picks the simplest one the residuals "
+                              "allow (shift, similarity, homography for wide lenses).", show_default=True,
+                              identity=CHANGED)
+    crop: bool = option(False, "With --align: crop to the area every frame covers.", identity=CHANGED)
+    dtype: str = option("auto", "EXR sample type. auto: half when every merged value fits half floats "
+                        "(measured on the data), else float. half: half always, rescaled by a power of two "
+                        "recorded as hdrcl:halfScale when needed (other tools then read it scaled). "
+                        "float: float.", show_default=True, identity=ALWAYS)
+    compression: str = option("piz", "EXR compression: none, zip, zips, piz, pxr24, b44, b44a, dwaa, dwab (dwaa:45 "
+                              "sets a level).", show_default=True, identity=ALWAYS)
+    colorspace: str = option("rec709", "Colour space of the radiance file: linear Rec.709/sRGB primaries, or ACEScg "
+                             "(AP1, for VFX pipelines; EXR or HDR), converted with OpenImageIO's colour "
+                             "management and tagged.", show_default=True, case_sensitive=False,
+                             identity=CHANGED)
+    reference_exposure: Optional[float] = option(
+        None, "A value of 1.0 in the output is what a frame of this exposure (at the first frame's f-number and "
+        "ISO; batch: the shoot's) records as white [default: the power of two nearest the middle exposure; "
+        "batch: one per camera for the whole shoot]. Recorded as expTime / EXPOSURE=.", metavar="SECONDS",
+        identity=CHANGED)
+    device: Optional[str] = option(
+        None, "OpenCL device: 'P:D' from 'hdrcl devices', or part of its name [default: PYOPENCL_CTX, else the "
+        "first GPU, else the first CPU driver that builds the kernels: Intel's CPU runtime, then PoCL "
+        "(HDRCL_CPU_DRIVERS changes the order)].", metavar="ID|NAME")
 
     def __post_init__(self):
         from hdrcl.core.params import check_options
 
-        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        values = self.asdict()
         o = check_options(**{k: v for k, v in values.items() if k != "device" or v is not None})
-        for key in ("samples", "smoothness", "seed", "exposure_tolerance", "ghost_threshold", "ghost_reference",
-                    "reference_exposure", "colorspace", "align_model", "ignore_color", "absolute", "align", "crop",
-                    "deghost"):
-            if key in o:
-                object.__setattr__(self, key, o[key])
+        for key, value in o.items():
+            object.__setattr__(self, key, value)  # the normalised form (tuples, lower case, seconds)
         if isinstance(self.neutral, (tuple, list)):
             object.__setattr__(self, "neutral", ",".join(str(int(v)) for v in self.neutral))
         if self.seed is None:
             object.__setattr__(self, "seed", 0)
+
+    @classmethod
+    def declared(cls) -> Tuple[dataclasses.Field, ...]:
+        """The options as declared (name, default, ``metadata``: see :func:`option`)."""
+        return fields(cls)
+
+    @classmethod
+    def from_params(cls, params: dict) -> "MergeOptions":
+        """The options among ``params`` (e.g. a command's parsed options), checked once;
+        the other keys are left to the caller."""
+        return cls.split(params)[0]
 
     @classmethod
     def split(cls, values: dict) -> Tuple["MergeOptions", dict]:
@@ -75,8 +146,29 @@ class MergeOptions:
                                                                           if k not in names}
 
     def replace(self, **changes) -> "MergeOptions":
-        """A copy with ``changes`` (checked again)."""
-        return dataclasses.replace(self, **changes)
+        """A copy with ``changes`` (checked again); ``self`` when nothing changes."""
+        return dataclasses.replace(self, **changes) if changes else self
+
+    def check_frames(self, frames: int) -> None:
+        """UsageError when ``ghost_reference`` names a frame beyond the ``frames`` given
+        (the one check that needs the number of images)."""
+        if isinstance(self.ghost_reference, int):
+            from hdrcl.core.params import check
+
+            check("ghost_reference", self.ghost_reference, frames=frames)
+
+    def identity(self) -> Dict[str, Any]:
+        """The options that shape a batch's output beyond its response, as recorded in its
+        digest: each field declared ``identity=ALWAYS``, and each ``CHANGED`` one given
+        another value than its default (``align_model`` counts only with ``align``)."""
+        out = {}
+        for f in fields(self):
+            how, value = f.metadata["identity"], getattr(self, f.name)
+            if f.name == "align_model" and not self.align:
+                value = f.default
+            if how == ALWAYS or (how == CHANGED and value != f.default):
+                out[f.name] = _plain(f.name, value)
+        return out
 
     def ignored(self, output=None, chain: bool = False) -> List[str]:
         """One line per option given that this merge ignores, each logged once as a
@@ -104,6 +196,16 @@ class MergeOptions:
 
     def asdict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def _plain(name: str, value: Any) -> Any:
+    """An option's value as a digest records it (JSON: a list for a tuple, compression
+    names as written lower case)."""
+    if isinstance(value, tuple):
+        return list(value)
+    if name == "compression":
+        return str(value).strip().lower()
+    return value
 
 
 #: Pictures for HDR screens a merge can deliver beside its radiance map

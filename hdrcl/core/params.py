@@ -71,12 +71,14 @@ class Option:
         return self.kind in ("int", "float")
 
 
-def _choices(name: str) -> Tuple[str, ...]:
+def choices(name: str) -> Tuple[str, ...]:
+    """The values option ``name`` takes (a ``choice`` option; the weightings from
+    :mod:`hdrcl.core.weights`)."""
     if name == "weight":
         from hdrcl.core.weights import WEIGHTS
 
         return tuple(WEIGHTS)
-    return ()
+    return TABLE[name].choices
 
 
 _O = Option
@@ -237,12 +239,12 @@ def check(name: str, value: Any, *, frames: Optional[int] = None):
             raise UsageError(f"{opt.flag}: {_show(value)} is not 8 or 16")
         return v
     if kind == "choice":
-        choices = opt.choices or _choices(name)
+        allowed = choices(name)
         if not isinstance(value, str):
-            raise ParameterTypeError(f"{opt.flag}: expected one of {', '.join(choices)}, not {type(value).__name__}")
+            raise ParameterTypeError(f"{opt.flag}: expected one of {', '.join(allowed)}, not {type(value).__name__}")
         v = value.strip().lower() if name in ("colorspace", "channel_order", "align_model") else value
-        if v not in choices:
-            raise UsageError(f"{opt.flag}: '{_show(value)}' is not one of {', '.join(choices)}")
+        if v not in allowed:
+            raise UsageError(f"{opt.flag}: '{_show(value)}' is not one of {', '.join(allowed)}")
         return v
     if kind == "bool":
         if type(value).__name__ not in ("bool", "bool_"):

@@ -6,11 +6,11 @@ from __future__ import annotations
 import functools
 import threading
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Dict, List, Optional, Tuple
 
+from hdrcl.core.options import MergeOptions
 from hdrcl.core.response import default_smoothness
-from hdrcl.core.weights import DEFAULT_WEIGHT
 from hdrcl.version import __version__
 
 #: Name of the report written into the output folder.
@@ -35,51 +35,36 @@ STATUS_CHECK = "check"
 
 
 # --------------------------------------------------------------------------- records
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class BatchOptions:
-    """How every set is merged and written (the options ``hdrcl merge`` also has).
+    """How every set is merged and written: the merge options (``hdrcl merge``'s, one
+    :class:`hdrcl.core.options.MergeOptions`, declared there) and the batch's own.
+
+    ``BatchOptions(dtype="float", preview=False)`` takes the merge options as keywords
+    too (or ``merge=MergeOptions(...)``), and reads them as its own (``opts.dtype`` is
+    ``opts.merge.dtype``).
 
     Attributes
     ----------
-    weight : str
-        Weighting of code values (``hat`` or ``gaussian``).
-    samples, smoothness, seed
-        Of the pooled response solve (``smoothness`` None: the weighting's default).
-    ignore_color : tuple of int, optional
-        Pixels of exactly this 8-bit colour are invalid.
-    deghost : bool
-        Take pixels where the frames disagree (moving objects) from the middle
-        exposure alone (:mod:`hdrcl.core.deghost`).
-    dtype, compression
-        EXR sample type and compression.
+    merge : hdrcl.core.options.MergeOptions
+        The options every set is merged with (weighting, the response solve's, deghost,
+        alignment, white balance, EXR type, reference exposure, device...). Its
+        ``reference_exposure`` is in seconds at the shoot's reference f-number and ISO
+        (default: one per camera, the power of two nearest the middle of that camera's
+        exposures across the shoot, :mod:`hdrcl.core.encode`); ``fit_exposures`` measures
+        through the set's pooled or given response.
     preview : bool
         Also write a tone-mapped JPEG per set.
     preview_size : int
         Long side of the preview in pixels.
     tonemap : str
         Operator of the previews (:data:`hdrcl.report.tonemap.OPERATORS`).
-    colorspace : {"rec709", "acescg"}
-        Colour space of the EXRs (:mod:`hdrcl.io.colorspace`).
-    device : str, optional
-        OpenCL device (see ``hdrcl devices``).
     report_dir : str, optional
         Quality report folder (``--report``): each merged set's figures
         (:func:`hdrcl.report.quality.measure`), response plot, coverage map and preview, written
         by whoever merges the set, and an ``index.html`` contact sheet over the manifest,
         written by :func:`run_batch` at the end (:mod:`hdrcl.report`). Not part of any
         output's identity: the EXRs and previews are the same with or without it.
-    align, crop : bool
-        Align hand-held frames by translation before merging (the frames are then held
-        in memory); with ``crop``, crop to the area every frame covers.
-    neutral : str, optional
-        ``"x,y,w,h"``: white balance so that this patch (pixels) comes out grey.
-    fit_exposures : str
-        ``off`` (the metadata's exposures), ``auto`` (the default: the exposure measured
-        from the pixels through the set's pooled or given response where the metadata is
-        clearly wrong, :func:`hdrcl.core.exposure.known.exposures_for_merge`) or ``on``
-        (measured for every frame).
-    align_model : {"auto", "shift", "similarity", "homography"}
-        With ``align``: the motion model (:mod:`hdrcl.core.align.mtb`).
     output_format : {"exr", "hdr"}
         The outputs' file type (``.hdr``: Radiance RGBE).
     luminance : dict, optional
@@ -91,43 +76,37 @@ class BatchOptions:
         Pictures for HDR screens written beside each EXR (``--deliver uhdr,avif,jxl``;
         :class:`hdrcl.core.options.DeliverOptions`, :mod:`hdrcl.report.deliver`). Not part
         of the EXR's identity.
-    reference_exposure : float, optional
-        Seconds (at the shoot's reference f-number and ISO) that a value of 1.0 in
-        every EXR stands for (:mod:`hdrcl.core.encode`); default one per camera, the
-        power of two nearest the middle of that camera's exposures across the shoot.
     """
 
-    weight: str = DEFAULT_WEIGHT
-    samples: Optional[int] = None
-    smoothness: Optional[float] = None  # None: the default for the weighting
-    seed: int = 0
-    ignore_color: Optional[Tuple[int, int, int]] = None
-    deghost: bool = False
-    dtype: str = "auto"
-    compression: str = "piz"  # measured: lossless, least CPU and smallest for half (scripts/compression_bench.py)
+    merge: MergeOptions
     preview: bool = True
     preview_size: int = 512
     tonemap: str = "reinhard"
-    colorspace: str = "rec709"
-    device: Optional[str] = None
     report_dir: Optional[str] = None
-    align: bool = False
-    crop: bool = False
-    neutral: Optional[str] = None
-    fit_exposures: str = "auto"
-    reference_exposure: Optional[float] = None
-    align_model: str = "auto"
     output_format: str = "exr"
     luminance: Optional[dict] = None
-    exposure_tolerance: Optional[float] = None
     deliver: Tuple[str, ...] = ()
     headroom: float = 3.0
     hdr_transfer: str = "pq"
     hdr_bits: int = 10
 
-    def __post_init__(self):
-        self.merge  # noqa: B018 -- every merge option checked once, here (hdrcl.core.options)
-        self.deliver_options.refuse_with_luminance(bool(self.luminance))  # and the deliverables'
+    def __init__(self, merge: Optional[MergeOptions] = None, **values):
+        own = {f.name: f.default for f in fields(BatchOptions) if f.name != "merge"}
+        given = {k: v for k, v in values.items() if k not in own}
+        if merge is None:
+            merge = MergeOptions(**given)  # checked once, here; TypeError naming an unknown keyword
+        elif given:
+            merge = merge.replace(**given)
+        object.__setattr__(self, "merge", merge)
+        for name, default in own.items():
+            object.__setattr__(self, name, values.get(name, default))
+        self.deliver_options.refuse_with_luminance(bool(self.luminance))  # the deliverables checked too
+
+    def __getattr__(self, name):
+        """A merge option read as the batch's own (``opts.weight``)."""
+        if name in _MERGE_NAMES:
+            return getattr(self.merge, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @functools.cached_property
     def deliver_options(self):
@@ -138,36 +117,11 @@ class BatchOptions:
         return DeliverOptions(self.deliver, self.headroom, self.hdr_transfer, self.hdr_bits, self.tonemap)
 
     @classmethod
-    def wrap(cls, merge, **batch) -> "BatchOptions":
+    def wrap(cls, merge: MergeOptions, **batch) -> "BatchOptions":
         """The batch's options around a :class:`hdrcl.core.options.MergeOptions` (``merge``)
         and the batch-only fields (``batch``: preview, preview_size, tonemap, report_dir,
-        output_format, luminance). UsageError for a merge option a batch has no use for
-        (``reference_patch``, ``absolute``, ghost tuning, checked per set by ``merge``)."""
-        from hdrcl.errors import UsageError
-
-        unused = [f for f, v in (("--reference-patch", merge.reference_patch), ("--absolute", merge.absolute),
-                                 ("--ghost-threshold", merge.ghost_threshold),
-                                 ("--ghost-reference", merge.ghost_reference)) if v]
-        if unused:
-            raise UsageError(f"{', '.join(unused)}: not an option of batch")
-        names = ("weight", "samples", "smoothness", "seed", "ignore_color", "deghost", "dtype", "compression",
-                 "colorspace", "device", "align", "crop", "neutral", "fit_exposures", "reference_exposure",
-                 "align_model", "exposure_tolerance")
-        return cls(**{n: getattr(merge, n) for n in names}, **batch)
-
-    @functools.cached_property
-    def merge(self):
-        """The :class:`hdrcl.core.options.MergeOptions` every set is merged with (the
-        batch-only fields, preview, report, format, luminance, stay here)."""
-        from hdrcl.core.options import MergeOptions
-
-        return MergeOptions(weight=self.weight, ignore_color=self.ignore_color, samples=self.samples,
-                            smoothness=self.smoothness, seed=self.seed, fit_exposures=self.fit_exposures,
-                            exposure_tolerance=self.exposure_tolerance, deghost=self.deghost,
-                            neutral=self.neutral, align=self.align, align_model=self.align_model or "auto",
-                            crop=bool(self.crop), dtype=self.dtype, compression=self.compression,
-                            colorspace=self.colorspace, reference_exposure=self.reference_exposure,
-                            device=self.device)
+        output_format, luminance, deliver...)."""
+        return cls(merge, **batch)
 
     def luminance_chain(self):
         """A fresh :class:`hdrcl.core.luminance.fisheye.LuminanceChain` for one set (it holds that
@@ -179,20 +133,9 @@ class BatchOptions:
         return chain_or_none(**self.luminance, device=self.device)
 
     def output_params(self) -> dict:
-        """Parameters that shape an EXR beyond its response (part of its digest)."""
-        out = {"weight": self.weight, "ignore_color": list(self.ignore_color) if self.ignore_color else None,
-               "dtype": self.dtype, "compression": str(self.compression).strip().lower()}
-        if self.deghost:  # only when on, so that digests of plain merges stay as they were
-            out["deghost"] = True
-        if self.colorspace != "rec709":  # likewise
-            out["colorspace"] = self.colorspace
-        for key, value, default in (("align", self.align, False), ("crop", self.crop, False),
-                                    ("neutral", self.neutral, None), ("fit_exposures", self.fit_exposures, "auto"),
-                                    ("reference_exposure", self.reference_exposure, None),
-                                    ("align_model", self.align_model if self.align else "auto", "auto"),
-                                    ("exposure_tolerance", self.exposure_tolerance, None)):
-            if value != default:
-                out[key] = value
+        """Parameters that shape an EXR beyond its response (part of its digest): the merge
+        options' :meth:`~hdrcl.core.options.MergeOptions.identity`, and the luminance chain's."""
+        out = self.merge.identity()
         if self.luminance:  # the calibration files' numbers, not their names
             out["luminance"] = dict(_luminance_identity(tuple(sorted(self.luminance.items()))))
         return out
@@ -202,6 +145,10 @@ class BatchOptions:
         return {"weight": self.weight, "samples": self.samples,
                 "smoothness": float(default_smoothness(self.weight) if self.smoothness is None else self.smoothness),
                 "seed": int(self.seed), "ignore_color": list(self.ignore_color) if self.ignore_color else None}
+
+
+#: The merge options a :class:`BatchOptions` reads as its own.
+_MERGE_NAMES = frozenset(f.name for f in fields(MergeOptions))
 
 
 @functools.lru_cache(maxsize=8)
