@@ -111,7 +111,7 @@ class FusionPlan:
 
     def __init__(self, proc: "FusionProcessor", nframes: int, width: int, nch: int, dtype,
                  log_times, tables: np.ndarray, weights: np.ndarray, has_valid: bool,
-                 depth: int = PIPELINE_DEPTH):
+                 depth: Optional[int] = None):
         self.proc = proc
         self.p, self.w, self.c = nframes, width, nch
         self.dtype = np.dtype(dtype)
@@ -153,7 +153,7 @@ class FusionPlan:
         self.plane = self.spix * nch
         self.frame_args = nframes <= 16
         self.zero_copy = proc.ctx.shares_host_memory
-        self.depth = max(1, int(depth))
+        self.depth = max(1, int(PIPELINE_DEPTH if depth is None else depth))
         self.slots = [_Slot(self, k) for k in range(self.depth)]
         self._next = 0
         s0 = self.slots[0]  # the first slot's buffers, by their old names (profile_kernel)
@@ -376,8 +376,11 @@ class FusionProcessor(OpenCLProcessor):
         """See :func:`ghost_departures`."""
         return ghost_departures(self, frames, valid, fused, tables)
 
-    def plan(self, nframes, width, nch, dtype, log_times, tables, weights, has_valid) -> FusionPlan:
-        return FusionPlan(self, nframes, width, nch, dtype, log_times, tables, weights, has_valid)
+    def plan(self, nframes, width, nch, dtype, log_times, tables, weights, has_valid,
+             depth: Optional[int] = None) -> FusionPlan:
+        """A :class:`FusionPlan` keeping up to ``depth`` strips in flight (default
+        :data:`PIPELINE_DEPTH`; 1: one strip at a time)."""
+        return FusionPlan(self, nframes, width, nch, dtype, log_times, tables, weights, has_valid, depth)
 
     def fuse(
         self,
