@@ -67,23 +67,32 @@ class _Slot:
         self.frames_b = proc.buffer("frames" + tag, 4 if plan.frame_args else plan.p * plan.plane * plan.dtype.itemsize,
                                     mf.READ_ONLY)
         self.valid_b = proc.buffer("valid" + tag, plan.p * plan.spix if plan.has_valid else 4, mf.READ_ONLY)
-        self.out_b = proc.buffer("out" + tag, plan.plane * 4, mf.READ_WRITE)
-        self.mask_b = proc.buffer("clipmask" + tag, plan.spix, mf.READ_WRITE)
         # fuse and fuse_tail list the pixels fuse_fix must walk (counts[3] of them)
         self.todo_b = proc.buffer("todo" + tag, plan.spix * 4, mf.READ_WRITE)
+        self._proc, self._tag, self._plane, self._spix = proc, tag, plan.plane, plan.spix
         self.busy = False
+
+    # Made when first needed: a device sharing host memory writes into the host's arrays.
+    @property
+    def out_b(self):
+        return self._proc.buffer("out" + self._tag, self._plane * 4, cl.mem_flags.READ_WRITE)
+
+    @property
+    def mask_b(self):
+        return self._proc.buffer("clipmask" + self._tag, self._spix, cl.mem_flags.READ_WRITE)
 
 
 class StripTicket:
     """One strip submitted to :meth:`FusionPlan.submit`: its slot, arrays, buffers and
     the event it waits on next (the count of pixels to fix, then the results)."""
 
-    __slots__ = ("slot", "npix", "out", "clip_mask", "fargs", "out_b", "mask_b", "held", "events", "event",
-                 "stage")
+    __slots__ = ("slot", "npix", "out", "clip_mask", "fargs", "out_b", "mask_b", "own_out", "own_mask", "held",
+                 "events", "event", "stage")
 
     def __init__(self, slot, npix, out, clip_mask):
         self.slot, self.npix, self.out, self.clip_mask = slot, npix, out, clip_mask
         self.fargs = self.out_b = self.mask_b = self.event = None
+        self.own_out = self.own_mask = False  # results in the slot's buffers, copied back
         self.held: list = []  # (host array, buffer or view over it): alive until the strip is done
         # non-blocking transfers: pyopencl's events keep their host arrays alive and wait
         # for them when dropped, so they are dropped only once the strip is done
@@ -195,11 +204,15 @@ class FusionPlan:
             for j in range(self.p):
                 v = self._ones[:npix] if valid[j] is None else np.ascontiguousarray(valid[j], dtype=np.uint8)
                 t.events.append(cl.enqueue_copy(q, slot.valid_b, v, dst_offset=j * self.spix, is_blocking=False))
-        t.out_b = out_b = self._host_buffer(out, np.float32, npix * self.c, slot.out_b, held)
-        t.mask_b = mask_b = slot.mask_b
+        out_b = self._host_buffer(out, np.float32, npix * self.c, held)
+        t.own_out = out_b is None
+        t.out_b = out_b = slot.out_b if out_b is None else out_b
+        mask_b = None
         if clip_mask is not None:
             clip_mask[...] = 0  # fuse_fix writes the flagged pixels only
-            t.mask_b = mask_b = self._host_buffer(clip_mask, np.uint8, npix, slot.mask_b, held)
+            mask_b = self._host_buffer(clip_mask, np.uint8, npix, held)
+        t.own_mask = mask_b is None  # fuse_fix writes the slot's (dropped without a clip_mask)
+        t.mask_b = mask_b = slot.mask_b if mask_b is None else mask_b
         args = (np.int32(npix), np.int32(self.p), np.int32(self.levels), np.int32(self.spix))
         tabs = (slot.valid_b, self.lut, self.lt2)
         slot.busy = True
@@ -233,18 +246,19 @@ class FusionPlan:
         """Queue the bound rules on the listed pixels and the results' way to the host."""
         q, slot, npix = self.proc.queue, t.slot, t.npix
         clip_mask, mask_b, out_b = t.clip_mask, t.mask_b, t.out_b
+        copy_mask = clip_mask is not None and t.own_mask
         nfix = int(slot.counts[3])
         if nfix:  # the fast path listed pixels with values that need the bound rules
-            if clip_mask is not None and mask_b is slot.mask_b:  # fuse_fix writes the listed pixels only
-                cl.enqueue_fill_buffer(q, slot.mask_b, np.uint8(0), 0, npix)
+            if copy_mask:  # fuse_fix writes the listed pixels only
+                cl.enqueue_fill_buffer(q, mask_b, np.uint8(0), 0, npix)
             self.fix(q, (round_up(nfix),), None, *t.fargs, slot.valid_b, self.lut, self.lt2, self.ghi, self.glo,
                      out_b, slot.counts_b, slot.todo_b, mask_b, np.int32(nfix), np.int32(self.p),
                      np.int32(self.levels), np.int32(self.spix))
             cl.enqueue_fill_buffer(q, slot.counts_b, np.uint32(0), 12, 4)  # the list starts empty again
-            if clip_mask is not None and mask_b is slot.mask_b:
-                t.events.append(cl.enqueue_copy(q, clip_mask, slot.mask_b, is_blocking=False))
-        if out_b is slot.out_b:
-            t.events.append(cl.enqueue_copy(q, t.out, slot.out_b, is_blocking=False))
+            if copy_mask:
+                t.events.append(cl.enqueue_copy(q, clip_mask, mask_b, is_blocking=False))
+        if t.own_out:
+            t.events.append(cl.enqueue_copy(q, t.out, out_b, is_blocking=False))
         for a, buf in t.held:
             if isinstance(buf, cl.Buffer):  # a map makes the kernels' writes visible in host memory
                 m, _ = cl.enqueue_map_buffer(q, buf, cl.map_flags.READ, 0, a.shape, a.dtype, is_blocking=False)
@@ -281,13 +295,13 @@ class FusionPlan:
         bufs += [self._dummy] * (16 - len(bufs))
         return (*bufs, offs.view(cltypes.int16)[0])
 
-    def _host_buffer(self, a: np.ndarray, dtype, n: int, fallback, held: list):
+    def _host_buffer(self, a: np.ndarray, dtype, n: int, held: list):
         """A read-write buffer over host array ``a`` (contiguous, of ``dtype``, ``n``
-        elements), or ``fallback`` (the slot's own; the results are copied back) when
+        elements), or None (the slot's own is used; the results are copied back) when
         ``a`` is not such an array or the device does not share host memory."""
         if (not self.zero_copy or a.dtype != dtype or not a.flags.c_contiguous or not a.flags.writeable
                 or a.size != n):
-            return fallback
+            return None
         buf = cl.Buffer(self.proc.ctx.context, cl.mem_flags.READ_WRITE | cl.mem_flags.USE_HOST_PTR, hostbuf=a)
         held.append((a, buf))
         return buf
