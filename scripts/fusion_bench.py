@@ -8,8 +8,11 @@ then measures in alternating rounds:
 * **decode**: every frame decoded once with OpenImageIO into uint8, one frame per thread
   on ``os.cpu_count()`` threads (as ``../shared/tools/io_floor.py`` does);
 * **fuse**: the decoded frames through ``FusionPlan.fuse_strip`` strip after strip, as
-  the batch engine calls it (copies to the device, the kernels, the fix-up pass where
+  the batch engine called it before issue 33 (copies to the device, the kernels, the fix-up pass where
   the fast path flags values, the float32 result copied back, the clip mask);
+* **fuse, pipelined**: the same strips through ``FusionPlan.pipeline()`` (up to
+  ``PIPELINE_DEPTH`` strips in flight, read-backs non-blocking), as the streaming merge
+  calls it since issue 33;
 * **kernel**: the ``fuse`` kernel alone on data already on the device (OpenCL profiling
   events, ``hdrcl.cl.fusion.profile_kernel``).
 
@@ -109,6 +112,18 @@ def fuse_strips(plan, frames, out, mask) -> None:
         plan.fuse_strip([f[r0:r1] for f in frames], None, out[r0:r1], clip_mask=mask[r0:r1])
 
 
+def fuse_pipelined(plan, frames, out, mask) -> None:
+    """The same strips through the plan's pipeline (``hdrcl.cl.fusion.StripPipeline``:
+    up to ``plan.depth`` in flight, read-backs non-blocking), as the streaming merge
+    calls it since issue 33."""
+    h = frames[0].shape[0]
+    with plan.pipeline() as pipe:
+        for r0 in range(0, h, plan.rows):
+            r1 = min(h, r0 + plan.rows)
+            pipe.put([f[r0:r1] for f in frames], None, out[r0:r1], mask[r0:r1])
+        pipe.drain()
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--mp", type=float, default=12.0, help="megapixels per frame (default 12)")
@@ -150,8 +165,10 @@ def main(argv=None) -> int:
     out = np.empty((h, w, c), np.float32)
     mask = np.empty((h, w), np.uint8)
     fuse_strips(plan, frames, out, mask)  # warm-up: buffers, first-touch of out
+    fuse_pipelined(plan, frames, out, mask)
     fpx = len(frames) * h * w  # frame pixels
-    rows = {"decode": [], "fuse": [], "kernel": [], "ratio": [], "decode_cpu": [], "fuse_cpu": [], "ratio_cpu": []}
+    rows = {"decode": [], "fuse": [], "kernel": [], "ratio": [], "decode_cpu": [], "fuse_cpu": [], "ratio_cpu": [],
+            "pipe": [], "pipe_cpu": [], "pipe_ratio": [], "pipe_ratio_cpu": []}
     for _ in range(max(1, args.runs)):
         c0, t0 = time.process_time(), time.perf_counter()
         decoded = decode_all(paths, threads)
@@ -164,6 +181,12 @@ def main(argv=None) -> int:
         rows["fuse_cpu"].append(max(time.process_time() - c0, 1e-6))
         rows["ratio"].append(rows["decode"][-1] / rows["fuse"][-1])
         rows["ratio_cpu"].append(rows["decode_cpu"][-1] / rows["fuse_cpu"][-1])
+        c0, t0 = time.process_time(), time.perf_counter()
+        fuse_pipelined(plan, frames, out, mask)
+        rows["pipe"].append(time.perf_counter() - t0)
+        rows["pipe_cpu"].append(max(time.process_time() - c0, 1e-6))
+        rows["pipe_ratio"].append(rows["decode"][-1] / rows["pipe"][-1])
+        rows["pipe_ratio_cpu"].append(rows["decode_cpu"][-1] / rows["pipe_cpu"][-1])
         if not args.no_kernel:
             rows["kernel"].append(profile_kernel(proc, frames, log_t, tables, wts, repeats=1))
     flagged = float(np.count_nonzero(mask)) / mask.size
@@ -180,6 +203,8 @@ def main(argv=None) -> int:
         "decode_cpu_s": med["decode_cpu"], "fuse_cpu_s": med["fuse_cpu"],
         "decode_mp_per_cpu_s": fpx / med["decode_cpu"] / 1e6, "fuse_mp_per_cpu_s": fpx / med["fuse_cpu"] / 1e6,
         "fuse_over_decode_cpu": med["ratio_cpu"],
+        "pipelined_s": med["pipe"], "pipelined_cpu_s": med["pipe_cpu"], "pipelined_mp_s": fpx / med["pipe"] / 1e6,
+        "pipelined_over_decode": med["pipe_ratio"], "pipelined_over_decode_cpu": med["pipe_ratio_cpu"],
         "all": rows,
     }
     print(f"cpu: {res['cpu']} ({threads} cpus); OpenCL: {res['driver']}")
@@ -188,13 +213,16 @@ def main(argv=None) -> int:
           + (f", {args.folder}" if args.folder else ", generated") + f"), weight {args.weight}, "
           f"strips of {plan.rows} rows, {args.runs} runs (medians)")
     print(f"  {'':34s} {'wall':>9s}  {'rate':>12s}  {'CPU':>9s}  {'per CPU-second':>18s}")
-    for key, label in (("decode", "decode (OIIO, %d threads)" % threads), ("fuse", "fuse (fuse_strip per strip)")):
+    for key, label in (("decode", "decode (OIIO, %d threads)" % threads), ("fuse", "fuse (fuse_strip per strip)"),
+                       ("pipe", "fuse (pipelined, depth %d)" % plan.depth)):
         print(f"  {label:34s} {med[key]:7.3f} s  {fpx / med[key] / 1e6:7.0f} MP/s  {med[key + '_cpu']:7.3f} s"
               f"  {fpx / med[key + '_cpu'] / 1e6:7.0f} MP/CPU-s")
     if rows["kernel"]:
         print(f"  {'fuse kernel alone (events)':34s} {med['kernel']:7.3f} s  {res['kernel_mp_s']:7.0f} MP/s")
     print(f"  fuse / decode rate (median of runs): {res['fuse_over_decode']:.2f}x wall, "
           f"{res['fuse_over_decode_cpu']:.2f}x per CPU-second  (target >= 2x)")
+    print(f"  pipelined fuse / decode rate: {res['pipelined_over_decode']:.2f}x wall, "
+          f"{res['pipelined_over_decode_cpu']:.2f}x per CPU-second")
     print("  (per CPU-second: the rates with other processes' share of the cores taken out; on a")
     print("   shared machine the wall figures move with the load, the CPU ones much less)")
     print(f"  pixels with a clip flag: {100 * flagged:.1f} %")

@@ -18,7 +18,7 @@ def test_fusion_bench_tiny(tmp_path, cl_device):
     assert r.returncode == 0, r.stdout + r.stderr
     out = r.stdout
     assert re.search(r"^cpu: \S.*; OpenCL: \S", out, re.M), out
-    for label in ("decode (OIIO", "fuse (fuse_strip per strip)"):
+    for label in ("decode (OIIO", "fuse (fuse_strip per strip)", "fuse (pipelined, depth"):
         m = re.search(re.escape(label) + r"[^\n]*?\s([0-9.]+) s\s+([0-9.]+) MP/s\s+([0-9.]+) s\s+([0-9.]+) MP/CPU-s",
                       out)
         assert m and float(m.group(1)) > 0 and float(m.group(2)) > 0, out
@@ -26,3 +26,4 @@ def test_fusion_bench_tiny(tmp_path, cl_device):
     res = json.loads(out_json.read_text())
     assert res["frames"] == 3 and res["fuse_mp_s"] > 0 and res["decode_mp_s"] > 0
     assert res["fuse_over_decode"] > 0 and res["fuse_over_decode_cpu"] > 0
+    assert res["pipelined_mp_s"] > 0 and res["pipelined_over_decode"] > 0

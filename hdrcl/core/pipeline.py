@@ -284,17 +284,31 @@ class _StripFusion:
         self._emit(y0, y1, out)
         return new_tail
 
-    def _fuse(self, y0, y1, frames, valid, out):
+    def _fuse(self, y0, y1, frames, valid, out) -> list:
+        """Fuse a strip, or queue it on the device; returns the strips finished by then,
+        in order, as ``(y0, y1, frames, valid, out)``."""
         tf = time.perf_counter()
         cm = None if self.spec.clip_mask is None else self.spec.clip_mask[y0:y1]
-        if self.plan is not None:
-            self.plan.fuse_strip(frames, valid if self.has_valid else None, out, clip_mask=cm)
+        item = (y0, y1, frames, valid, out)
+        if self.pipe is not None:
+            done = self.pipe.put(frames, valid if self.has_valid else None, out, cm, tag=item)
         else:
             rad, c = reference.fuse(frames, self.log_t, self.tables, self.wts, valid, clip_mask=cm)
             out[...] = rad
             for k in self.counts:
                 self.counts[k] += c[k]
+            done = [item]
         self.timing["fuse"] += time.perf_counter() - tf
+        return done
+
+    def _drain(self) -> list:
+        """The strips still on the device, waited for."""
+        if self.pipe is None:
+            return []
+        tf = time.perf_counter()
+        done = self.pipe.drain()
+        self.timing["fuse"] += time.perf_counter() - tf
+        return done
 
     def _strips(self):
         """The source's strips, frames in exposure order, the ignore colour masked."""
@@ -311,35 +325,47 @@ class _StripFusion:
                 self.spec.exposure_check.add(frames, valid if self.has_valid else None)
             yield y0, y1, frames, valid
 
-    def run(self):
+    def _fused(self, y0, y1, frames, valid, out) -> None:
+        """A strip fused (in order): deghosted once the next one is known, then written."""
         from hdrcl.core import deghost as dg
 
+        if not self.spec.deghost:
+            self._emit(y0, y1, out)
+            return
+        vv = valid if self.has_valid else None
+        if self.held is not None:
+            self.tail = self._finish_ghosts(self.held, self._rows_of(frames, vv, out, slice(0, dg.CONTEXT)))
+        self.held = (y0, y1, frames, vv, out)
+
+    def run(self):
         source, spec = self.source, self.spec
-        # Output strips: one being fused, one held back (deghost: its mask's growth into the
-        # next strip is not known yet), two being written or queued.
-        buffers = deque(np.empty((self.rows, source.width, source.nch), np.float32) for _ in range(4))
-        held = None  # deghost: (y0, y1, frames, valid, out) awaiting the next strip's rows
+        # Output strips: up to ``depth`` on the device (the OpenCL pipeline), one held back
+        # (deghost: its mask's growth into the next strip is not known yet), one being
+        # written and one queued for the writer.
+        depth = self.plan.depth if self.plan is not None else 1
+        buffers = deque(np.empty((self.rows, source.width, source.nch), np.float32) for _ in range(depth + 3))
+        self.held = None  # deghost: (y0, y1, frames, valid, out) awaiting the next strip's rows
         decoded0 = getattr(source, "decode_seconds", 0.0)
-        with concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="hdrcl-write") as writer:
-            self.writer = writer
-            for y0, y1, frames, valid in self._strips():
-                while len(self.pending) >= len(buffers) - 2:
-                    self.pending.popleft().result()  # bounded memory; also re-raises write errors
-                buf = buffers[0]
-                buffers.rotate(-1)
-                out = buf[: y1 - y0]
-                self._fuse(y0, y1, frames, valid, out)
-                if spec.deghost:
-                    vv = valid if self.has_valid else None
-                    if held is not None:
-                        self.tail = self._finish_ghosts(held, self._rows_of(frames, vv, out, slice(0, dg.CONTEXT)))
-                    held = (y0, y1, frames, vv, out)
-                else:
-                    self._emit(y0, y1, out)
-            if held is not None:
-                self._finish_ghosts(held, None)
-            for fut in self.pending:
-                fut.result()
+        self.pipe = self.plan.pipeline() if self.plan is not None else None
+        try:
+            with concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="hdrcl-write") as writer:
+                self.writer = writer
+                for y0, y1, frames, valid in self._strips():
+                    while len(self.pending) > len(buffers) - depth - 2:
+                        self.pending.popleft().result()  # bounded memory; also re-raises write errors
+                    buf = buffers[0]
+                    buffers.rotate(-1)
+                    for item in self._fuse(y0, y1, frames, valid, buf[: y1 - y0]):
+                        self._fused(*item)
+                for item in self._drain():
+                    self._fused(*item)
+                if self.held is not None:
+                    self._finish_ghosts(self.held, None)
+                for fut in self.pending:
+                    fut.result()
+        finally:
+            if self.pipe is not None:
+                self.pipe.close()  # after an error: the device lets go of the host arrays first
         counts = self.plan.result_counts() if self.plan is not None else self.counts
         if spec.seconds is not None:
             for k, v in self.timing.items():
