@@ -35,6 +35,12 @@ def rows_decoded(monkeypatch):
     return rows
 
 
+@pytest.fixture(autouse=True)
+def _stop_counting():
+    yield
+    reader_mod.count_full_decodes(False)
+
+
 @pytest.fixture
 def shoot(tmp_path, monkeypatch):
     monkeypatch.setenv("HDRCL_SCRATCH_DIR", str(tmp_path / "scratch"))
@@ -77,7 +83,7 @@ def test_each_frame_of_a_pooled_shoot_is_decoded_once_at_full_size(shoot, tmp_pa
     or (0.25 MB: two sets in memory, the third spilled) partly in a scratch file."""
     if memory_mb:
         monkeypatch.setenv("HDRCL_MEMORY_MB", memory_mb)
-    reader_mod.full_decodes(reset=True)
+    reader_mod.count_full_decodes()
     seen = []
     real_take = ahead.take
 
@@ -118,7 +124,7 @@ def test_outputs_are_the_same_bytes_whether_frames_were_held_or_decoded_again(sh
 
 def test_beyond_the_budget_a_set_keeps_only_its_grid_and_is_decoded_again(shoot, tmp_path, monkeypatch):
     monkeypatch.setenv("HDRCL_MEMORY_MB", "0.01")  # not even the spill file's share fits a set
-    reader_mod.full_decodes(reset=True)
+    reader_mod.count_full_decodes()
     rep = _batch(shoot, tmp_path / "out")
     assert [r.status for r in rep.results] == ["done"] * 3
     counts = reader_mod.full_decodes()
@@ -128,7 +134,7 @@ def test_beyond_the_budget_a_set_keeps_only_its_grid_and_is_decoded_again(shoot,
 
 def test_a_batch_run_elsewhere_holds_nothing(shoot, tmp_path):
     """Calibrate only: nothing merges next, so nothing is held."""
-    reader_mod.full_decodes(reset=True)
+    reader_mod.count_full_decodes()
     _batch(shoot, tmp_path / "out", calibrate_only=True)
     assert ahead.held() == 0 and not _spill_files()
     assert sorted(reader_mod.full_decodes().values()) == [1] * 9

@@ -392,24 +392,32 @@ class BracketReader:
 
 
 _counts_lock = threading.Lock()
-_full_decodes: dict = {}
+_full_decodes: Optional[dict] = None  # by path, while counting (count_full_decodes)
 
 
 def _count_full_decode(path: str) -> None:
+    if _full_decodes is None:
+        return
     with _counts_lock:
         n = _full_decodes[path] = _full_decodes.get(path, 0) + 1
     if n > 1:
         logger.debug("%s: decoded whole %d times", path, n)
 
 
-def full_decodes(reset: bool = False) -> dict:
-    """How many times each file was decoded to its last row in this process, by path (a
-    debug counter: each frame of a batch should be decoded once); ``reset`` clears it."""
+def count_full_decodes(on: bool = True) -> None:
+    """Start (afresh) or stop counting how many times each file is decoded to its last row
+    in this process (a debug counter for tests and benchmarks: each frame of a batch should
+    be decoded once; :func:`full_decodes` reads it). Off by default: a long-lived process
+    would keep one entry per file it ever read."""
+    global _full_decodes
     with _counts_lock:
-        out = dict(_full_decodes)
-        if reset:
-            _full_decodes.clear()
-    return out
+        _full_decodes = {} if on else None
+
+
+def full_decodes() -> dict:
+    """The counts since :func:`count_full_decodes`, by path (empty when not counting)."""
+    with _counts_lock:
+        return dict(_full_decodes or {})
 
 
 class _Prefetch:
