@@ -200,15 +200,25 @@ def _open_files(paths, times, times_file):
     return paths, infos, np.asarray(metadata.relative_exposures(exposures), np.float64)
 
 
-def _grid_bracket(paths, infos, rel, rgb, reader=None, keep: bool = False) -> Bracket:
+def _grid_bracket(paths, infos, rel, rgb, reader=None, keep: bool = False, hold: bool = False) -> Bracket:
     """The decimated grid that sample selection uses, read in one streaming pass
     (through ``reader`` when given: it is rewound for a later pass, not closed; with
-    ``keep`` it also keeps the decoded frames for that pass, so they are decoded once)."""
+    ``keep`` it also keeps the decoded frames for that pass, so they are decoded once).
+
+    With ``hold`` (and no ``reader``), the frames decoded are held for the set's own merge
+    within the memory budget (:func:`hdrcl.io.ahead.read_and_hold`: a batch's pooled
+    calibration), which then takes them instead of decoding the set again."""
     from hdrcl.core.sampling import grid_stride
     from hdrcl.io.reader import BracketReader
 
     if reader is None:
         with BracketReader(paths, infos) as own:
+            if hold:
+                from hdrcl.io.ahead import read_and_hold
+
+                frames, valid = read_and_hold(own, grid_stride(own.height, own.width))
+                return Bracket(frames=frames, times=rel, valid=_with_ignore(frames, valid, rgb), paths=paths,
+                               infos=infos, grid=True)
             return _grid_bracket(paths, infos, rel, rgb, reader=own)
     frames, valid = reader.read_grid(grid_stride(reader.height, reader.width), keep=keep)
     return Bracket(frames=frames, times=rel, valid=_with_ignore(frames, valid, rgb), paths=paths, infos=infos,

@@ -4,6 +4,7 @@ strip by strip with the next strip decoded ahead (:class:`BracketReader`).
 from __future__ import annotations
 
 import concurrent.futures
+import logging
 import os
 import threading
 import time
@@ -25,6 +26,8 @@ from hdrcl.io.frames import (
 )
 from hdrcl.io.metadata import FrameInfo
 from hdrcl.io.raw import is_raw
+
+logger = logging.getLogger(__name__)
 
 #: Rows per strip of :meth:`BracketReader.read_grid` (rounded up to the grid's stride):
 #: small enough that a strip of one frame stays in cache while its grid is taken.
@@ -95,6 +98,16 @@ class BracketReader:
         got = ahead.take(self.paths)
         if got is None:
             return
+        if isinstance(got, ahead.Held):  # decoded whole by the pooled calibration
+            c = got.cache
+            if (c.nframes, c.height, c.width, c.nch, c.dtype) != \
+                    (len(self.paths), self.height, self.width, self.nch, self.dtype):
+                got.close()  # not the frames this reader would decode: decode them itself
+                return
+            self.cache, got.cache = c, None
+            self._grid = got.grid
+            self.decode_seconds += got.seconds  # the set's own frames' decoding, wherever it ran
+            return
         missing = [k for k, f in enumerate(got.frames) if f is None]
         futs = {k: self._pool.submit(self._read, k, 0, self.height) for k in missing}
         try:
@@ -144,10 +157,13 @@ class BracketReader:
     def _read(self, k: int, y0: int, y1: int):
         t0 = time.thread_time()  # CPU time of this decoder thread: threads that wait for a
         try:                       # core while others decode do not count
-            return self._decode(k, y0, y1)
+            out = self._decode(k, y0, y1)
         finally:
             with self._time_lock:
                 self.decode_seconds += time.thread_time() - t0
+        if y1 >= self.height:  # a pass reached the frame's last row
+            _count_full_decode(self.paths[k])
+        return out
 
     def _decode(self, k: int, y0: int, y1: int):
         name = self.paths[k]
@@ -263,14 +279,15 @@ class BracketReader:
         got = [f.result() for f in futs]
         return [g[0] for g in got], [g[1] for g in got]
 
-    def read_grid(self, stride: int, keep: bool = False):
+    def read_grid(self, stride: int, keep: bool = False, in_memory: Optional[bool] = None):
         """Every ``stride``-th row and column of every frame, read in one streaming pass
         (once: a second call with the same stride returns the same arrays, not to be
         modified).
 
         With ``keep``, every decoded strip is also stored in a
         :class:`~hdrcl.io.framecache.FrameCache` (:attr:`cache`), from which a later
-        :meth:`strips` pass reads instead of decoding the frames a second time.
+        :meth:`strips` pass reads instead of decoding the frames a second time
+        (``in_memory``: where it keeps them, :class:`~hdrcl.io.framecache.FrameCache`).
 
         Each frame is decoded top to bottom in strips of about :data:`GRID_STRIP_ROWS`
         rows on its own thread, which keeps only the grid's rows and columns of each
@@ -281,10 +298,12 @@ class BracketReader:
         stride = max(1, int(stride))
         if self._grid is not None and self._grid[0] == stride:  # read already (calibration)
             return list(self._grid[1]), list(self._grid[2])
-        if self.cache is not None and self.cache.complete and self.cache.in_memory:  # decoded ahead
-            whole, whole_valid = self.cache.rows(0, self.height)
-            frames = [np.ascontiguousarray(f[::stride, ::stride]) for f in whole]
-            valid = [None if v is None else np.ascontiguousarray(v[::stride, ::stride]) for v in whole_valid]
+        if self.cache is not None and self.cache.complete:  # decoded ahead, or held (a spill file)
+            rows = self.height if self.cache.in_memory else stride * max(1, -(-GRID_STRIP_ROWS // stride))
+            parts = [self.cache.rows(y0, min(self.height, y0 + rows)) for y0 in range(0, self.height, rows)]
+            frames = [np.concatenate([p[0][k][::stride, ::stride] for p in parts]) for k in range(len(self.paths))]
+            valid = [None if parts[0][1][k] is None else
+                     np.concatenate([p[1][k][::stride, ::stride] for p in parts]) for k in range(len(self.paths))]
             self._grid = (stride, frames, valid)
             return list(frames), list(valid)
         if self._first is not None:  # a strip decoding ahead would share the open files
@@ -299,7 +318,8 @@ class BracketReader:
 
             if self.cache is not None:
                 self.cache.close()
-            cache = self.cache = FrameCache(len(self.paths), self.height, self.width, self.nch, self.dtype)
+            cache = self.cache = FrameCache(len(self.paths), self.height, self.width, self.nch, self.dtype,
+                                            in_memory=in_memory)
         frames = [np.empty((hh, ww, self.nch), self.dtype) for _ in self.paths]
         valid: list = [None] * len(self.paths)
         rows = stride * max(1, -(-GRID_STRIP_ROWS // stride))  # a multiple of the stride
@@ -369,6 +389,35 @@ class BracketReader:
         self._rewind()  # a later strips() pass starts from the top again
         self._grid = (stride, frames, valid)  # small; a second call (ghost model) reuses it
         return list(frames), list(valid)
+
+
+_counts_lock = threading.Lock()
+_full_decodes: Optional[dict] = None  # by path, while counting (count_full_decodes)
+
+
+def _count_full_decode(path: str) -> None:
+    if _full_decodes is None:
+        return
+    with _counts_lock:
+        n = _full_decodes[path] = _full_decodes.get(path, 0) + 1
+    if n > 1:
+        logger.debug("%s: decoded whole %d times", path, n)
+
+
+def count_full_decodes(on: bool = True) -> None:
+    """Start (afresh) or stop counting how many times each file is decoded to its last row
+    in this process (a debug counter for tests and benchmarks: each frame of a batch should
+    be decoded once; :func:`full_decodes` reads it). Off by default: a long-lived process
+    would keep one entry per file it ever read."""
+    global _full_decodes
+    with _counts_lock:
+        _full_decodes = {} if on else None
+
+
+def full_decodes() -> dict:
+    """The counts since :func:`count_full_decodes`, by path (empty when not counting)."""
+    with _counts_lock:
+        return dict(_full_decodes or {})
 
 
 class _Prefetch:

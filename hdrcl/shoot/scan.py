@@ -226,8 +226,7 @@ def scan_directory(path, *, recursive: bool = False, frames_per_set: Optional[in
 
         cache = SceneCache()
         compare = cache.compare
-        for info in infos:  # read once each anyway; a frame whose pixels fail is known first
-            cache.thumb(info)
+        cache.read_all(infos)  # read once each anyway (on every core); a frame whose pixels fail is known first
         damaged = {p: _cause(m, p) for p, m in cache.damaged.items()}
     listed = {id(f) for fs in named.values() for f in fs}
     aside = [(i, damaged[os.fspath(i.path)]) for i in infos

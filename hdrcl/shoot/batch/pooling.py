@@ -85,11 +85,14 @@ def _open_set(job: SetJob) -> _Opened:
     return _Opened(infos=timed, times=times, ev_offset=math.log2(k), notes=notes, stamp=stamp)
 
 
-def _calibration_grid(job: SetJob, opened: _Opened, ignore_color):
-    """The decimated grid of a set that sample selection works on (one streaming read)."""
+def _calibration_grid(job: SetJob, opened: _Opened, ignore_color, hold: bool = False):
+    """The decimated grid of a set that sample selection works on (one streaming read);
+    with ``hold``, the frames decoded for it are held for the set's merge
+    (:func:`hdrcl.io.ahead.read_and_hold`: in memory, else spilled, within the budget;
+    a set beyond it keeps only its grid and its merge decodes it again)."""
     from hdrcl.core.bracket import grid_bracket
 
-    return grid_bracket(list(job.files), opened.infos, opened.times, ignore_color)
+    return grid_bracket(list(job.files), opened.infos, opened.times, ignore_color, hold=hold)
 
 
 # -------------------------------------------------------------------- responses
@@ -123,9 +126,10 @@ def _key_digest(key: str) -> str:
 
 
 def _calibrate_group(group: str, jobs: List[SetJob], out_dir: str, options: BatchOptions,
-                     defer: bool = False) -> ResponseEntry:
+                     defer: bool = False, hold=frozenset()) -> ResponseEntry:
     """Load the group's saved response if its key matches, else solve and save it; with
-    ``defer``, a group of one set is left to that set's merge (:func:`solve_deferred`)."""
+    ``defer``, a group of one set is left to that set's merge (:func:`solve_deferred`);
+    the frames of the sets ``hold`` (indices) are held for their merges."""
     entry, usable = saved_response(group, jobs, out_dir, options)
     if entry.source == "loaded":
         logger.info("%s: response loaded from %s", group, entry.file)
@@ -136,7 +140,7 @@ def _calibrate_group(group: str, jobs: List[SetJob], out_dir: str, options: Batc
         entry.source = "calibrated"
         entry.sets = [usable[0].index]
         return entry
-    return _solve_pool(entry, usable, options)
+    return _solve_pool(entry, usable, options, hold=hold)
 
 
 def saved_response(group: str, jobs: List[SetJob], out_dir: str, options: BatchOptions):
@@ -178,9 +182,12 @@ def saved_response(group: str, jobs: List[SetJob], out_dir: str, options: BatchO
     return entry, usable
 
 
-def _solve_pool(entry: ResponseEntry, usable: List[SetJob], options: BatchOptions, grids=None) -> ResponseEntry:
+def _solve_pool(entry: ResponseEntry, usable: List[SetJob], options: BatchOptions, grids=None,
+                hold=frozenset()) -> ResponseEntry:
     """Solve the pooled response of ``usable`` (their sampling grids read here, or given
-    as ``grids``: ``{index: (infos, (frames, times, valid), paths)}``) and save it with its key."""
+    as ``grids``: ``{index: (infos, (frames, times, valid), paths)}``) and save it with its key.
+    The frames of the sets ``hold`` (indices) read here are held for their merges, so that
+    each frame is decoded once (:func:`_calibration_grid`)."""
     from hdrcl.core.solve import recover_response_pooled
 
     from hdrcl.core.bracket import Bracket
@@ -198,7 +205,7 @@ def _solve_pool(entry: ResponseEntry, usable: List[SetJob], options: BatchOption
         else:
             try:
                 opened = _open_set(j)
-                br = _calibration_grid(j, opened, options.ignore_color)
+                br = _calibration_grid(j, opened, options.ignore_color, hold=j.index in hold)
             except HdrclError as exc:
                 entry.warnings.append(f"set {j.index} not pooled: {str(exc).splitlines()[0]}")
                 continue
@@ -346,10 +353,30 @@ def _cached(group: str, cache: str, first_info) -> "ResponseEntry | None":
 
 
 def _prepare_responses(plan: _Plan, out_dir: str, options: BatchOptions, response=None,
-                       defer: bool = False, cache=None) -> Dict[str, ResponseEntry]:
+                       defer: bool = False, cache=None, hold: bool = False) -> Dict[str, ResponseEntry]:
     """Every needed group's response: given, from the ``cache`` folder, loaded, solved
     now, or (``defer``) left to the merge of a group's only set (saved into ``cache``
-    when given, else ``out_dir``)."""
+    when given, else ``out_dir``).
+
+    ``hold``: the sets are merged next in this process, so the frames a pooled solve
+    decodes of the selected sets are held for their merges (:mod:`hdrcl.io.ahead`: taken
+    when the merge opens them, dropped by ``cancel_all`` at the end of the run); an error
+    or a cancel here drops them at once."""
+    if not hold:
+        return _responses(plan, out_dir, options, response, defer, cache, frozenset())
+    from hdrcl.io import ahead
+
+    merging = list(plan.selected)
+    try:
+        return _responses(plan, out_dir, options, response, defer, cache, frozenset(j.index for j in merging))
+    except BaseException:
+        for j in merging:
+            ahead.discard(j.files)
+        raise
+
+
+def _responses(plan: _Plan, out_dir: str, options: BatchOptions, response, defer: bool, cache,
+               hold: frozenset) -> Dict[str, ResponseEntry]:
     needed = sorted({j.group for j in plan.selected})
     if response is not None:
         if isinstance(response, Response):
@@ -372,7 +399,7 @@ def _prepare_responses(plan: _Plan, out_dir: str, options: BatchOptions, respons
             if out[g] is not None:
                 continue
         out[g] = _calibrate_group(g, [plan.jobs[i] for i in _pool_of(plan.groups[g])], folder or out_dir, options,
-                                  defer=defer)
+                                  defer=defer, hold=hold)
     return out
 
 

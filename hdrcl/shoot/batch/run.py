@@ -151,7 +151,7 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
                 ahead = reader.submit(read, jobs[i + 1], True)
             if isinstance(step, _Opening):
                 step = _merge_stage(step, ctx)
-                discard(jobs[i].files)  # decoded ahead but never opened (merged elsewhere, failed early)
+            discard(jobs[i].files)  # decoded ahead or held but never opened (up to date, merged elsewhere, failed)
             step.seconds["total"] = _time.perf_counter() - started[step.index]
             emit(step)
     finally:
@@ -302,7 +302,8 @@ def run_batch(source, out_dir, *, options: Optional[BatchOptions] = None,
                     _reference_text(plan.reference))
         # A camera with one set in the manifest is calibrated by that set's merge, from the
         # decode that feeds its fusion (each frame decoded once).
-        responses = _prepare_responses(plan, out_dir, options, response, defer=not s.calibrate_only, cache=cache)
+        responses = _prepare_responses(plan, out_dir, options, response, defer=not s.calibrate_only, cache=cache,
+                                       hold=_pipelined(s, plan))  # frames decoded to calibrate serve the merges
         unreadable = damaged_files(manifest) if ranges is None else []
         rep = BatchReport(unmerged=[{"files": [os.path.abspath(f) for f in u.files], "reason": u.reason}
                                     for u in manifest.unmerged],
@@ -343,6 +344,11 @@ def _make_folders(folders) -> None:
             os.makedirs(folder, exist_ok=True)
         except OSError as exc:
             raise UsageError(f"{folder}: cannot create the {what} folder ({exc.strerror or exc})") from None
+
+
+def _pipelined(s: RunSettings, plan) -> bool:
+    """Whether the sets run in this process (:func:`_run_pipelined`, as :func:`_run_sets` decides)."""
+    return not s.calibrate_only and s.scheduler is None and (s.jobs <= 1 or len(plan.selected) <= 1)
 
 
 def _run_sets(plan, ctx: _Context, s: RunSettings, rep: BatchReport, out_dir: str, progress) -> List[SetResult]:
