@@ -36,7 +36,7 @@ ROOT = os.path.dirname(HERE)
 
 if HERE not in sys.path:
     sys.path.insert(0, HERE)
-import bench  # noqa: E402  (scripts/bench.py: loadavg, timed_child)
+import benchlib  # noqa: E402  (scripts/benchlib.py: loadavg, timed_child)
 
 
 
@@ -82,7 +82,7 @@ def main(argv=None) -> int:
     info = shoot_bench.generate_shoot(a.workdir, a.data, a.shape, a.mp, a.sets, frames)
     photos = info["photos"]
     print(f"shoot: {info['frames']} frames in {len(info['sets'])} sets, {info['megapixels']:.0f} MP ({photos})")
-    print(f"load before: {bench.loadavg()}  (cores: {os.cpu_count()})")
+    print(f"load before: {benchlib.loadavg()}  (cores: {os.cpu_count()})")
     out, rep = os.path.join(a.workdir, "out"), os.path.join(a.workdir, "report")
     plain, reported = [], []
     run_batch(photos, out)  # warm the page cache and the OpenCL program cache
@@ -92,7 +92,7 @@ def main(argv=None) -> int:
         plain.append(p)
         reported.append(r)
         print(f"round {k + 1}: batch {p['wall']:.2f} s {p['rss_mb']:.0f} MB | --report {r['wall']:.2f} s "
-              f"{r['rss_mb']:.0f} MB (quality {r['quality']:.2f} s) | load {bench.loadavg()}")
+              f"{r['rss_mb']:.0f} MB (quality {r['quality']:.2f} s) | load {benchlib.loadavg()}")
 
     def med(rows, key):
         return statistics.median(x[key] for x in rows)
@@ -103,7 +103,7 @@ def main(argv=None) -> int:
           f"quality stage {med(reported, 'quality'):.2f} s summed over sets")
     print(f"--report / batch: wall {statistics.median(ratios):.2f}x (median of each round's ratio; target <= 1.30), "
           f"peak memory {med(reported, 'rss_mb') / med(plain, 'rss_mb'):.2f}x (target <= 1.00)")
-    print(f"load after: {bench.loadavg()}")
+    print(f"load after: {benchlib.loadavg()}")
     return 0
 
 

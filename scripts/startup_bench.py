@@ -37,7 +37,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 
 if HERE not in sys.path:
     sys.path.insert(0, HERE)
-import bench  # noqa: E402  (scripts/bench.py: loadavg, timed_child)
+import benchlib  # noqa: E402  (scripts/benchlib.py: loadavg, timed_child)
 DEFAULT_FRAMES = os.path.join(HERE, "..", "..", "shared", "data", "frobisher_001", "*.jpg")
 
 IO_FLOOR = """
@@ -116,14 +116,14 @@ def main(argv=None):
             ]
         print(f"set: {len(frames)} frames, {frames[0]} ...; {args.runs} runs each; "
               f"bytecode {'as the environment has it' if args.as_is else 'cached in ' + args.pyc_dir}; "
-              f"loadavg {bench.loadavg()}")
+              f"loadavg {benchlib.loadavg()}")
         for _, cmd in cases:  # warm the page cache, the bytecode and the OpenCL program caches
-            bench.timed_child(cmd, env)
+            benchlib.timed_child(cmd, env)
         stats = {name: [] for name, _ in cases}
         last = None
         for _ in range(args.runs):  # rounds alternate the commands: drift hits all alike
             for name, cmd in cases:
-                wall, cpu, r = bench.timed_child(cmd, env)
+                wall, cpu, r = benchlib.timed_child(cmd, env)
                 stats[name].append((wall, cpu))
                 if cmd is merge:
                     last = r
@@ -134,7 +134,7 @@ def main(argv=None):
             print(f"{name:34s} {statistics.median(walls):9.3f} {min(walls):9.3f} {statistics.median(cpus):9.3f}")
         med = statistics.median(w for w, _ in stats[cases[0][0]])
         print(f"end to end: median {med:.3f} s wall against the target {args.target:.2f} s "
-              f"({'met' if med <= args.target else 'not met'}); loadavg {bench.loadavg()}")
+              f"({'met' if med <= args.target else 'not met'}); loadavg {benchlib.loadavg()}")
         if last is not None and last.stdout.strip():
             print("merge said:", last.stdout.strip().splitlines()[0])
         if args.imports:
