@@ -65,8 +65,9 @@ def child_env(args):
 
 
 
-def import_top(cmd, env, n=12):
-    """The ``n`` top-level modules with the largest cumulative import time in ``cmd``."""
+def import_times(cmd, env):
+    """``[(self_us, cumulative_us, depth, module)]`` of every import in one run of ``cmd``
+    (``python -X importtime``), in the order Python reports them."""
     r = subprocess.run([sys.executable, "-X", "importtime"] + cmd[1:], capture_output=True, text=True, env=env)
     rows = []
     for line in r.stderr.splitlines():
@@ -74,14 +75,29 @@ def import_top(cmd, env, n=12):
             continue
         parts = line.split("|")
         try:
-            cum = int(parts[1])
-        except ValueError:
+            own, cum = int(parts[0].split(":")[1]), int(parts[1])
+        except (ValueError, IndexError):
             continue
         name = parts[2].rstrip()
-        if not name.startswith("  "):  # imported at the top of some chain
-            rows.append((cum, name.strip()))
+        depth = (len(name) - len(name.lstrip())) // 2
+        rows.append((own, cum, depth, name.strip()))
+    return rows
+
+
+def import_top(cmd, env, n=12):
+    """The ``n`` top-level modules with the largest cumulative import time in ``cmd``."""
+    rows = [(cum, name) for _, cum, depth, name in import_times(cmd, env) if depth <= 1]
     rows.sort(reverse=True)
     return rows[:n]
+
+
+def import_packages(cmd, env, n=12):
+    """Import time by top-level package (sum of the modules' own times), largest first:
+    what the start-up spends per library (numpy, OpenImageIO, hdrcl, click, ...)."""
+    by = {}
+    for own, _, _, name in import_times(cmd, env):
+        by[name.split(".")[0]] = by.get(name.split(".")[0], 0) + own
+    return sorted(((us, pkg) for pkg, us in by.items()), reverse=True)[:n]
 
 
 def main(argv=None):
@@ -141,6 +157,9 @@ def main(argv=None):
             print("slowest imports of one merge (cumulative ms, python -X importtime):")
             for cum, name in import_top(merge, env):
                 print(f"  {cum / 1000:8.1f}  {name}")
+            print("import time by package (ms, sum of the modules' own times, one run):")
+            for us, pkg in import_packages(merge, env):
+                print(f"  {us / 1000:8.1f}  {pkg}")
         if args.profile:
             r = subprocess.run([py, "-m", "cProfile", "-s", "cumtime", "-m", "hdrcl", "merge", *frames, "-o", out],
                                capture_output=True, text=True, env=env)

@@ -62,3 +62,22 @@ def test_benchmark_scripts_form_no_circle():
     assert "benchlib" in edges["bench"] and "benchlib" in edges["shoot_bench"]
     assert edges["benchlib"] == set()
     assert circles(edges) == [], circles(edges)
+
+
+def test_startup_bench_import_times_by_package():
+    """startup_bench.py --imports: the import costs of a command, per module and per package."""
+    import os
+    import sys
+
+    sys.path.insert(0, str(SCRIPTS))
+    try:
+        import startup_bench as sb
+    finally:
+        sys.path.remove(str(SCRIPTS))
+    cmd = [sys.executable, "-c", "import json, email.mime.text"]
+    rows = sb.import_times(cmd, dict(os.environ))
+    names = {name for _, _, _, name in rows}
+    assert {"json", "email.mime.text"} <= names, names
+    assert all(own >= 0 and cum >= own for own, cum, _, _ in rows)
+    pkgs = dict((pkg, us) for us, pkg in sb.import_packages(cmd, dict(os.environ), n=50))
+    assert pkgs.get("email", 0) > 0 and "json" in pkgs
