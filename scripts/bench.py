@@ -576,6 +576,7 @@ def _summ(runs: list) -> dict:
     best = min(ok, key=lambda r: r["wall_s"])
     BACKGROUND.extend(r["background_cpu"] for r in ok if "background_cpu" in r)
     return {"best_s": best["wall_s"], "all_s": [round(r["wall_s"], 3) for r in ok],
+            "cpu_all_s": [round(r["user_s"] + r["sys_s"], 3) for r in ok],
             "rss_mb": max(r["rss_mb"] for r in ok), "cmd": ok[0]["cmd"],
             "background_cpu_best_run": best.get("background_cpu"),
             **({"error": f"{len(runs) - len(ok)} of {len(runs)} runs failed"} if len(ok) < len(runs) else {})}
@@ -660,6 +661,8 @@ def bench_size(work: str, mp: float, frames: int, repeat: int, opencv: str, solv
     if len(r["opencv"].get("all_s", [])) >= 2 and len(m_hdr.get("all_s", [])) >= 2:
         # medians beside the best runs: on a shared machine the best run may be a lucky one
         rat["vs_opencv_median"] = statistics.median(r["opencv"]["all_s"]) / statistics.median(m_hdr["all_s"])
+        # and of CPU seconds (user + system), which other processes on the cores move far less
+        rat["vs_opencv_cpu"] = statistics.median(r["opencv"]["cpu_all_s"]) / statistics.median(m_hdr["cpu_all_s"])
     if "best_s" in r["opencv"] and "best_s" in r["merge_hdr_response"]:
         rat["vs_opencv_response_given"] = r["opencv"]["best_s"] / r["merge_hdr_response"]["best_s"]
     if "decode_parallel_s" in ip:
@@ -982,7 +985,7 @@ def print_report(res: dict, rows: list) -> None:
               f"{ph['calibrate_s']:.2f}, merge {ph['merge_s']:.2f}, imwrite {ph['imwrite_s']:.2f} s "
               f"({ph['threads']} threads)")
         p(f"  ratios: vs OpenCV {_fmt(rat.get('vs_opencv'), 'x', 1)} (calibrating, best runs; medians "
-          f"{_fmt(rat.get('vs_opencv_median'), 'x', 2)}; "
+          f"{_fmt(rat.get('vs_opencv_median'), 'x', 2)}, CPU-seconds {_fmt(rat.get('vs_opencv_cpu'), 'x', 2)}; "
           f"{_fmt(rat.get('vs_opencv_response_given'), 'x', 1)} with response given), "
           f"vs decode+encode {_fmt(rat.get('vs_decode_encode'), 'x')} (response given; "
           f"{_fmt(rat.get('vs_decode_encode_calibrating'), 'x')} calibrating)")
