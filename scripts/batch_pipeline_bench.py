@@ -25,7 +25,7 @@ import tempfile
 HERE = os.path.dirname(os.path.abspath(__file__))
 if HERE not in sys.path:
     sys.path.insert(0, HERE)
-import bench  # noqa: E402  (scripts/bench.py: loadavg, timed_child)
+import benchlib  # noqa: E402  (scripts/benchlib.py: loadavg, timed_child)
 
 VARIANTS = {
     "ahead": ({}, []),
@@ -40,7 +40,7 @@ def run_once(shoot, out, env_extra, extra):
     env.setdefault("PYTHONPYCACHEPREFIX", os.path.join(tempfile.gettempdir(), "hdrcl-startup-pyc"))
     env.update(env_extra)
     cmd = [sys.executable, "-m", "hdrcl", "batch", shoot, "-r", "-o", out, "--force", "--quiet", *extra]
-    wall, cpu, _ = bench.timed_child(cmd, env)
+    wall, cpu, _ = benchlib.timed_child(cmd, env)
     return wall, cpu
 
 
@@ -57,7 +57,7 @@ def main(argv=None):
     cores = os.cpu_count() or 1
     tmp = tempfile.mkdtemp(prefix="hdrcl-pipeline-bench-")
     try:
-        print(f"shoot {args.shoot}; {args.runs} round(s); {cores} cores; loadavg {bench.loadavg()}")
+        print(f"shoot {args.shoot}; {args.runs} round(s); {cores} cores; loadavg {benchlib.loadavg()}")
         run_once(args.shoot, os.path.join(tmp, "warm"), {}, [])  # page cache, bytecode, OpenCL programs
         got = {n: [] for n in names}
         for _ in range(args.runs):
@@ -70,7 +70,7 @@ def main(argv=None):
             cpus = [c for _, c in got[n]]
             w, c = statistics.median(walls), statistics.median(cpus)
             print(f"{n:10s} {w:9.2f} [{min(walls):6.2f} - {max(walls):6.2f}] s {c:7.2f} {c / (w * cores):9.0%}")
-        print(f"loadavg after {bench.loadavg()}")
+        print(f"loadavg after {benchlib.loadavg()}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

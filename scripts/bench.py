@@ -34,10 +34,8 @@ import datetime as _dt
 import json
 import math
 import os
-import platform
 import re
 import shutil
-import signal
 import statistics
 import subprocess
 import sys
@@ -46,10 +44,15 @@ import time
 import numpy as np
 
 SCRIPT = os.path.abspath(__file__)
+HERE = os.path.dirname(SCRIPT)
+if HERE not in sys.path:
+    sys.path.insert(0, HERE)
+
+from benchlib import (MB, WAIT_IDLE, cpu_seconds, ensure_importable, have_opencv, hdrcl_cmd,  # noqa: E402
+                      machine_facts, read_frame, run_measured)
 #: Bump when the generated scenes change, so cached inputs are regenerated.
 GEN_VERSION = 1
 JPEG_QUALITY = 92
-MB = 1e6  # peak RSS and bandwidths are reported in decimal units (MB, GB/s)
 
 # Targets of issues 4 and 11 (value, direction): "min" means the figure must be >= value.
 TARGETS = {
@@ -66,47 +69,10 @@ TARGETS = {
 }
 
 
-def loadavg() -> str:
-    """The 1, 5 and 15-minute load averages (``/proc/loadavg``), or ``n/a``: printed beside
-    every figure of the benchmarks, since a busy neighbour on 2 cores halves a figure."""
-    try:
-        with open("/proc/loadavg") as f:
-            return " ".join(f.read().split()[:3])
-    except OSError:
-        return "n/a"
-
-
-def timed_child(cmd, env=None):
-    """``(wall seconds, CPU seconds of the child, CompletedProcess)`` of one run of
-    ``cmd``; SystemExit with its stderr's tail when it fails."""
-    import resource
-
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    r = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if r.returncode != 0:
-        raise SystemExit(f"{' '.join(map(str, cmd[:4]))} ... failed ({r.returncode}):\n{r.stderr[-2000:]}")
-    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), r
-
 
 def _log(msg: str) -> None:
     print(f"[bench {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
-
-def _ensure_importable() -> None:
-    """Make ``import hdrcl`` find the checkout this script belongs to (in this process and
-    in every child, workers included), so that the CLI processes (``python -m hdrcl``)
-    and the in-process workers measure the same code even where another checkout is
-    installed in the environment; other installs are used only without a checkout."""
-    if os.environ.get("PYTHONPATH"):  # absolute, so children started in other folders see it too
-        os.environ["PYTHONPATH"] = os.pathsep.join(os.path.abspath(p) if p else p
-                                                   for p in os.environ["PYTHONPATH"].split(os.pathsep))
-    root = os.path.dirname(os.path.dirname(SCRIPT))
-    if os.path.isdir(os.path.join(root, "hdrcl")):
-        sys.path.insert(0, root)
-        os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)
 
 
 # --------------------------------------------------------------------------------------
@@ -339,111 +305,6 @@ def ensure_set(work: str, mp: float, frames: int, seed: int = 1, start=None, nam
     return info
 
 
-# --------------------------------------------------------------------------------------
-# Running processes: wall time and the child's own peak RSS
-# --------------------------------------------------------------------------------------
-
-# A small launcher between the benchmark and each measured process. Linux charges a
-# child's ru_maxrss with the high-water mark of the address space it replaced at exec:
-# spawned straight from this (large) benchmark process, every child would report at
-# least the benchmark's own RSS. The launcher is small, so its child's figure is clean.
-LAUNCHER = r"""
-import json, os, subprocess, sys, time
-spec = json.loads(sys.argv[1])
-with open(spec["stdout"], "wb") as out, open(spec["stderr"], "wb") as err:
-    t0 = time.perf_counter()
-    p = subprocess.Popen(spec["cmd"], stdout=out, stderr=err, cwd=spec.get("cwd"))
-    _, status, ru = os.wait4(p.pid, 0)
-    wall = time.perf_counter() - t0
-p.returncode = os.waitstatus_to_exitcode(status)
-me = __import__("resource").getrusage(__import__("resource").RUSAGE_SELF)
-print(json.dumps({"wall_s": wall, "maxrss_kib": ru.ru_maxrss, "user_s": ru.ru_utime,
-                  "sys_s": ru.ru_stime, "rc": p.returncode, "launcher_cpu_s": me.ru_utime + me.ru_stime}))
-"""
-
-
-def _cpu_seconds():
-    """Busy and stolen CPU seconds of the whole machine so far (from /proc/stat)."""
-    try:
-        with open("/proc/stat") as f:
-            v = [int(x) for x in f.readline().split()[1:9]]
-    except (OSError, ValueError):
-        return None
-    hz = os.sysconf("SC_CLK_TCK")
-    user, nice, system, _idle, _iowait, irq, softirq, steal = v + [0] * (8 - len(v))
-    return (user + nice + system + irq + softirq) / hz, steal / hz
-
-
-#: --wait-idle: seconds to wait, before each measured run, for other processes to calm down.
-WAIT_IDLE = {"max_s": 0.0, "waited_s": 0.0}
-
-
-def _wait_idle() -> None:
-    """Wait (at most WAIT_IDLE["max_s"]) until other processes use < 15 % of the CPU."""
-    deadline = time.perf_counter() + WAIT_IDLE["max_s"]
-    t_start = time.perf_counter()
-    while time.perf_counter() < deadline:
-        c0, t0 = _cpu_seconds(), time.perf_counter()
-        time.sleep(0.5)
-        c1, t1 = _cpu_seconds(), time.perf_counter()
-        if c0 is None or (c1[0] - c0[0]) / ((t1 - t0) * (os.cpu_count() or 1)) < 0.15:
-            break
-    WAIT_IDLE["waited_s"] += time.perf_counter() - t_start
-
-
-def run_measured(cmd, logdir: str, tag: str, timeout: float = 3600, cwd=None) -> dict:
-    """Run ``cmd`` once; wall seconds, peak RSS (MB) of that process, exit code, output."""
-    if WAIT_IDLE["max_s"] > 0:
-        _wait_idle()
-    os.makedirs(logdir, exist_ok=True)
-    out_p = os.path.join(logdir, f"{tag}.out")
-    err_p = os.path.join(logdir, f"{tag}.err")
-    spec = json.dumps({"cmd": [str(c) for c in cmd], "stdout": out_p, "stderr": err_p, "cwd": cwd})
-    cpu0, t0 = _cpu_seconds(), time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-c", LAUNCHER, spec], stdout=subprocess.PIPE,
-                            start_new_session=True)
-    try:
-        raw, _ = proc.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)  # the launcher's own session: it and the child
-        proc.communicate()
-        return {"rc": None, "error": f"timed out after {timeout:.0f} s", "cmd": _short(cmd)}
-    try:
-        res = json.loads(raw.decode().strip().splitlines()[-1])
-    except (ValueError, IndexError):
-        return {"rc": None, "error": f"launcher failed (rc {proc.returncode})", "cmd": _short(cmd)}
-    with open(out_p, errors="replace") as f:
-        res["stdout"] = f.read()
-    with open(err_p, errors="replace") as f:
-        res["stderr"] = f.read()
-    res["rss_mb"] = res.pop("maxrss_kib") * 1024 / MB
-    res["cmd"] = _short(cmd)
-    cpu1, elapsed = _cpu_seconds(), time.perf_counter() - t0
-    if cpu0 and cpu1:
-        # CPU that other processes (other users, other jobs) used meanwhile, as a
-        # fraction of the machine: a measurement disturbed by them is flagged.
-        ours = res["user_s"] + res["sys_s"] + res.get("launcher_cpu_s", 0.0)
-        res["background_cpu"] = max(0.0, cpu1[0] - cpu0[0] - ours) / (elapsed * (os.cpu_count() or 1))
-        res["steal_cpu"] = (cpu1[1] - cpu0[1]) / (elapsed * (os.cpu_count() or 1))
-    if res["rc"] != 0:
-        tail = (res["stderr"].strip().splitlines() or ["(no output)"])[-1]
-        res["error"] = f"exit {res['rc']}: {tail}"
-    return res
-
-
-def _short(cmd) -> str:
-    """A command line for the report, with long file lists shortened."""
-    parts = [os.path.basename(str(c)) if os.sep in str(c) else str(c) for c in cmd]
-    if parts and parts[0].startswith("python"):
-        parts[0] = "python"
-    return " ".join(parts)
-
-
-def hdrcl_cmd(*args) -> list:
-    """The CLI as ``python -m hdrcl`` (the same code as the installed ``hdrcl`` script)."""
-    return [sys.executable, "-m", "hdrcl", *[str(a) for a in args]]
-
-
 def run_worker(kind: str, spec: dict, logdir: str, tag: str, timeout: float = 7200) -> dict:
     """Run an in-process measurement in its own Python process; returns its JSON."""
     res = run_measured([sys.executable, SCRIPT, "--worker", kind, json.dumps(spec)], logdir, tag, timeout)
@@ -461,23 +322,6 @@ def run_worker(kind: str, spec: dict, logdir: str, tag: str, timeout: float = 72
 # Workers (each runs in its own process)
 # --------------------------------------------------------------------------------------
 
-def _read_frame(path: str) -> np.ndarray:
-    """Decode one frame with OpenImageIO in its native integer type (as hdrcl does)."""
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(path)
-    if inp is None:
-        raise RuntimeError(f"{path}: {oiio.geterror()}")
-    try:
-        spec = inp.spec()
-        fmt = "uint8" if spec.format.basetype == oiio.UINT8 else "uint16"
-        px = inp.read_image(0, 0, 0, spec.nchannels, fmt)
-    finally:
-        inp.close()
-    if px is None:
-        raise RuntimeError(f"{path}: decode failed")
-    return np.asarray(px)
-
 
 def _best(fn, repeat: int, out: dict = None, key: str = None):
     """Best wall time of ``repeat`` calls and the last result.
@@ -491,11 +335,11 @@ def _best(fn, repeat: int, out: dict = None, key: str = None):
     times, bgs, result = [], [], None
     for _ in range(max(1, repeat)):
         result = None  # free the previous result before the next run
-        c0, r0 = _cpu_seconds(), resource.getrusage(resource.RUSAGE_SELF)
+        c0, r0 = cpu_seconds(), resource.getrusage(resource.RUSAGE_SELF)
         t0 = time.perf_counter()
         result = fn()
         dt = time.perf_counter() - t0
-        c1, r1 = _cpu_seconds(), resource.getrusage(resource.RUSAGE_SELF)
+        c1, r1 = cpu_seconds(), resource.getrusage(resource.RUSAGE_SELF)
         times.append(dt)
         if c0 and c1 and dt >= 0.25:  # /proc/stat counts in 10 ms ticks: too coarse below
             own = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
@@ -553,14 +397,14 @@ def worker_inproc(spec: dict) -> dict:
     """Decode-only, response solve, fusion kernel alone, encode-only, on one set."""
     paths, times, repeat = spec["paths"], spec["times"], spec["repeat"]
     out = {}
-    _read_frame(paths[0])  # load OIIO and its JPEG plugin outside the timing
+    read_frame(paths[0])  # load OIIO and its JPEG plugin outside the timing
     workers = max(1, min(len(paths), os.cpu_count() or 1))
-    _, _, frames = _best(lambda: [_read_frame(p) for p in paths], repeat, out, "decode_serial")
+    _, _, frames = _best(lambda: [read_frame(p) for p in paths], repeat, out, "decode_serial")
     frames = None
 
     def parallel():
         with concurrent.futures.ThreadPoolExecutor(max_workers=workers) as pool:
-            return list(pool.map(_read_frame, paths))
+            return list(pool.map(read_frame, paths))
 
     _, _, frames = _best(parallel, repeat, out, "decode_parallel")
     out["decode_threads"] = workers
@@ -711,58 +555,6 @@ print(json.dumps({"import_s": t1 - t0, "imread_s": t2 - t1, "calibrate_s": t3 - 
 # Orchestration
 # --------------------------------------------------------------------------------------
 
-def machine_facts(logdir: str) -> dict:
-    facts = {"python": platform.python_version(), "platform": platform.platform(),
-             "cpu_count": os.cpu_count(), "numpy": np.__version__}
-    try:
-        with open("/proc/cpuinfo") as f:
-            m = re.search(r"^model name\s*:\s*(.+)$", f.read(), re.M)
-        facts["cpu"] = m.group(1).strip() if m else platform.processor()
-    except OSError:
-        facts["cpu"] = platform.processor()
-    try:
-        with open("/proc/meminfo") as f:
-            m = re.search(r"^MemTotal:\s*(\d+) kB", f.read(), re.M)
-        facts["memory_gb"] = round(int(m.group(1)) * 1024 / 1e9, 1)
-    except (OSError, AttributeError):
-        pass
-    res = run_measured(hdrcl_cmd("devices", "--json"), logdir, "devices", timeout=300)
-    if res.get("rc") == 0:
-        d = json.loads(res["stdout"])
-        facts["opencl_device"] = d.get("selected")
-        facts["opencl_devices"] = [f"{r['id']} {r['platform']} / {r['device']}" for r in d.get("devices", [])]
-        facts["opencl_problem"] = d.get("problem")
-    else:
-        facts["opencl_device"] = None
-        facts["opencl_problem"] = res.get("error")
-    try:
-        import OpenImageIO as oiio
-
-        facts["openimageio"] = oiio.__version__
-    except ImportError:
-        pass
-    try:
-        import hdrcl
-
-        facts["hdrcl"] = getattr(hdrcl, "__version__", None)
-        top = os.path.dirname(os.path.dirname(os.path.abspath(hdrcl.__file__)))
-        rev = subprocess.run(["git", "-C", top, "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-        if rev.returncode == 0:
-            dirty = subprocess.run(["git", "-C", top, "status", "--porcelain", "--untracked-files=no"],
-                                   capture_output=True, text=True).stdout.strip()
-            facts["hdrcl_git"] = rev.stdout.strip() + ("+uncommitted changes" if dirty else "")
-    except Exception:
-        pass
-    for var in ("PYOPENCL_CTX", "HDRCL_OPENCL", "OMP_NUM_THREADS"):
-        if os.environ.get(var):
-            facts[var] = os.environ[var]
-    return facts
-
-
-def have_opencv() -> str:
-    r = subprocess.run([sys.executable, "-c", "import cv2; print(cv2.__version__)"], capture_output=True, text=True)
-    return r.stdout.strip() if r.returncode == 0 else ""
-
 
 #: The hdrcl merge runs per size: output type, response given (True) or calibrated.
 MERGE_VARIANTS = {
@@ -784,6 +576,7 @@ def _summ(runs: list) -> dict:
     best = min(ok, key=lambda r: r["wall_s"])
     BACKGROUND.extend(r["background_cpu"] for r in ok if "background_cpu" in r)
     return {"best_s": best["wall_s"], "all_s": [round(r["wall_s"], 3) for r in ok],
+            "cpu_all_s": [round(r["user_s"] + r["sys_s"], 3) for r in ok],
             "rss_mb": max(r["rss_mb"] for r in ok), "cmd": ok[0]["cmd"],
             "background_cpu_best_run": best.get("background_cpu"),
             **({"error": f"{len(runs) - len(ok)} of {len(runs)} runs failed"} if len(ok) < len(runs) else {})}
@@ -840,7 +633,7 @@ def bench_size(work: str, mp: float, frames: int, repeat: int, opencv: str, solv
         r[k] = _summ(runs[k]) if runs[k] else {"error": "not run (calibrate failed)"}
 
     if opencv:
-        cv_rep = 1 if mp >= 50 else min(2, repeat)
+        cv_rep = 1 if mp >= 50 else repeat  # as many as hdrcl's: medians of >= 3 are quoted
         cvruns = []
         for rep in range(cv_rep):
             outp = os.path.join(tmp, f"{tag}-opencv.hdr")
@@ -865,6 +658,11 @@ def bench_size(work: str, mp: float, frames: int, repeat: int, opencv: str, solv
     m_hdr, m_exr = r["merge_hdr_calibrate"], r["merge_exr_response"]
     if "best_s" in r["opencv"] and "best_s" in m_hdr:
         rat["vs_opencv"] = r["opencv"]["best_s"] / m_hdr["best_s"]
+    if len(r["opencv"].get("all_s", [])) >= 2 and len(m_hdr.get("all_s", [])) >= 2:
+        # medians beside the best runs: on a shared machine the best run may be a lucky one
+        rat["vs_opencv_median"] = statistics.median(r["opencv"]["all_s"]) / statistics.median(m_hdr["all_s"])
+        # and of CPU seconds (user + system), which other processes on the cores move far less
+        rat["vs_opencv_cpu"] = statistics.median(r["opencv"]["cpu_all_s"]) / statistics.median(m_hdr["cpu_all_s"])
     if "best_s" in r["opencv"] and "best_s" in r["merge_hdr_response"]:
         rat["vs_opencv_response_given"] = r["opencv"]["best_s"] / r["merge_hdr_response"]["best_s"]
     if "decode_parallel_s" in ip:
@@ -1186,7 +984,8 @@ def print_report(res: dict, rows: list) -> None:
             p(f"    OpenCV phases: import {ph['import_s']:.2f}, imread {ph['imread_s']:.2f}, calibrate "
               f"{ph['calibrate_s']:.2f}, merge {ph['merge_s']:.2f}, imwrite {ph['imwrite_s']:.2f} s "
               f"({ph['threads']} threads)")
-        p(f"  ratios: vs OpenCV {_fmt(rat.get('vs_opencv'), 'x', 1)} (calibrating; "
+        p(f"  ratios: vs OpenCV {_fmt(rat.get('vs_opencv'), 'x', 1)} (calibrating, best runs; medians "
+          f"{_fmt(rat.get('vs_opencv_median'), 'x', 2)}, CPU-seconds {_fmt(rat.get('vs_opencv_cpu'), 'x', 2)}; "
           f"{_fmt(rat.get('vs_opencv_response_given'), 'x', 1)} with response given), "
           f"vs decode+encode {_fmt(rat.get('vs_decode_encode'), 'x')} (response given; "
           f"{_fmt(rat.get('vs_decode_encode_calibrating'), 'x')} calibrating)")
@@ -1250,11 +1049,11 @@ def main(argv=None) -> int:
                          "instead; the other options go to it (see shoot_bench.py --help)")
     ap.add_argument("--worker", nargs=2, help=argparse.SUPPRESS)
     args = sys.argv[1:] if argv is None else [str(x) for x in argv]
-    if "--shoot" in args:  # its own process: shoot_bench imports this module, never the other way
+    if "--shoot" in args:  # its own process; both scripts build on benchlib, neither imports the other
         return subprocess.call([sys.executable, os.path.join(os.path.dirname(SCRIPT), "shoot_bench.py"),
                                 *[x for x in args if x != "--shoot"]])
     a = ap.parse_args(argv)
-    _ensure_importable()
+    ensure_importable()
 
     if a.worker:
         kind, spec = a.worker

@@ -36,6 +36,7 @@ if HERE not in sys.path:
     sys.path.insert(0, HERE)
 
 import bench  # noqa: E402  (scripts/bench.py: the generated scene, the checkout on sys.path)
+import benchlib  # noqa: E402  (scripts/benchlib.py: loadavg)
 
 REFERENCE = 2.0 ** -6
 CAP = 40000.0  # the brightest value in the file: half floats hold it (a first pass is enough)
@@ -157,12 +158,12 @@ def main(argv=None) -> int:
     results = []
     import hdrcl
 
-    print(f"hdrcl from {os.path.dirname(hdrcl.__file__)}  load before: {bench.loadavg()}  cpus: {os.cpu_count()}")
+    print(f"hdrcl from {os.path.dirname(hdrcl.__file__)}  load before: {benchlib.loadavg()}  cpus: {os.cpu_count()}")
     with tempfile.TemporaryDirectory(prefix="hdrcl-encode-bench-") as folder:
         for mp in args.mp:
             for fmt in args.formats:
                 r = measure(mp, fmt, args.runs, folder, args.cap)
-                r["load"] = bench.loadavg()
+                r["load"] = benchlib.loadavg()
                 results.append(r)
                 print(f"{r['size']} {fmt}: hdrcl {r['hdrcl_wall_s']:.3f} s wall {r['hdrcl_cpu_s']:.3f} s CPU | "
                       f"OpenImageIO alone {r['floor_wall_s']:.3f} s wall {r['floor_cpu_s']:.3f} s CPU | "

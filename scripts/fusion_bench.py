@@ -42,6 +42,7 @@ if HERE not in sys.path:
     sys.path.insert(0, HERE)
 
 import bench  # noqa: E402  (scripts/bench.py: generated brackets, the checkout on sys.path)
+import benchlib  # noqa: E402  (scripts/benchlib.py: loadavg)
 
 
 def cpu_model() -> str:
@@ -152,7 +153,7 @@ def main(argv=None) -> int:
         info = bench.ensure_set(args.workdir, args.mp, args.frames)
         paths, times = info["paths"], np.asarray(info["times"], np.float64)
     threads = os.cpu_count() or 1
-    load0 = bench.loadavg()
+    load0 = benchlib.loadavg()
     frames = decode_all(paths, threads)  # warm-up: OIIO's JPEG plugin, page cache
     h, w, c = frames[0].shape
     order = np.argsort(times, kind="stable")
@@ -193,7 +194,7 @@ def main(argv=None) -> int:
     med = {k: statistics.median(v) for k, v in rows.items() if v}
     res = {
         "cpu": cpu_model(), "cpus": threads, "driver": proc.ctx.name,
-        "loadavg_before": load0, "loadavg_after": bench.loadavg(),
+        "loadavg_before": load0, "loadavg_after": benchlib.loadavg(),
         "frames": len(frames), "size": f"{w}x{h}", "frame_mp": round(fpx / 1e6, 1), "runs": args.runs,
         "weight": args.weight, "strip_rows": plan.rows,
         "decode_s": med["decode"], "fuse_s": med["fuse"], "kernel_s": med.get("kernel"),

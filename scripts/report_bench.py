@@ -36,7 +36,7 @@ ROOT = os.path.dirname(HERE)
 
 if HERE not in sys.path:
     sys.path.insert(0, HERE)
-import bench  # noqa: E402  (scripts/bench.py: loadavg, timed_child)
+import benchlib  # noqa: E402  (scripts/benchlib.py: loadavg, timed_child)
 
 
 
@@ -62,7 +62,8 @@ def run_batch(photos: str, out: str, report: str = None) -> dict:
         quality = sum(float((s.get("seconds") or {}).get("quality", 0.0)) for s in doc.get("sets", []))
     except (OSError, ValueError):
         pass
-    return {"wall": wall, "rss_mb": usage.ru_maxrss / 1024.0, "quality": quality}
+    return {"wall": wall, "rss_mb": usage.ru_maxrss / 1024.0, "quality": quality,
+            "cpu": usage.ru_utime + usage.ru_stime}
 
 
 def main(argv=None) -> int:
@@ -82,8 +83,9 @@ def main(argv=None) -> int:
     info = shoot_bench.generate_shoot(a.workdir, a.data, a.shape, a.mp, a.sets, frames)
     photos = info["photos"]
     print(f"shoot: {info['frames']} frames in {len(info['sets'])} sets, {info['megapixels']:.0f} MP ({photos})")
-    print(f"load before: {bench.loadavg()}  (cores: {os.cpu_count()})")
-    out, rep = os.path.join(a.workdir, "out"), os.path.join(a.workdir, "report")
+    print(f"load before: {benchlib.loadavg()}  (cores: {os.cpu_count()})")
+    # Own folders: the workdir may be shoot_bench.py's (its shoots reused), whose out/ it keeps.
+    out, rep = os.path.join(a.workdir, "report-bench", "out"), os.path.join(a.workdir, "report-bench", "report")
     plain, reported = [], []
     run_batch(photos, out)  # warm the page cache and the OpenCL program cache
     for k in range(a.runs):
@@ -91,8 +93,9 @@ def main(argv=None) -> int:
         r = run_batch(photos, out, rep)
         plain.append(p)
         reported.append(r)
-        print(f"round {k + 1}: batch {p['wall']:.2f} s {p['rss_mb']:.0f} MB | --report {r['wall']:.2f} s "
-              f"{r['rss_mb']:.0f} MB (quality {r['quality']:.2f} s) | load {bench.loadavg()}")
+        print(f"round {k + 1}: batch {p['wall']:.2f} s {p['cpu']:.2f} CPU-s {p['rss_mb']:.0f} MB | --report "
+              f"{r['wall']:.2f} s {r['cpu']:.2f} CPU-s {r['rss_mb']:.0f} MB (quality {r['quality']:.2f} s) | "
+              f"load {benchlib.loadavg()}")
 
     def med(rows, key):
         return statistics.median(x[key] for x in rows)
@@ -103,7 +106,10 @@ def main(argv=None) -> int:
           f"quality stage {med(reported, 'quality'):.2f} s summed over sets")
     print(f"--report / batch: wall {statistics.median(ratios):.2f}x (median of each round's ratio; target <= 1.30), "
           f"peak memory {med(reported, 'rss_mb') / med(plain, 'rss_mb'):.2f}x (target <= 1.00)")
-    print(f"load after: {bench.loadavg()}")
+    cpu = [r["cpu"] / p["cpu"] for p, r in zip(plain, reported)]
+    print(f"--report / batch CPU-seconds: {statistics.median(cpu):.2f}x (median of each round's ratio; the steadier "
+          f"figure on a shared machine)")
+    print(f"load after: {benchlib.loadavg()}")
     return 0
 
 

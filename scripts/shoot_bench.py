@@ -61,16 +61,19 @@ ROOT = os.path.dirname(HERE)
 if HERE not in sys.path:
     sys.path.insert(0, HERE)
 
-import bench  # noqa: E402  (scripts/bench.py: process launcher, machine facts, checkout on the path)
+import benchlib  # noqa: E402  (scripts/benchlib.py: process launcher, machine facts, checkout on the path)
+
+FLOORS = os.path.join(HERE, "floors.py")  # the decode, encode and fusion floors, each in its own process
 
 #: Bump when generated shoots change, so cached ones are regenerated.
 GEN_VERSION = 1
 SHAPES = ("one-camera", "per-camera")
+FLOOR_KINDS = ("decode", "encode", "fusion")
 DEFAULT_FRAMES = {"one-camera": "7", "per-camera": "5,7,9,13,7,5"}
 
 #: Targets: hdrcl batch (defaults) at least 5x the OpenCV loop and at most 1.6x the I/O
 #: floor (issue 26), at least 35 % of the decode floor's MP/s (issue 16).
-TARGETS = {"vs_opencv": 5.0, "vs_decode": 0.35, "io_floor": 1.6}
+TARGETS = {"vs_opencv": 5.0, "vs_decode": 0.35, "io_floor": 1.6, "cpu_floor": 1.3}
 
 #: Stage keys of report.json's per-set ``seconds``, printed in this order; keys not listed
 #: here follow in the order they are first met.
@@ -504,7 +507,7 @@ def bench_time(t: float) -> str:
 
 def check_with_scan(info: dict) -> dict:
     """``hdrcl scan`` reads the shoot back: the sets as generated, with their EXIF."""
-    r = subprocess.run(bench.hdrcl_cmd("scan", info["photos"], "--recursive", "--json"),
+    r = subprocess.run(benchlib.hdrcl_cmd("scan", info["photos"], "--recursive", "--json"),
                        capture_output=True, text=True, timeout=600)
     if r.returncode != 0:
         return {"ok": False, "problem": f"hdrcl scan failed (exit {r.returncode}): "
@@ -570,68 +573,8 @@ print(json.dumps(ph))
 """
 
 
-def worker_decode(spec: dict) -> dict:
-    """The decode floor: every frame decoded once (OpenImageIO, native uint8), nothing
-    else, on ``os.cpu_count()`` threads; time of the decodes only."""
-    from multiprocessing.pool import ThreadPool
-
-    import OpenImageIO  # noqa: F401  (imported before the clock starts)
-
-    files = spec["files"]
-    threads = os.cpu_count() or 1
-    t0 = time.perf_counter()
-    with ThreadPool(threads) as pool:
-        pixels = sum(pool.map(lambda p: bench._read_frame(p).size // 3, files, chunksize=1))
-    return {"decode_s": time.perf_counter() - t0, "threads": threads, "frames": len(files),
-            "megapixels": pixels / 1e6}
-
-
-def _outputs(folder: str) -> list:
-    """The radiance maps a batch wrote under ``folder`` (.exr and .hdr), sorted."""
-    found = []
-    for root, _, names in os.walk(folder):
-        found += [os.path.join(root, n) for n in names if n.lower().endswith((".exr", ".hdr"))]
-    return sorted(found)
-
-
-def worker_encode(spec: dict) -> dict:
-    """The encode floor: each of a batch's outputs (``spec["dir"]``) read back, then
-    encoded once more in its own format (pixel type, EXR compression) with OpenImageIO,
-    one output after another, each on all cores (OpenEXR compresses blocks in parallel);
-    time of the encodes only."""
-    import OpenImageIO as oiio
-
-    threads = os.cpu_count() or 1
-    maps = []
-    for p in _outputs(spec["dir"]):
-        inp = oiio.ImageInput.open(p)
-        if inp is None:
-            raise RuntimeError(f"{p}: {oiio.geterror()}")
-        sp = inp.spec()
-        maps.append((p, sp, inp.read_image(sp.format)))
-        inp.close()
-    oiio.attribute("threads", threads)
-    oiio.attribute("exr_threads", threads)
-    kinds = set()
-    with tempfile.TemporaryDirectory(dir=spec.get("tmp")) as tmp:
-        t0 = time.perf_counter()
-        for k, (p, sp, px) in enumerate(maps):
-            dst = os.path.join(tmp, f"{k}{os.path.splitext(p)[1]}")
-            out_spec = oiio.ImageSpec(sp.width, sp.height, sp.nchannels, sp.format)
-            comp = sp.get_string_attribute("compression")
-            if comp:
-                out_spec.attribute("compression", comp)
-            kinds.add(f"{os.path.splitext(p)[1].lower()} {sp.format} {comp or ''}".strip())
-            o = oiio.ImageOutput.create(dst)
-            if o is None or not o.open(dst, out_spec) or not o.write_image(px) or not o.close():
-                raise RuntimeError(f"{dst}: encode failed ({oiio.geterror()})")
-        encode_s = time.perf_counter() - t0
-    return {"encode_s": encode_s, "threads": threads, "outputs": len(maps),
-            "output_mp": sum(sp.width * sp.height for _, sp, _ in maps) / 1e6, "formats": sorted(kinds)}
-
-
 def _run(cmd, logdir, tag, timeout=3600, cwd=None) -> dict:
-    return bench.run_measured(cmd, logdir, tag, timeout=timeout, cwd=cwd)
+    return benchlib.run_measured(cmd, logdir, tag, timeout=timeout, cwd=cwd)
 
 
 def _stage_sums(report_path: str) -> dict:
@@ -652,7 +595,7 @@ def run_batch(info: dict, work: str, logdir: str, tag: str, jobs=None, keep=None
     out = os.path.join(work, "out", f"batch-{tag}")
     shutil.rmtree(out, ignore_errors=True)
     extra = ["--jobs", str(jobs)] if jobs else []
-    res = _run(bench.hdrcl_cmd("batch", info["photos"], "-r", "-o", out, *extra), logdir, tag)
+    res = _run(benchlib.hdrcl_cmd("batch", info["photos"], "-r", "-o", out, *extra), logdir, tag)
     rep = os.path.join(out, "report.json")
     if os.path.isfile(rep):
         try:
@@ -678,11 +621,8 @@ def run_encode(info: dict, work: str, logdir: str, tag: str, outputs: str) -> di
     spec = os.path.join(work, "out", f"{info['key']}-encode.json")
     with open(spec, "w") as f:
         json.dump({"dir": outputs, "tmp": os.path.join(work, "out")}, f)
-    res = _run([sys.executable, SCRIPT, "--worker", "encode", spec], logdir, tag)
+    res = _floor("encode", spec, logdir, tag)
     if res.get("rc") == 0:
-        res.update(json.loads(res["stdout"].strip().splitlines()[-1]))
-        res["process_wall_s"] = res["wall_s"]
-        res["wall_s"] = res["encode_s"]  # the floor: encoding only
         if not res["outputs"]:
             res.update(rc=-1, error=f"{outputs}: no .exr or .hdr outputs")
     shutil.rmtree(outputs, ignore_errors=True)
@@ -693,11 +633,26 @@ def run_decode(info: dict, work: str, logdir: str, tag: str) -> dict:
     spec = os.path.join(work, "out", f"{info['key']}-decode.json")
     with open(spec, "w") as f:
         json.dump({"files": [p for s in info["sets"] for p in s["files"]]}, f)
-    res = _run([sys.executable, SCRIPT, "--worker", "decode", spec], logdir, tag)
+    return _floor("decode", spec, logdir, tag)
+
+
+def run_fusion(info: dict, work: str, logdir: str, tag: str) -> dict:
+    """The fusion floor: each set's frames fused once on the OpenCL device (decode not timed)."""
+    spec = os.path.join(work, "out", f"{info['key']}-fusion.json")
+    with open(spec, "w") as f:
+        json.dump({"sets": [{"files": s["files"], "times": s["times"]} for s in info["sets"]]}, f)
+    return _floor("fusion", spec, logdir, tag)
+
+
+def _floor(kind: str, spec: str, logdir: str, tag: str) -> dict:
+    """One floor (scripts/floors.py) in its own process: its wall and CPU seconds are those
+    of the timed part only (not the interpreter start, the imports or untimed set-up)."""
+    res = _run([sys.executable, FLOORS, kind, spec], logdir, tag)
     if res.get("rc") == 0:
         res.update(json.loads(res["stdout"].strip().splitlines()[-1]))
         res["process_wall_s"] = res["wall_s"]
-        res["wall_s"] = res["decode_s"]  # the floor: decoding only, not the interpreter start
+        res["wall_s"] = res[f"{kind}_s"]
+        res["timed_cpu_s"] = res.pop("cpu_s")
     return res
 
 
@@ -730,7 +685,7 @@ def _stats(values: list) -> dict:
 
 def bench_shape(info: dict, work: str, logdir: str, runs: int, opencv: str) -> dict:
     mp = info["megapixels"]
-    kinds = ["hdrcl", "encode", "hdrcl_jobs2", "decode"] + (["opencv"] if opencv else [])
+    kinds = ["hdrcl", "encode", "hdrcl_jobs2", "decode", "fusion"] + (["opencv"] if opencv else [])
     kept = os.path.join(work, "out", f"{info['key']}-outputs")
     raw = {k: [] for k in kinds}
     _warm_page_cache(info)
@@ -745,6 +700,8 @@ def bench_shape(info: dict, work: str, logdir: str, runs: int, opencv: str) -> d
                 r = run_batch(info, work, logdir, tag, jobs=2)
             elif k == "decode":
                 r = run_decode(info, work, logdir, tag)
+            elif k == "fusion":
+                r = run_fusion(info, work, logdir, tag)
             else:
                 r = run_opencv(info, work, logdir, tag)
             raw[k].append(r)
@@ -765,9 +722,12 @@ def bench_shape(info: dict, work: str, logdir: str, runs: int, opencv: str) -> d
             fig["cpu_s"] = _stats([r["user_s"] + r["sys_s"] for r in ok])  # the process tree's CPU time
             fig["background_cpu"] = _stats([r.get("background_cpu", 0.0) for r in ok])
             fig["background_all"] = [r.get("background_cpu", 0.0) for r in ok]
-            if k in ("decode", "encode"):
+            if k in FLOOR_KINDS:
                 fig["threads"] = ok[0].get("threads")
                 fig["process_seconds"] = _stats([r["process_wall_s"] for r in ok])
+                fig["timed_cpu_s"] = _stats([r["timed_cpu_s"] for r in ok])  # the floor's own CPU seconds
+            if k == "fusion":
+                fig["device"] = ok[0].get("device")
             if k == "encode":
                 fig["outputs"], fig["output_mp"] = ok[0]["outputs"], ok[0]["output_mp"]
                 fig["formats"] = ok[0]["formats"]
@@ -815,7 +775,25 @@ def bench_shape(info: dict, work: str, logdir: str, runs: int, opencv: str) -> d
                   and re_.get("rc") == 0]
         res["ratios"]["io_floor" + suffix] = {"median": statistics.median(rounds), "rounds": rounds} \
             if rounds else None
+        res["ratios"]["cpu_floor" + suffix] = cpu_floor_ratio(raw[h], raw["decode"], raw["encode"], raw["fusion"])
     return res
+
+
+def cpu_floor_ratio(batch: list, decode: list, encode: list, fusion: list):
+    """Batch CPU-seconds (user + system of the batch process) over the CPU-seconds of the
+    decode, encode and fusion floors, round by round (issue 33: <= 1.3x); None where a
+    round failed throughout."""
+    rounds, parts = [], []
+    for rb, rd, re_, rf in zip(batch, decode, encode, fusion):
+        if all(r.get("rc") == 0 for r in (rb, rd, re_, rf)):
+            floor = rd["timed_cpu_s"] + re_["timed_cpu_s"] + rf["timed_cpu_s"]
+            rounds.append((rb["user_s"] + rb["sys_s"]) / floor)
+            parts.append((rb["user_s"] + rb["sys_s"], rd["timed_cpu_s"], re_["timed_cpu_s"], rf["timed_cpu_s"]))
+    if not rounds:
+        return None
+    med = [statistics.median(p[i] for p in parts) for i in range(4)]
+    return {"median": statistics.median(rounds), "rounds": rounds, "batch_cpu_s": med[0], "decode_cpu_s": med[1],
+            "encode_cpu_s": med[2], "fusion_cpu_s": med[3]}
 
 
 def bench_startup(work: str, logdir: str, data: str, runs: int) -> dict:
@@ -823,7 +801,7 @@ def bench_startup(work: str, logdir: str, data: str, runs: int) -> dict:
     out = {"runs": runs}
     if runs <= 0:
         return out
-    v = [_run(bench.hdrcl_cmd("--version"), logdir, f"startup-version-{i}", timeout=300) for i in range(runs)]
+    v = [_run(benchlib.hdrcl_cmd("--version"), logdir, f"startup-version-{i}", timeout=300) for i in range(runs)]
     ok = [r["wall_s"] for r in v if r.get("rc") == 0]
     out["version"] = {"seconds": _stats(ok), "cmd": v[0].get("cmd"),
                       "cpu_s": _stats([r["user_s"] + r["sys_s"] for r in v if r.get("rc") == 0])} \
@@ -837,7 +815,7 @@ def bench_startup(work: str, logdir: str, data: str, runs: int) -> dict:
     dst = os.path.join(work, "out", "tiny.exr")
     os.makedirs(os.path.dirname(dst), exist_ok=True)
     # No warm-up run: the batch runs before this one have built (and cached) the kernels.
-    m = [_run(bench.hdrcl_cmd("merge", *frames, "-o", dst), logdir, f"startup-merge-{i}", timeout=300)
+    m = [_run(benchlib.hdrcl_cmd("merge", *frames, "-o", dst), logdir, f"startup-merge-{i}", timeout=300)
          for i in range(runs)]
     ok = [r["wall_s"] for r in m if r.get("rc") == 0]
     out["tiny_merge"] = {"seconds": _stats(ok), "cmd": m[0].get("cmd"), "frames": len(frames),
@@ -901,8 +879,9 @@ def print_report(res: dict) -> None:
                  "decode": "decode floor (OIIO, {t} threads, decode only)",
                  "encode": "encode floor (OIIO, {t} threads, the outputs)",
                  "io_floor": "I/O floor (decode + encode floor)",
+                 "fusion": "fusion floor (OpenCL, decoded frames)",
                  "opencv": "OpenCV loop ({t} threads: imread, Debevec, .hdr)"}
-        for k in ("hdrcl", "hdrcl_jobs2", "decode", "encode", "io_floor", "opencv"):
+        for k in ("hdrcl", "hdrcl_jobs2", "decode", "encode", "io_floor", "fusion", "opencv"):
             f = r["figures"].get(k)
             if f is None:
                 if k == "opencv":
@@ -927,6 +906,7 @@ def print_report(res: dict) -> None:
         if "outputs" in enc:
             p(f"    (encode floor: {enc['outputs']} outputs, {enc['output_mp']:.1f} MP, "
               f"{', '.join(enc['formats'])}, as the batch wrote them)")
+        _print_cpu_floor(r)
         v = r["ratios"].get("io_floor")
         v2 = r["ratios"].get("io_floor_jobs2")
         if v:
@@ -988,6 +968,27 @@ def print_report(res: dict) -> None:
     p(f"elapsed {res['elapsed_s'] / 60:.1f} min; JSON: {res['json']}; logs: {res['logs']}")
 
 
+def _print_cpu_floor(r: dict) -> None:
+    """Batch CPU-seconds beside decode + encode + fusion CPU-seconds, and their ratio."""
+    v, v2 = r["ratios"].get("cpu_floor"), r["ratios"].get("cpu_floor_jobs2")
+    fl = {k: r["figures"].get(k, {}).get("timed_cpu_s") for k in FLOOR_KINDS}
+    if fl["decode"] and fl["encode"] and fl["fusion"]:
+        print(f"    (floors' own CPU-seconds, median: decode {fl['decode']['median']:.2f}, encode "
+              f"{fl['encode']['median']:.2f}, fusion {fl['fusion']['median']:.2f}; CPU s above: whole processes)")
+    if not v:
+        print(f"  {'batch CPU-s / floors':22s} not measured (a batch or floor run failed)")
+        return
+    floors = v["decode_cpu_s"] + v["encode_cpu_s"] + v["fusion_cpu_s"]
+    print(f"  batch CPU-seconds {v['batch_cpu_s']:.2f} (user + system of the batch process); decode + encode + "
+          f"fusion CPU-seconds {v['decode_cpu_s']:.2f} + {v['encode_cpu_s']:.2f} + {v['fusion_cpu_s']:.2f} = "
+          f"{floors:.2f}")
+    verdict = "ok" if v["median"] <= TARGETS["cpu_floor"] else \
+        f"MISSED: needs {v['median'] / TARGETS['cpu_floor']:.2f}x less CPU"
+    jobs2 = f"{v2['median']:.2f}x" if v2 else "-"
+    print(f"  {'batch CPU-s / floors':22s} {v['median']:.2f}x [" + ", ".join(f"{x:.2f}x" for x in v["rounds"])
+          + f"]; --jobs 2: {jobs2}   target <= {TARGETS['cpu_floor']:g}x: {verdict}")
+
+
 def _lscpu_model() -> str:
     """``lscpu``'s model name, family and model, and hypervisor (e.g. "AMD EPYC, family 25 model 1, KVM")."""
     try:
@@ -1028,19 +1029,13 @@ def main(argv=None) -> int:
                     help="before each measured run, wait up to this long for other processes to use < 15 %% "
                          "of the CPU (shared machines, as in bench.py) [default: 0, do not wait]")
     ap.add_argument("--generate-only", action="store_true", help="generate (or check) the shoots and stop")
-    ap.add_argument("--worker", nargs=2, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
-    bench._ensure_importable()
-    if a.worker:
-        kind, spec = a.worker
-        with open(spec) as f:
-            print(json.dumps({"decode": worker_decode, "encode": worker_encode}[kind](json.load(f))))
-        return 0
+    benchlib.ensure_importable()
     if a.mp <= 0 or a.sets < 1 or a.runs < 1:
         raise SystemExit("--mp must be > 0, --sets and --runs >= 1")
 
     t_start = time.perf_counter()
-    bench.WAIT_IDLE["max_s"] = max(0.0, a.wait_idle)
+    benchlib.WAIT_IDLE["max_s"] = max(0.0, a.wait_idle)
     work = os.path.abspath(a.workdir)
     logdir = os.path.join(work, "logs")
     os.makedirs(os.path.join(work, "out"), exist_ok=True)
@@ -1065,11 +1060,11 @@ def main(argv=None) -> int:
     res = {"command": " ".join(sys.argv) if argv is None else "shoot_bench " + " ".join(map(str, argv)),
            "started": _dt.datetime.now().isoformat(timespec="seconds"), "runs": a.runs, "json": json_path,
            "logs": logdir, "targets": TARGETS, "shapes": []}
-    res["machine"] = bench.machine_facts(logdir)
+    res["machine"] = benchlib.machine_facts(logdir)
     res["machine"]["lscpu"] = _lscpu_model()
     _log(f"machine: {res['machine'].get('cpu')}, {res['machine'].get('cpu_count')} cores; "
          f"OpenCL {res['machine'].get('opencl_device')}")
-    res["opencv_version"] = "" if a.skip_opencv else bench.have_opencv()
+    res["opencv_version"] = "" if a.skip_opencv else benchlib.have_opencv()
     res["opencv_note"] = "--skip-opencv" if a.skip_opencv else (
         "" if res["opencv_version"] else "OpenCV not installed: pip install '.[bench]'")
     if res["opencv_note"] and not a.skip_opencv:

@@ -37,7 +37,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 
 if HERE not in sys.path:
     sys.path.insert(0, HERE)
-import bench  # noqa: E402  (scripts/bench.py: loadavg, timed_child)
+import benchlib  # noqa: E402  (scripts/benchlib.py: loadavg, timed_child)
 DEFAULT_FRAMES = os.path.join(HERE, "..", "..", "shared", "data", "frobisher_001", "*.jpg")
 
 IO_FLOOR = """
@@ -65,8 +65,9 @@ def child_env(args):
 
 
 
-def import_top(cmd, env, n=12):
-    """The ``n`` top-level modules with the largest cumulative import time in ``cmd``."""
+def import_times(cmd, env):
+    """``[(self_us, cumulative_us, depth, module)]`` of every import in one run of ``cmd``
+    (``python -X importtime``), in the order Python reports them."""
     r = subprocess.run([sys.executable, "-X", "importtime"] + cmd[1:], capture_output=True, text=True, env=env)
     rows = []
     for line in r.stderr.splitlines():
@@ -74,14 +75,29 @@ def import_top(cmd, env, n=12):
             continue
         parts = line.split("|")
         try:
-            cum = int(parts[1])
-        except ValueError:
+            own, cum = int(parts[0].split(":")[1]), int(parts[1])
+        except (ValueError, IndexError):
             continue
         name = parts[2].rstrip()
-        if not name.startswith("  "):  # imported at the top of some chain
-            rows.append((cum, name.strip()))
+        depth = (len(name) - len(name.lstrip())) // 2
+        rows.append((own, cum, depth, name.strip()))
+    return rows
+
+
+def import_top(cmd, env, n=12):
+    """The ``n`` top-level modules with the largest cumulative import time in ``cmd``."""
+    rows = [(cum, name) for _, cum, depth, name in import_times(cmd, env) if depth <= 1]
     rows.sort(reverse=True)
     return rows[:n]
+
+
+def import_packages(cmd, env, n=12):
+    """Import time by top-level package (sum of the modules' own times), largest first:
+    what the start-up spends per library (numpy, OpenImageIO, hdrcl, click, ...)."""
+    by = {}
+    for own, _, _, name in import_times(cmd, env):
+        by[name.split(".")[0]] = by.get(name.split(".")[0], 0) + own
+    return sorted(((us, pkg) for pkg, us in by.items()), reverse=True)[:n]
 
 
 def main(argv=None):
@@ -116,14 +132,14 @@ def main(argv=None):
             ]
         print(f"set: {len(frames)} frames, {frames[0]} ...; {args.runs} runs each; "
               f"bytecode {'as the environment has it' if args.as_is else 'cached in ' + args.pyc_dir}; "
-              f"loadavg {bench.loadavg()}")
+              f"loadavg {benchlib.loadavg()}")
         for _, cmd in cases:  # warm the page cache, the bytecode and the OpenCL program caches
-            bench.timed_child(cmd, env)
+            benchlib.timed_child(cmd, env)
         stats = {name: [] for name, _ in cases}
         last = None
         for _ in range(args.runs):  # rounds alternate the commands: drift hits all alike
             for name, cmd in cases:
-                wall, cpu, r = bench.timed_child(cmd, env)
+                wall, cpu, r = benchlib.timed_child(cmd, env)
                 stats[name].append((wall, cpu))
                 if cmd is merge:
                     last = r
@@ -134,13 +150,16 @@ def main(argv=None):
             print(f"{name:34s} {statistics.median(walls):9.3f} {min(walls):9.3f} {statistics.median(cpus):9.3f}")
         med = statistics.median(w for w, _ in stats[cases[0][0]])
         print(f"end to end: median {med:.3f} s wall against the target {args.target:.2f} s "
-              f"({'met' if med <= args.target else 'not met'}); loadavg {bench.loadavg()}")
+              f"({'met' if med <= args.target else 'not met'}); loadavg {benchlib.loadavg()}")
         if last is not None and last.stdout.strip():
             print("merge said:", last.stdout.strip().splitlines()[0])
         if args.imports:
             print("slowest imports of one merge (cumulative ms, python -X importtime):")
             for cum, name in import_top(merge, env):
                 print(f"  {cum / 1000:8.1f}  {name}")
+            print("import time by package (ms, sum of the modules' own times, one run):")
+            for us, pkg in import_packages(merge, env):
+                print(f"  {us / 1000:8.1f}  {pkg}")
         if args.profile:
             r = subprocess.run([py, "-m", "cProfile", "-s", "cumtime", "-m", "hdrcl", "merge", *frames, "-o", out],
                                capture_output=True, text=True, env=env)

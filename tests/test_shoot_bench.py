@@ -61,6 +61,16 @@ def test_shoot_bench_tiny(tmp_path):
     assert re.search(r"encode floor: 2 outputs, [0-9.]+ MP, \.exr half \w+", out), out
     m = re.search(r"batch wall / I/O floor\s+" + NUMBER + r"x \[", out)
     assert m and float(m.group(1)) > 1, out  # nothing runs faster than its own decode and encode
+    # The CPU floor (issue 33): batch CPU-seconds beside decode + encode + fusion CPU-seconds.
+    seconds, _ = _figure(out, "fusion floor (OpenCL, decoded frames)")
+    assert seconds > 0, out
+    m = re.search(r"batch CPU-seconds " + NUMBER + r" \(user \+ system of the batch process\); decode \+ encode \+ "
+                  r"fusion CPU-seconds " + NUMBER + r" \+ " + NUMBER + r" \+ " + NUMBER + r" = " + NUMBER, out)
+    assert m, out
+    batch_cpu, d, e, f, total = map(float, m.groups())
+    assert batch_cpu > 0 and f > 0 and abs(total - (d + e + f)) <= 0.016, out
+    m = re.search(r"batch CPU-s / floors\s+" + NUMBER + r"x \[.*target <= 1.3x", out)
+    assert m and float(m.group(1)) > 0, out
 
     # Per-stage seconds from OUT/report.json: whatever keys hdrcl records, each >= 0.
     table = out.split("summed over sets (median of runs):", 1)[1].split("batch wall", 1)[0]
@@ -76,6 +86,8 @@ def test_shoot_bench_tiny(tmp_path):
     assert fig["hdrcl"]["mp_per_s"]["median"] > 0 and fig["decode"]["mp_per_s"]["median"] > 0
     assert fig["encode"]["outputs"] == 2 and fig["io_floor"]["seconds"]["median"] > 0
     assert res["shapes"][0]["result"]["ratios"]["io_floor"]["median"] > 1
+    cpu = res["shapes"][0]["result"]["ratios"]["cpu_floor"]
+    assert cpu["median"] > 0 and cpu["fusion_cpu_s"] > 0 and fig["fusion"]["timed_cpu_s"]["median"] > 0
     info = res["shapes"][0]["info"]
     assert info["frames"] == 6 and info["scan"]["ok"]
     assert all(os.path.isfile(p) for s in info["sets"] for p in s["files"])
