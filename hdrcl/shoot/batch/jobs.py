@@ -24,8 +24,9 @@ RESPONSE_SUFFIX = ".response.json"
 #: At most this many sets of one camera/ISO group are pooled for its response. The solve
 #: takes the same number of samples however many sets share them, and its curve error on
 #: synthetic shoots is the same from 1 to 8 pooled sets (0.027-0.031 ln); three spread
-#: over the shoot keep one odd set from deciding the curve while decoding the fewest frames
-#: twice (a pooled set is decoded for its grid and again for its merge).
+#: over the shoot keep one odd set from deciding the curve while holding the fewest frames
+#: (a pooled set's frames, decoded for its grid, wait for its merge within the memory budget
+#: or in the scratch file, :mod:`hdrcl.io.ahead`; beyond both they are decoded again).
 MAX_POOL_SETS = 3
 
 
