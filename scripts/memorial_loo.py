@@ -19,7 +19,7 @@ import numpy as np
 
 import hdrcl
 from hdrcl.core.weights import DEFAULT_WEIGHT
-from hdrcl.report.quality import leave_one_out_all
+from hdrcl.report.leaveoneout import leave_one_out_all
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "memorial"
 

@@ -336,7 +336,7 @@ def test_frobisher_awning_has_no_speckles(frobisher):
 
 def test_memorial_leave_one_out_does_not_regress(memorial_bracket, cl_device):
     """Measured 4.3147 before the clipping rule, 4.3150 after (scripts/memorial_loo.py)."""
-    from hdrcl.report.quality import leave_one_out_all
+    from hdrcl.report.leaveoneout import leave_one_out_all
 
     rows = leave_one_out_all(memorial_bracket)
     assert np.median([r.rmse for r in rows]) <= 4.33

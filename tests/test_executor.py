@@ -133,7 +133,7 @@ def test_leave_one_out_runs_the_plan_without_frame_k(monkeypatch, caplog):
     the frame rendered from the others."""
     from hdrcl.core import executor, synthetic
     from hdrcl.core.bracket import Bracket
-    from hdrcl.report import quality as q
+    from hdrcl.report import leaveoneout as q
 
     plans = []
     real = executor.prepare

@@ -10,7 +10,7 @@ from hdrcl.core import synthetic as s
 from hdrcl.core.bracket import Bracket
 from hdrcl.core.calibrate import exposures_used
 from hdrcl.core.exposure.fit import fit_exposures
-from hdrcl.report.quality import leave_one_out_all
+from hdrcl.report.leaveoneout import leave_one_out_all
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hdrcl.core.weights import DEFAULT_WEIGHT
-from hdrcl.report.quality import leave_one_out_all
+from hdrcl.report.leaveoneout import leave_one_out_all
 
 
 @pytest.mark.slow

@@ -132,7 +132,7 @@ def test_plots():
 
 def test_wording():
     """No "median of 1 interior frames"; the figures say what they are."""
-    from hdrcl.report.quality import LeaveOneOut
+    from hdrcl.report.leaveoneout import LeaveOneOut
 
     br = load_bracket(s.bracket(s.radiance_field(20, 30, decades=3.0, seed=1), [0.25, 1.0, 4.0],
                                 s.Camera(a=1.1, x0=(1.0, 1.2, 0.8)), noise=0.5, seed=0), [0.25, 1.0, 4.0])

@@ -4,10 +4,12 @@ stated, and the batch's kept frames no bigger than that grid."""
 import numpy as np
 import pytest
 
+import hdrcl.report.leaveoneout as leaveoneout
 import hdrcl.report.quality as quality
 from hdrcl.core.bracket import Bracket, load_bracket
 from hdrcl.core.merge import merge_bracket
-from hdrcl.report.quality import QualityFigures, leave_one_out_all, measure, report_stride
+from hdrcl.report.leaveoneout import leave_one_out_all
+from hdrcl.report.quality import QualityFigures, measure, report_stride
 
 
 @pytest.fixture(scope="module")
@@ -40,9 +42,9 @@ def test_rmse_levels_is_the_plain_formula(bits):
     mask = (r >= 10) & (r <= 245) & valid[..., None]
     d = (v - r)[mask]
     want = float(np.sqrt(np.mean(d * d)))
-    got, n = quality._rmse_levels(real, rendered, valid, 10, 245)
+    got, n = leaveoneout._rmse_levels(real, rendered, valid, 10, 245)
     assert n == d.size and got == pytest.approx(want, rel=1e-12)
-    assert quality._rmse_levels(np.zeros_like(real), rendered, None, 10, 245) == (pytest.approx(float("nan"),
+    assert leaveoneout._rmse_levels(np.zeros_like(real), rendered, None, 10, 245) == (pytest.approx(float("nan"),
                                                                                                nan_ok=True), 0)
 
 
@@ -51,9 +53,9 @@ def test_leave_one_out_same_on_threads(merged, monkeypatch):
     br, res = merged
     sub = Bracket(frames=[f[::2, ::2] for f in br.frames], times=res.times, valid=[None] * len(br.frames))
     kw = dict(weight=res.response.weight, smoothness=res.response.smoothness, fit_exposures="off")
-    monkeypatch.setattr(quality, "LOO_THREADS", 1)
+    monkeypatch.setattr(leaveoneout, "LOO_THREADS", 1)
     one = leave_one_out_all(sub, **kw)
-    monkeypatch.setattr(quality, "LOO_THREADS", 3)
+    monkeypatch.setattr(leaveoneout, "LOO_THREADS", 3)
     many = leave_one_out_all(sub, **kw)
     assert [(r.index, r.rmse, r.pixels) for r in one] == [(r.index, r.rmse, r.pixels) for r in many]
     assert len(one) == len(br.frames) - 2
