@@ -77,6 +77,7 @@ STAGES = (
     ("hdrcl/io/framecache.py", None, "decode"),
     ("hdrcl/io/ahead.py", None, "decode"),
     ("hdrcl/io/raw.py", None, "decode"),
+    ("hdrcl/io/rawheader.py", None, "headers"),
     ("hdrcl/io/metadata.py", None, "headers"),
     ("hdrcl/io/exif.py", None, "headers"),
     ("hdrcl/io/probe.py", None, "headers"),

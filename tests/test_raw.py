@@ -16,6 +16,7 @@ from hdrcl.core.response import Response, linear_response
 from hdrcl.io.exif import snap_reciprocal
 from hdrcl.errors import InputError
 from hdrcl.io import raw as hr
+from hdrcl.io import rawheader
 
 sys.path.insert(0, os.path.dirname(__file__))
 import rawgen  # noqa: E402
@@ -115,7 +116,7 @@ def test_exif_in_embedded_headers(tmp_path):
     raf = tmp_path / "a.raf"
     raf.write_bytes(b"FUJIFILMCCD-RAW 0201" + bytes(200) + b"\xff\xd8\xff\xe1\x10\x00Exif\0\0"
                     + rawgen.exif_tiff(ifd0, exif) + bytes(100))
-    got = hr._exif(str(raf))
+    got = rawheader.header_fields(str(raf))
     assert got["make"] == "FUJIFILM" and got["model"] == "X-T3"
     assert got["exposure_time"] == 1 / 250 and got["fnumber"] == 5.6 and got["iso"] == 400
     assert got["exposure_bias"] == pytest.approx(-2 / 3) and got["exposure_mode"] == 2
@@ -125,11 +126,11 @@ def test_exif_in_embedded_headers(tmp_path):
     cr3 = tmp_path / "b.cr3"
     cr3.write_bytes(b"\0\0\0\x18ftypcrx " + bytes(40) + (len(cmt1) + 8).to_bytes(4, "big") + b"CMT1"
                     + cmt1 + (len(cmt2) + 8).to_bytes(4, "big") + b"CMT2" + cmt2)
-    got = hr._exif(str(cr3))
+    got = rawheader.header_fields(str(cr3))
     assert (got["make"], got["model"], got["exposure_time"], got["serial"]) == ("Canon", "Canon EOS R5", 1 / 30, "0123")
     junk = tmp_path / "c.orf"
     junk.write_bytes(b"IIRO" + b"\xff" * 60)  # an IFD offset far past the end
-    assert hr._exif(str(junk)) == {}
+    assert rawheader.header_fields(str(junk)) == {}
 
 
 # -- with rawpy ------------------------------------------------------------------------

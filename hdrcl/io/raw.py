@@ -34,7 +34,7 @@ Exposure metadata
     rawpy exposes only shutter time, aperture, ISO, focal length and a whole-second capture
     time (``RawPy.other``), and not the camera's make and model. The TIFF/EXIF header that
     most RAW formats carry (CR2, NEF, ARW, DNG, PEF, SRW, ORF, RW2; CR3's ``CMT1``/``CMT2``
-    boxes; RAF's embedded JPEG) is read directly here for exact rational exposure times,
+    boxes; RAF's embedded JPEG) is read directly (:mod:`hdrcl.io.rawheader`) for exact rational exposure times,
     sub-second capture times, make, model, serial number, exposure bias and mode, which
     bracket grouping uses. Where neither gives an exposure time,
     ``FrameInfo.exposure_time`` is None and the times must come from ``--times`` or
@@ -51,7 +51,6 @@ from __future__ import annotations
 import datetime as _dt
 import logging
 import os
-import struct
 from typing import NamedTuple, Optional, Sequence, Union
 
 import numpy as np
@@ -59,6 +58,7 @@ import numpy as np
 from hdrcl.errors import InputError, check_readable
 from hdrcl.io.exif import capture_time, snap_reciprocal
 from hdrcl.io.metadata import FrameInfo
+from hdrcl.io.rawheader import header_fields
 
 logger = logging.getLogger(__name__)
 
@@ -188,113 +188,6 @@ def _apply_flip(a: np.ndarray, flip: int) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
-# -- EXIF from the file's own TIFF structures ------------------------------------------
-
-_TAGS = {
-    271: "make", 272: "model", 306: "datetime", 33434: "exposure_time", 33437: "fnumber",
-    34855: "iso", 36867: "datetime_original", 37521: "subsec_original", 37380: "exposure_bias",
-    37386: "focal_length", 41986: "exposure_mode", 42033: "serial", 42036: "lens",
-}
-_EXIF_POINTER = 34665
-#: TIFF field type: (struct code per value, bytes per value)
-_TYPES = {1: ("B", 1), 2: ("s", 1), 3: ("H", 2), 4: ("I", 4), 5: ("I", 8), 6: ("b", 1),
-          7: ("B", 1), 8: ("h", 2), 9: ("i", 4), 10: ("i", 8), 11: ("f", 4), 12: ("d", 8)}
-_HEAD_SCAN = 1 << 19  # bytes searched for an embedded TIFF (CR3 boxes, RAF's JPEG)
-
-
-class _Bad(Exception):
-    """Malformed TIFF structure; the EXIF reader gives up quietly."""
-
-
-def _read_at(fh, base: int, off: int, n: int) -> bytes:
-    fh.seek(base + off)
-    data = fh.read(n)
-    if len(data) != n:
-        raise _Bad("short read")
-    return data
-
-
-def _tiff_value(fh, base: int, e: str, typ: int, count: int, field: bytes):
-    code, size = _TYPES[typ]
-    total = size * count
-    if count == 0 or count > 4096:
-        return None
-    data = field[:total] if total <= 4 else _read_at(fh, base, struct.unpack(e + "I", field)[0], total)
-    if typ == 2:
-        return data.split(b"\0", 1)[0].decode("latin-1").strip() or None
-    if typ in (5, 10):
-        num, den = struct.unpack_from(e + code * 2, data)
-        return num / den if den else None
-    return struct.unpack_from(e + code, data)[0]
-
-
-def _tiff_ifd(fh, base: int, e: str, off: int, out: dict) -> Optional[int]:
-    """Read the wanted tags of the IFD at ``off`` into ``out``; return the EXIF IFD offset."""
-    (n,) = struct.unpack(e + "H", _read_at(fh, base, off, 2))
-    if n > 1000:
-        raise _Bad(f"{n} entries")
-    table = _read_at(fh, base, off + 2, 12 * n)
-    exif = None
-    for k in range(n):
-        tag, typ, count = struct.unpack_from(e + "HHI", table, 12 * k)
-        field = table[12 * k + 8:12 * k + 12]
-        if tag == _EXIF_POINTER:
-            exif = struct.unpack(e + "I", field)[0]
-        elif tag in _TAGS and typ in _TYPES:
-            try:
-                value = _tiff_value(fh, base, e, typ, count, field)
-            except (_Bad, struct.error):
-                continue
-            if value is not None:
-                out[_TAGS[tag]] = value
-    return exif
-
-
-def _tiff_fields(fh, base: int) -> dict:
-    """Wanted tags of IFD0 and its EXIF IFD, for a TIFF header at ``base`` in ``fh``."""
-    out: dict = {}
-    head = _read_at(fh, base, 0, 8)
-    e = {b"II": "<", b"MM": ">"}.get(head[:2])
-    if e is None:
-        return out
-    # The magic number varies (42 TIFF, 0x4F52 ORF, 0x55 RW2): trust the structure instead.
-    exif = _tiff_ifd(fh, base, e, struct.unpack(e + "I", head[4:8])[0], out)
-    if exif:
-        try:
-            _tiff_ifd(fh, base, e, exif, out)  # EXIF values win over IFD0's copies
-        except (_Bad, struct.error) as exc:
-            logger.debug("unreadable EXIF IFD (%s); keeping IFD0's fields", exc)
-    return out
-
-
-def _exif(name: str) -> dict:
-    """Best-effort EXIF fields from a RAW file's TIFF structures; {} when none are found."""
-    try:
-        with open(name, "rb") as fh:
-            head = fh.read(16)
-            if head[:2] in (b"II", b"MM"):
-                return _tiff_fields(fh, 0)
-            fh.seek(0)
-            blob = fh.read(_HEAD_SCAN)
-            out: dict = {}
-            if head[4:8] == b"ftyp":  # CR3: CMT1 holds IFD0, CMT2 the EXIF IFD, as TIFFs
-                for box in (b"CMT1", b"CMT2"):
-                    pos = blob.find(box)
-                    if pos >= 0:
-                        try:
-                            out.update(_tiff_fields(fh, pos + 4))
-                        except (_Bad, struct.error) as exc:
-                            logger.debug("%s: unreadable %s box (%s)", name, box.decode(), exc)
-                return out
-            pos = blob.find(b"Exif\x00\x00")  # RAF and others: an embedded JPEG's APP1
-            if pos >= 0:
-                return _tiff_fields(fh, pos + 6)
-            return out
-    except (OSError, _Bad, struct.error, ValueError, KeyError, OverflowError) as exc:
-        logger.debug("%s: no readable EXIF header (%s)", name, exc)
-        return {}
-
-
 def _positive(v) -> Optional[float]:
     try:
         f = float(v)
@@ -377,7 +270,7 @@ def read_raw_info(path) -> FrameInfo:
             nch = 1 if raw.num_colors == 1 else 3
         except Exception as exc:  # LibRaw errors of any kind
             raise InputError(f"{name}: cannot read RAW file ({_libraw_message(exc)})") from None
-        return _frame_info(name, raw, _exif(name), h, w, nch)
+        return _frame_info(name, raw, header_fields(name), h, w, nch)
 
 
 def _raw_clipped(raw) -> Optional[np.ndarray]:
@@ -488,7 +381,7 @@ def read_raw(path, *, white_balance: Union[str, Sequence[float]] = "camera", cli
             clipped = _raw_clipped(raw)
             wb = _multipliers(raw, white_balance)
             pixels = raw.postprocess(**args)
-            info = _frame_info(name, raw, _exif(name), pixels.shape[0], pixels.shape[1],
+            info = _frame_info(name, raw, header_fields(name), pixels.shape[0], pixels.shape[1],
                                1 if pixels.shape[2] == 1 else 3)
         except InputError:
             raise
