@@ -28,7 +28,8 @@ from hdrcl.io.radiance import read_metadata, read_radiance
 from hdrcl.io.ldr import write_photo
 from hdrcl.shoot.batch.jobs import BatchOptions, SetResult
 from hdrcl.shoot.batch.manifest import BracketSet, Manifest
-from hdrcl.shoot.batch.plan import output_stems, parse_sets, select_sets
+from hdrcl.shoot.batch.plan import parse_sets, select_sets
+from hdrcl.shoot.batch.setnames import output_stems
 
 try:
     import shootgen

@@ -132,7 +132,7 @@ def test_name_template_fields_and_an_idempotent_rerun(per_set, tmp_path):
 
 def test_index_is_padded_to_the_count(tmp_path):
     from hdrcl.shoot.batch.manifest import BracketSet, Manifest
-    from hdrcl.shoot.batch.plan import output_stems
+    from hdrcl.shoot.batch.setnames import output_stems
 
     sets = [BracketSet(index=i, files=[f"/x/IMG_{i:04d}.jpg", f"/x/IMG_{i:04d}b.jpg"], exposures=[], reason="")
             for i in range(12)]
