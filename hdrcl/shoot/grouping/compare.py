@@ -1,6 +1,7 @@
 """Comparing frames' headers: settings, cameras, capture times, and their display.
 
-Shared by :mod:`hdrcl.shoot.grouping.rules` and :mod:`hdrcl.shoot.grouping.splitting`.
+Shared by :mod:`hdrcl.shoot.grouping.rules` and the splitting (:mod:`hdrcl.shoot.grouping.runs`,
+:mod:`hdrcl.shoot.grouping.bridges`).
 """
 from __future__ import annotations
 

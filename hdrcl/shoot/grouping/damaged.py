@@ -21,7 +21,7 @@ from typing import Dict, List, Sequence, Tuple
 from hdrcl.io.metadata import FrameInfo
 from hdrcl.shoot.batch.manifest import BracketSet, Manifest, Unmerged
 from hdrcl.shoot.grouping.compare import _camera_key, _gap, _norm, _same_settings, _sort_key, _time
-from hdrcl.shoot.grouping.splitting import _gap_limit
+from hdrcl.shoot.grouping.runs import _gap_limit
 
 logger = logging.getLogger(__name__)
 

@@ -85,7 +85,8 @@ from hdrcl.shoot.grouping.compare import (DEFAULT_GAP, LONG_EXPOSURE, _camera_de
                                  _exposure_range, _fmt_bias, _fmt_f, _gap, _norm, _same_stops, _sort_key, _time,
                                  _varies, format_exposure)
 from hdrcl.shoot.batch.manifest import BracketSet, Manifest, Unmerged, _is_number, add_finding
-from hdrcl.shoot.grouping.splitting import _camera_reason, _Group, chunk, split_stream
+from hdrcl.shoot.grouping.runs import _camera_reason, _Group
+from hdrcl.shoot.grouping.splitting import chunk, split_stream
 from hdrcl.shoot.grouping.strays import foreign_cameras, left_findings, skip_strays
 
 logger = logging.getLogger(__name__)

@@ -34,8 +34,8 @@ from hdrcl.io.metadata import FrameInfo
 from hdrcl.shoot.grouping.compare import (_camera_desc, _camera_key, _gap, _same_bias, _same_settings, _sort_key,
                                           _time)
 from hdrcl.shoot.grouping.ladder import exposure_value
-from hdrcl.shoot.grouping.splitting import (_camera_reason, _fmt_gap, _gap_limit, _Group, _joined, _nearest,
-                                            _nearest_pair, _pattern_reason)
+from hdrcl.shoot.grouping.runs import (_camera_reason, _fmt_gap, _gap_limit, _Group, _joined, _nearest, _nearest_pair,
+                                      _pattern_reason)
 
 logger = logging.getLogger(__name__)
 
