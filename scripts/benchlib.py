@@ -5,7 +5,11 @@ background CPU, machine facts, one OpenImageIO frame decode.
 Every script under ``scripts/`` that measures processes imports this module; it imports
 no other script, so the benchmarks form no import circle (``bench.py`` and
 ``shoot_bench.py`` both build on it; ``bench.py --shoot`` starts ``shoot_bench.py`` as a
-process).
+process). The benchmarks' other parts are modules of their own that import no
+benchmark: ``benchbrackets.py`` (bench.py's generated brackets), ``benchworkers.py`` (its
+in-process measurements), ``benchreport.py`` (its targets and report),
+``benchshoots.py`` (shoot_bench.py's generated shoots), ``benchshootreport.py`` (its
+report).
 """
 from __future__ import annotations
 

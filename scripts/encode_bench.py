@@ -35,7 +35,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 if HERE not in sys.path:
     sys.path.insert(0, HERE)
 
-import bench  # noqa: E402  (scripts/bench.py: the generated scene, the checkout on sys.path)
+import benchbrackets  # noqa: E402  (scripts/benchbrackets.py: bench.py's generated scene)
 import benchlib  # noqa: E402  (scripts/benchlib.py: loadavg)
 
 REFERENCE = 2.0 ** -6
@@ -46,8 +46,8 @@ STRIP_PIXELS = 1 << 18
 
 def radiance_map(mp: float, seed: int = 3, cap: float = CAP) -> np.ndarray:
     """Float32 ``(H, W, 3)`` radiance (relative to 1 s) of ``mp`` megapixels."""
-    w, h = bench.dims(mp)
-    scene = bench.Scene(w, h, seed=seed)
+    w, h = benchbrackets.dims(mp)
+    scene = benchbrackets.Scene(w, h, seed=seed)
     rng = np.random.default_rng(seed)
     out = np.empty((h, w, 3), np.float32)
     for r0, r1 in scene.strips():

@@ -41,7 +41,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 if HERE not in sys.path:
     sys.path.insert(0, HERE)
 
-import bench  # noqa: E402  (scripts/bench.py: generated brackets, the checkout on sys.path)
+import benchbrackets  # noqa: E402  (scripts/benchbrackets.py: bench.py's generated brackets)
 import benchlib  # noqa: E402  (scripts/benchlib.py: loadavg)
 
 
@@ -100,7 +100,7 @@ def folder_bracket(folder: str, first: int = 0):
 
 def camera_tables(levels: int = 256) -> np.ndarray:
     """g of the generating camera per channel (ends clipped: a logistic is infinite there)."""
-    cam = bench.camera()
+    cam = benchbrackets.camera()
     z = np.clip(np.arange(levels, dtype=np.float64), 0.5, levels - 1.5)
     return np.stack([cam.g(z, c) for c in range(3)])
 
@@ -150,7 +150,7 @@ def main(argv=None) -> int:
         paths, times = folder_bracket(args.folder, args.first)
         times = np.asarray(times, np.float64)
     else:
-        info = bench.ensure_set(args.workdir, args.mp, args.frames)
+        info = benchbrackets.ensure_set(args.workdir, args.mp, args.frames)
         paths, times = info["paths"], np.asarray(info["times"], np.float64)
     threads = os.cpu_count() or 1
     load0 = benchlib.loadavg()

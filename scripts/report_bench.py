@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """What ``--report`` costs a batch: wall time and peak memory with and without it.
 
-Generates (once; cached) a shoot of camera-like JPEGs with ``scripts/shoot_bench.py``'s
-generator (real scenes from ``../shared/data``, one set per camera by default: 5 sets,
+Generates (once; cached) a shoot of camera-like JPEGs with ``scripts/benchshoots.py`` (the
+shoot benchmark's generator: real scenes from ``../shared/data``, one set per camera by default: 5 sets,
 63 frames, like the real shoot of issue 26), then runs, in rounds that alternate the
 two so drift hits both alike,
 
@@ -77,10 +77,10 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=os.path.join(os.path.dirname(ROOT), "shared", "data"))
     a = ap.parse_args(argv)
     sys.path.insert(0, HERE)
-    import shoot_bench
+    import benchshoots
 
     frames = [int(v) for v in a.frames.split(",") if v.strip()]
-    info = shoot_bench.generate_shoot(a.workdir, a.data, a.shape, a.mp, a.sets, frames)
+    info = benchshoots.generate_shoot(a.workdir, a.data, a.shape, a.mp, a.sets, frames)
     photos = info["photos"]
     print(f"shoot: {info['frames']} frames in {len(info['sets'])} sets, {info['megapixels']:.0f} MP ({photos})")
     print(f"load before: {benchlib.loadavg()}  (cores: {os.cpu_count()})")

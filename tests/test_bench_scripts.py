@@ -64,6 +64,21 @@ def test_benchmark_scripts_form_no_circle():
     assert circles(edges) == [], circles(edges)
 
 
+def test_benchmark_parts_import_no_benchmark():
+    """bench.py and shoot_bench.py are split along their parts (issue 33, item 6): the
+    generated inputs, the in-process workers and the reports are modules that import or
+    start no benchmark script, only the shared helpers and each other."""
+    edges = script_edges()
+    parts = {"benchbrackets", "benchworkers", "benchreport", "benchshoots", "benchshootreport"}
+    assert parts <= set(edges), parts - set(edges)
+    for name in parts:
+        assert edges[name] <= {"benchlib", "benchbrackets"}, (name, edges[name])
+    assert {"benchbrackets", "benchworkers", "benchreport"} <= edges["bench"]
+    assert {"benchshoots", "benchshootreport"} <= edges["shoot_bench"]
+    assert "bench" not in edges["fusion_bench"] and "bench" not in edges["encode_bench"]
+    assert "shoot_bench" not in edges["report_bench"]
+
+
 def test_startup_bench_import_times_by_package():
     """startup_bench.py --imports: the import costs of a command, per module and per package."""
     import os

@@ -97,16 +97,17 @@ def test_shoot_plan_shapes():
     """The two shapes: one camera for every set; one camera per set, 5-13 frames."""
     sys.path.insert(0, str(SCRIPT.parent))
     try:
+        import benchshoots
         import shoot_bench as sb
     finally:
         sys.path.remove(str(SCRIPT.parent))
-    one = sb.shoot_plan("one-camera", 6, sb.parse_frames(sb.DEFAULT_FRAMES["one-camera"]))
+    one = benchshoots.shoot_plan("one-camera", 6, sb.parse_frames(sb.DEFAULT_FRAMES["one-camera"]))
     assert len({p["camera"]["model"] for p in one}) == 1 and all(p["frames"] == 7 for p in one)
-    per = sb.shoot_plan("per-camera", 6, sb.parse_frames(sb.DEFAULT_FRAMES["per-camera"]))
+    per = benchshoots.shoot_plan("per-camera", 6, sb.parse_frames(sb.DEFAULT_FRAMES["per-camera"]))
     assert len({(p["camera"]["make"], p["camera"]["model"]) for p in per}) == 6
     assert min(p["frames"] for p in per) == 5 and max(p["frames"] for p in per) == 13
     for p in per:  # every ladder fits the camera's shutter range, distinct and increasing
-        times, _ = sb.ladder(p["frames"], p["t_mid"])
+        times, _ = benchshoots.ladder(p["frames"], p["t_mid"])
         assert times == sorted(set(times)) and 1 / 8000 <= times[0] and times[-1] <= 30
     with pytest.raises(SystemExit):
         sb.parse_frames("1")
