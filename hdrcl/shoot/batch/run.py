@@ -199,7 +199,7 @@ class RunSettings:
         does); by default the caller's handlers are left alone.
     name : str, optional
         Output name template (``--name``; fields ``{folder}``, ``{first}``, ``{date}``,
-        ``{index}``, ``{camera}``, :func:`hdrcl.shoot.batch.plan.output_stems`) [default:
+        ``{index}``, ``{camera}``, :func:`hdrcl.shoot.batch.setnames.output_stems`) [default:
         ``{folder}`` when every set has a folder of its own, else ``{first}``].
     response_cache : path, optional
         Folder of responses, one per camera group (``<group>.response.json``): one found
