@@ -452,3 +452,17 @@ def test_a_stale_saved_response_is_decided_calibrate(tmp_path, cl_device):
     rows = _dry_run_is_the_decision(after, shoot, "-o", out, "--no-preview")
     assert all(s["response"]["source"] == "calibrate" for s in rows if s["response"]["group"] == job.group), rows
     assert any(s["response"]["source"] == "saved" for s in rows if s["response"]["group"] != job.group), rows
+
+
+def test_the_dry_run_of_a_given_response_object_names_it_given(tmp_path):
+    """describe_batch with a Response object (the API's --response) plans "given" for every
+    set, as run_batch does, without reading or solving anything (it raised TypeError)."""
+    from hdrcl.api.batch import describe_batch
+    from hdrcl.core.response import linear_response
+
+    shoot = tmp_path / "shoot"
+    assert _cli("sample-shoot", shoot).exit_code == 0
+    plan = describe_batch(shoot, tmp_path / "out", response=linear_response())
+    assert plan["sets"] and all(s["response"]["file"] == "given" and s["response"]["source"] == "given"
+                                and s["calibration"] == {"kind": "given"} for s in plan["sets"]), plan
+    assert not (tmp_path / "out").exists()
