@@ -179,21 +179,84 @@ def test_batch_align_report_measures_the_aligned_set_as_merge_does(memorial_hand
     assert abs(entry["quality"]["looRmse"] - merged) < 0.5, (merged, entry["quality"]["looRmse"])
 
 
-def test_dry_run_does_not_call_a_damaged_cached_response_cached(tmp_path, cl_device):
-    """The plan says what the run does: a damaged curve in --response-cache is calibrated
-    again, so the dry run says "calibrate", not "cached" (issue 25)."""
+def _decided(shoot, out, cache=None):
+    """The batch's response decision for ``shoot`` (pooling.decide_responses, as run_batch
+    and its dry run make it), by group."""
+    from hdrcl.shoot.batch.jobs import BatchOptions
+    from hdrcl.shoot.batch.plan import _plan, load_source
+    from hdrcl.shoot.batch.pooling import decide_responses
+
+    opts = BatchOptions()
+    plan = _plan(load_source(str(shoot)), str(out), opts, None)
+    return plan, decide_responses(plan, str(out), opts, defer=True, cache=None if cache is None else str(cache))
+
+
+def _dry_run_is_the_decision(decided, *args):
+    """The dry run's response and calibration of every set are its group's decision, described."""
+    r = _cli("batch", *args, "--dry-run", "--json")
+    assert r.exit_code == 0, r.output
+    rows = json.loads(r.output[r.output.index("{"):])["sets"]
+    assert rows
+    for row in rows:
+        gp = decided[row["response"]["group"]]
+        assert {"response": row["response"], "calibration": row["calibration"]} == gp.describe(), (row, gp)
+    return rows
+
+
+def test_a_damaged_cached_response_is_decided_calibrate(tmp_path, cl_device):
+    """One decision says what the run does and the dry run says: a damaged curve in
+    --response-cache is calibrated again (rewritten there), not called "cached" (issues 25, 33)."""
+    from hdrcl.shoot.batch.pooling import CACHED, SOLVE
+
     shoot, cache = tmp_path / "shoot", tmp_path / "cache"
     assert _cli("sample-shoot", shoot).exit_code == 0
-    assert _cli("batch", shoot, "-o", tmp_path / "out", "--response-cache", cache).exit_code == 0
+    assert _cli("batch", shoot, "-o", tmp_path / "out", "--response-cache", cache, "--no-preview").exit_code == 0
     damaged = sorted(cache.glob("*.response.json"))[0]
     damaged.write_text("garbage{")
-    r = _cli("batch", shoot, "-o", tmp_path / "out2", "--response-cache", cache, "--dry-run", "--json")
-    assert r.exit_code == 0, r.output
-    plan = json.loads(r.output[r.output.index("{"):])
-    rows = [s for s in plan["sets"] if s["response"]["file"] == str(damaged)]
-    assert rows and all(s["response"]["source"] == "calibrate" and s["calibration"]["kind"] != "cached"
-                        for s in rows), rows
-    assert any(s["response"]["source"] == "cached" for s in plan["sets"])
+    _, decided = _decided(shoot, tmp_path / "out2", cache)
+    by_file = {gp.entry.file: gp for gp in decided.values()}
+    assert by_file[str(damaged)].action == SOLVE and by_file[str(damaged)].entry.payload is None
+    assert sorted(gp.action for gp in decided.values()) == [CACHED, SOLVE]
+    rows = _dry_run_is_the_decision(decided, shoot, "-o", tmp_path / "out2", "--response-cache", cache)
+    assert any(s["response"]["source"] == "calibrate" and s["calibration"]["kind"] != "cached"
+               and s["response"]["file"] == str(damaged) for s in rows), rows
+    assert any(s["response"]["source"] == "cached" for s in rows), rows
+    # The run carries the decision out: the damaged curve solved and saved again, the other taken.
+    assert _cli("batch", shoot, "-o", tmp_path / "out2", "--response-cache", cache, "--no-preview").exit_code == 0
+    report = json.loads((tmp_path / "out2" / "report.json").read_text())["responses"]
+    assert {r["file"]: r["source"] for r in report} == {
+        gp.entry.file: {SOLVE: "calibrated", CACHED: "cached"}[gp.action] for gp in decided.values()}
+    json.loads(damaged.read_text())  # rewritten whole
+
+
+def test_the_response_decision_decodes_and_solves_nothing(tmp_path, cl_device, monkeypatch):
+    """decide_responses only decides: no frame decoded, no curve solved; carrying the plan
+    out solves the pool (and leaves the plan as decided); a camera's only set is deferred."""
+    from hdrcl.shoot.batch import pooling
+    from hdrcl.shoot.batch.jobs import BatchOptions
+
+    shoot = tmp_path / "shoot"
+    assert _cli("sample-shoot", shoot).exit_code == 0
+    calls = []
+    monkeypatch.setattr(pooling, "_calibration_grid", lambda *a, **k: calls.append("decode"))
+    monkeypatch.setattr(pooling, "_solve_pool", lambda *a, **k: calls.append("solve"))
+    plan, decided = _decided(shoot, tmp_path / "out")
+    assert calls == []
+    assert sorted(gp.action for gp in decided.values()) == [pooling.DEFERRED, pooling.SOLVE]
+    _dry_run_is_the_decision(decided, shoot, "-o", tmp_path / "out")
+    assert calls == [] and not (tmp_path / "out").exists()
+    monkeypatch.undo()
+    (tmp_path / "out").mkdir()  # as run_batch makes it before it carries the plans out
+    solve = next(gp for gp in decided.values() if gp.action == pooling.SOLVE)
+    assert len(solve.members) > 1 and solve.pool == tuple(solve.members) and solve.kind == "pooled"
+    entry = pooling._carry_out(solve, BatchOptions())
+    assert entry.source == "calibrated" and entry.payload and entry.error is None
+    assert os.path.isfile(entry.file) and entry.file == solve.entry.file
+    assert solve.entry.payload is None and solve.entry.source == ""  # the plan stays as decided
+    deferred = next(gp for gp in decided.values() if gp.action == pooling.DEFERRED)
+    assert deferred.kind == "deferred" and deferred.describe()["calibration"] == {"kind": "own"}
+    later = pooling._carry_out(deferred, BatchOptions())
+    assert later.deferred and later.payload is None and not os.path.exists(later.file)
 
 
 def test_scan_and_batch_agree_on_two_frames_of_one_exposure(tmp_path, cl_device):
@@ -369,24 +432,37 @@ def test_calibrate_16_bit_frames_to_rsp_is_refused_from_the_headers(tmp_path):
     assert not (tmp_path / "r.rsp").exists()
 
 
-def test_dry_run_plans_a_stale_saved_response_as_calibrate(tmp_path, cl_device):
-    """The plan says what the run does: a saved curve whose pooled frames changed since is
-    solved again, so the dry run says "calibrate" for its group, "saved" for the others."""
+def test_a_stale_saved_response_is_decided_calibrate(tmp_path, cl_device):
+    """One decision for the run and its dry run: a saved curve whose pooled frames changed
+    since is solved again ("calibrate" in the dry run), the others loaded ("saved")."""
+    from hdrcl.shoot.batch.pooling import LOADED, SOLVE
+
     shoot, out = tmp_path / "shoot", tmp_path / "out"
     assert _cli("sample-shoot", shoot).exit_code == 0
     assert _cli("batch", shoot, "-o", out, "--no-preview").exit_code == 0
-
-    def plan():
-        r = _cli("batch", shoot, "-o", out, "--no-preview", "--dry-run", "--json")
-        assert r.exit_code == 0, r.output
-        return json.loads(r.output[r.output.index("{"):])["sets"]
-
-    before = plan()
-    assert before and all(s["response"]["source"] == "saved" for s in before), before
-    changed = before[0]["first"]
-    with open(changed, "ab") as f:  # the same picture, other bytes: another calibration key
+    plan, before = _decided(shoot, out)
+    assert {gp.action for gp in before.values()} == {LOADED}
+    rows = _dry_run_is_the_decision(before, shoot, "-o", out, "--no-preview")
+    assert all(s["response"]["source"] == "saved" for s in rows), rows
+    job = plan.jobs[min(plan.jobs)]
+    with open(job.files[0], "ab") as f:  # the same picture, other bytes: another calibration key
         f.write(b"\0")
-    after = plan()
-    group = before[0]["response"]["group"]
-    assert all(s["response"]["source"] == "calibrate" for s in after if s["response"]["group"] == group), after
-    assert any(s["response"]["source"] == "saved" for s in after if s["response"]["group"] != group), after
+    _, after = _decided(shoot, out)
+    assert {g: gp.action for g, gp in after.items()} == {g: SOLVE if g == job.group else LOADED for g in before}
+    rows = _dry_run_is_the_decision(after, shoot, "-o", out, "--no-preview")
+    assert all(s["response"]["source"] == "calibrate" for s in rows if s["response"]["group"] == job.group), rows
+    assert any(s["response"]["source"] == "saved" for s in rows if s["response"]["group"] != job.group), rows
+
+
+def test_the_dry_run_of_a_given_response_object_names_it_given(tmp_path):
+    """describe_batch with a Response object (the API's --response) plans "given" for every
+    set, as run_batch does, without reading or solving anything (it raised TypeError)."""
+    from hdrcl.api.batch import describe_batch
+    from hdrcl.core.response import linear_response
+
+    shoot = tmp_path / "shoot"
+    assert _cli("sample-shoot", shoot).exit_code == 0
+    plan = describe_batch(shoot, tmp_path / "out", response=linear_response())
+    assert plan["sets"] and all(s["response"]["file"] == "given" and s["response"]["source"] == "given"
+                                and s["calibration"] == {"kind": "given"} for s in plan["sets"]), plan
+    assert not (tmp_path / "out").exists()

@@ -8,13 +8,14 @@ import logging
 import math
 import os
 from dataclasses import dataclass, replace
-from typing import Dict, List, Sequence
+from typing import Dict, List, Sequence, Tuple
 
 import numpy as np
 
 from hdrcl.core.exposure.fit import UNTRUSTED
 from hdrcl.core.response import Response
 from hdrcl.core.response_cache import misfit
+from hdrcl.core.sources import GivenResponse
 from hdrcl.errors import HdrclError, InputError
 from hdrcl.io.jsondoc import read_state
 from hdrcl.shoot.batch.jobs import (
@@ -85,6 +86,13 @@ def _open_set(job: SetJob) -> _Opened:
     return _Opened(infos=timed, times=times, ev_offset=math.log2(k), notes=notes, stamp=stamp)
 
 
+def _unopened(job: SetJob) -> _Opened:
+    """A set as its job lists it, no frame opened (the dry run's plan of it): no headers,
+    the manifest's exposures (when it lists them) as its times, no offset yet."""
+    return _Opened(infos=[None] * len(job.files), times=np.asarray(list(job.exposures or []), np.float64),
+                   ev_offset=0.0, notes=[], stamp="")
+
+
 def _calibration_grid(job: SetJob, opened: _Opened, ignore_color, hold: bool = False):
     """The decimated grid of a set that sample selection works on (one streaming read);
     with ``hold``, the frames decoded for it are held for the set's merge
@@ -109,6 +117,19 @@ def _response_of(entry: ResponseEntry) -> Response:
     return resp
 
 
+class EntryResponse(GivenResponse):
+    """A group's curve as a merge plan's response source: read from its entry when the
+    merge asks for it (so a plan of a curve not solved yet, a dry run's, can be made)."""
+
+    def __init__(self, entry: ResponseEntry):
+        self.entry = entry
+        self.name = os.path.basename(entry.file) if entry.file else entry.group
+
+    @property
+    def response(self) -> Response:
+        return _response_of(self.entry)
+
+
 def _pool_of(indices: Sequence[int]) -> List[int]:
     """At most MAX_POOL_SETS indices, evenly spaced, deterministic."""
     idx = sorted(indices)
@@ -125,28 +146,10 @@ def _key_digest(key: str) -> str:
     return _json_digest({"calibration": key})
 
 
-def _calibrate_group(group: str, jobs: List[SetJob], out_dir: str, options: BatchOptions,
-                     defer: bool = False, hold=frozenset()) -> ResponseEntry:
-    """Load the group's saved response if its key matches, else solve and save it; with
-    ``defer``, a group of one set is left to that set's merge (:func:`solve_deferred`);
-    the frames of the sets ``hold`` (indices) are held for their merges."""
-    entry, usable = saved_response(group, jobs, out_dir, options)
-    if entry.source == "loaded":
-        logger.info("%s: response loaded from %s", group, entry.file)
-        return entry
-    if defer and len(usable) == 1 and len(jobs) == 1:
-        entry.deferred = True
-        entry.digest = _key_digest(entry.key)
-        entry.source = "calibrated"
-        entry.sets = [usable[0].index]
-        return entry
-    return _solve_pool(entry, usable, options, hold=hold)
-
-
 def saved_response(group: str, jobs: List[SetJob], out_dir: str, options: BatchOptions):
     """``(entry, usable sets)``: the group's entry with its calibration key, ``source``
     ``"loaded"`` (and its curve) when the file beside the outputs was saved for this
-    very key and reads back, else to be solved. The batch and its dry run both ask this."""
+    very key and reads back, else to be solved (:func:`decide_responses` asks)."""
     path = response_path(group, out_dir)
     entry = ResponseEntry(group=group, file=path, sets=[j.index for j in jobs])
     usable, keyed = [], []
@@ -354,9 +357,9 @@ def _cached(group: str, cache: str, first_info) -> "ResponseEntry | None":
 
 def _prepare_responses(plan: _Plan, out_dir: str, options: BatchOptions, response=None,
                        defer: bool = False, cache=None, hold: bool = False) -> Dict[str, ResponseEntry]:
-    """Every needed group's response: given, from the ``cache`` folder, loaded, solved
-    now, or (``defer``) left to the merge of a group's only set (saved into ``cache``
-    when given, else ``out_dir``).
+    """Every needed group's response, as :func:`decide_responses` decides it: given, from
+    the ``cache`` folder, loaded, solved now, or (``defer``) left to the merge of a group's
+    only set (saved into ``cache`` when given, else ``out_dir``).
 
     ``hold``: the sets are merged next in this process, so the frames a pooled solve
     decodes of the selected sets are held for their merges (:mod:`hdrcl.io.ahead`: taken
@@ -377,30 +380,111 @@ def _prepare_responses(plan: _Plan, out_dir: str, options: BatchOptions, respons
 
 def _responses(plan: _Plan, out_dir: str, options: BatchOptions, response, defer: bool, cache,
                hold: frozenset) -> Dict[str, ResponseEntry]:
+    """Decide every needed group's response (:func:`decide_responses`), then carry it out."""
+    decided = decide_responses(plan, out_dir, options, response, defer=defer, cache=cache)
+    payload = None
+    if response is not None:  # one curve for every group: read once
+        payload = _normalised(response if isinstance(response, Response) else Response.load(os.fspath(response)))
+    return {g: _carry_out(gp, options, hold, payload) for g, gp in decided.items()}
+
+
+# -------------------------------------------------------------------- decisions
+#: What a group's response plan does: the curve given (``--response``), taken from the
+#: ``--response-cache`` folder, loaded from the file saved for this very calibration key,
+#: solved now from the pooled sets, or left to the merge of the group's only set.
+GIVEN, CACHED, LOADED, SOLVE, DEFERRED = "given", "cached", "loaded", "solve", "deferred"
+
+
+@dataclass(frozen=True)
+class GroupPlan:
+    """One camera group's response, decided before any frame is decoded or any curve is
+    solved (:func:`decide_responses`); the batch carries it out (:func:`_carry_out`), its
+    dry run describes it.
+
+    ``entry`` is the group's :class:`ResponseEntry` as decided: the file read or to be
+    written, the calibration key, the curve of a cached or loaded one, the warnings so far.
+    ``members`` are the group's sets in the manifest, ``pool`` those its curve is solved
+    from (at most :data:`MAX_POOL_SETS`), ``usable`` their jobs whose files could be hashed.
+    """
+
+    group: str
+    action: str
+    entry: ResponseEntry
+    members: Tuple[int, ...] = ()
+    pool: Tuple[int, ...] = ()
+    usable: Tuple[SetJob, ...] = ()
+
+    @property
+    def kind(self) -> str:
+        """The merge plan's response kind (:data:`hdrcl.core.plan.RESPONSE_KINDS`)."""
+        return {GIVEN: "given", CACHED: "cached", DEFERRED: "deferred"}.get(self.action, "pooled")
+
+    def describe(self) -> dict:
+        """The decision in the dry run's words: ``response`` (group, file, source: given,
+        cached, saved or calibrate) and ``calibration`` (kind: given, cached, own, or
+        pooled with its sets)."""
+        source = {GIVEN: "given", CACHED: "cached", LOADED: "saved"}.get(self.action, "calibrate")
+        if self.action in (GIVEN, CACHED):
+            calib = {"kind": self.action}
+        elif len(self.members) == 1:
+            calib = {"kind": "own"}
+        else:
+            calib = {"kind": "pooled", "sets": list(self.pool)}
+        return {"response": {"group": self.group, "file": self.entry.file, "source": source}, "calibration": calib}
+
+
+def decide_responses(plan: _Plan, out_dir: str, options: BatchOptions, response=None, defer: bool = False,
+                     cache=None) -> Dict[str, GroupPlan]:
+    """Each needed group's response plan (:class:`GroupPlan`), without decoding a frame or
+    solving a curve: the given one; the ``cache`` folder's when one there fits the frames;
+    the file saved beside the outputs (or in ``cache``) for this very calibration key;
+    else solved from the pool, or (``defer``) by the merge of a group's only set. Reads
+    only the response files and the pooled files' bytes (their digests make the key)."""
     needed = sorted({j.group for j in plan.selected})
     if response is not None:
-        if isinstance(response, Response):
-            payload, name = _normalised(response), "given"
-        else:
-            name = os.fspath(response)
-            payload = _normalised(Response.load(name))
-        digest = response_digest(payload)
-        return {g: ResponseEntry(group=g, payload=payload, digest=digest, file=name, source="given")
-                for g in needed}
+        name = "given" if isinstance(response, Response) else os.fspath(response)
+        return {g: GroupPlan(g, GIVEN, ResponseEntry(group=g, file=name, source="given"),
+                             tuple(plan.groups[g]), tuple(_pool_of(plan.groups[g]))) for g in needed}
     out = {}
     for g in needed:
-        first = plan.firsts.get(plan.groups[g][0])
-        if len(plan.groups[g]) > 1 and first is not None and _camera_label(first) == "unknown camera":
+        members = plan.groups[g]
+        first, pool = plan.firsts.get(members[0]), _pool_of(members)
+        if len(members) > 1 and first is not None and _camera_label(first) == "unknown camera":
             logger.info("%s: %s name no camera in their EXIF and share size and bit depth: one camera, one "
-                        "response", g, _sets_text(plan.groups[g]))
+                        "response", g, _sets_text(members))
         folder = cache_for(first, cache)
-        if folder is not None:
-            out[g] = _cached(g, folder, first)
-            if out[g] is not None:
-                continue
-        out[g] = _calibrate_group(g, [plan.jobs[i] for i in _pool_of(plan.groups[g])], folder or out_dir, options,
-                                  defer=defer, hold=hold)
+        cached = _cached(g, folder, first) if folder is not None else None
+        if cached is not None:
+            out[g] = GroupPlan(g, CACHED, cached, tuple(members), tuple(pool))
+            continue
+        jobs = [plan.jobs[i] for i in pool]
+        entry, usable = saved_response(g, jobs, folder or out_dir, options)
+        if entry.source == "loaded":
+            action = LOADED
+        elif defer and len(usable) == 1 and len(jobs) == 1:
+            # The set's merge solves it from the decode that feeds its fusion (solve_deferred).
+            action = DEFERRED
+            entry.deferred, entry.digest, entry.source = True, _key_digest(entry.key), "calibrated"
+            entry.sets = [usable[0].index]
+        else:
+            action = SOLVE
+        out[g] = GroupPlan(g, action, entry, tuple(members), tuple(pool), tuple(usable))
     return out
+
+
+def _carry_out(gp: GroupPlan, options: BatchOptions, hold=frozenset(), given=None) -> ResponseEntry:
+    """The group's entry as its plan says: ``given`` (the curve's payload) attached, a loaded
+    one said, a pool solved and saved (the frames of the sets ``hold`` held for their
+    merges); the plan itself is left as decided."""
+    e = gp.entry
+    entry = replace(e, sets=list(e.sets), warnings=list(e.warnings), untrusted=dict(e.untrusted))
+    if gp.action == GIVEN:
+        entry.payload, entry.digest = given, response_digest(given)
+    elif gp.action == LOADED:
+        logger.info("%s: response loaded from %s", gp.group, entry.file)
+    elif gp.action == SOLVE:
+        entry = _solve_pool(entry, list(gp.usable), options, hold=hold)
+    return entry
 
 
 def cache_for(first_info, cache):
@@ -416,7 +500,7 @@ def cache_for(first_info, cache):
 def solve_deferred(entry: ResponseEntry, job: SetJob, infos, grid, options: BatchOptions,
                    paths=None) -> Response:
     """The response of a one-set group, solved by that set's merge from the sampling grid
-    of the decode that feeds its fusion, and saved (as :func:`_calibrate_group` would).
+    of the decode that feeds its fusion, and saved (as :func:`_carry_out` saves a pool's).
 
     Raises
     ------

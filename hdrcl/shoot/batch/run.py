@@ -90,7 +90,7 @@ from hdrcl.shoot.batch.jobs import (
     _reference_text,
 )
 from hdrcl.shoot.batch.plan import _plan, check_outputs_spare_inputs, damaged_files, load_source, parse_sets
-from hdrcl.shoot.batch.pooling import _prepare_responses, cache_for
+from hdrcl.shoot.batch.pooling import _prepare_responses
 from hdrcl.shoot.batch.setquality import _contact_sheet
 from hdrcl.shoot.batch.setrun import _failed, _merge_stage, _Opening, _read_stage, process_set
 from hdrcl.shoot.batch.state import (
@@ -427,8 +427,8 @@ def describe_batch(source, out_dir, *, options: Optional[BatchOptions] = None, s
     ------
     As :func:`run_batch` before it writes anything.
     """
-    from hdrcl.shoot.batch.pooling import _cached, _pool_of, saved_response
-    from hdrcl.shoot.batch.names import response_path, response_to_read
+    from hdrcl.shoot.batch.pooling import _unopened, decide_responses
+    from hdrcl.shoot.batch.setrun import set_plan
 
     options = options or BatchOptions()
     if response is not None and response_cache is not None:
@@ -439,41 +439,21 @@ def describe_batch(source, out_dir, *, options: Optional[BatchOptions] = None, s
     manifest = _manifest(source, recursive, frames_per_set, gap, times_file,
                          [out_dir] + ([report_dir] if report_dir else []))  # as run_batch
     plan = _plan(manifest, out_dir, options, ranges, name)
-    folder = os.path.abspath(os.fspath(response_cache)) if response_cache is not None else out_dir
+    cache = os.path.abspath(os.fspath(response_cache)) if response_cache is not None else None
     check_outputs_spare_inputs(manifest, plan, out_dir, report_path=os.path.join(out_dir, REPORT_NAME),
                                report_dir=report_dir, responses=response is None, source=source,
-                               response_dir=folder)
+                               response_dir=cache or out_dir)
+    # The run's own decision (run_batch defers a camera's only set to its merge), and each
+    # set's merge plan made from it as the run makes it, its frames not opened.
+    decided = decide_responses(plan, out_dir, options, response, defer=True, cache=cache)
+    ctx = _Context(options=options, responses={g: gp.entry for g, gp in decided.items()})
     rows = []
-    usable: Dict[str, bool] = {}  # per group: a cached curve the run takes as it is (same test as the run)
     for job in plan.selected:
-        members = plan.groups[job.group]
-        first = plan.firsts.get(members[0])
-        cached = response_cache is not None and cache_for(first, folder) is not None
-        if cached and job.group not in usable:
-            usable[job.group] = _cached(job.group, folder, first) is not None
-        where = folder if cached else out_dir
-        path = response_path(job.group, where)
-        if response is not None:
-            resp = {"group": job.group, "file": os.fspath(response), "source": "given"}
-            calib = {"kind": "given"}
-        else:
-            if cached:
-                there = usable[job.group]  # a damaged one is calibrated again
-            else:  # loaded only when saved for this very calibration (the run's own test)
-                if job.group not in usable:
-                    usable[job.group] = saved_response(job.group, [plan.jobs[i] for i in _pool_of(members)],
-                                                       out_dir, options)[0].source == "loaded"
-                there = usable[job.group]
-            if there:  # the file read: an older version's hyphenated name too
-                path = response_to_read(job.group, where)
-            resp = {"group": job.group, "file": path,
-                    "source": ("cached" if cached else "saved") if there else "calibrate"}
-            calib = ({"kind": "cached"} if there and cached else
-                     {"kind": "own"} if len(members) == 1 else {"kind": "pooled", "sets": _pool_of(members)})
+        d = set_plan(_Opening(job, None, _unopened(job), {}), ctx).describe()
         times = [t for t in job.exposures if t > 0]
-        rows.append({"index": job.index, "frames": len(job.files), "first": job.files[0], "last": job.files[-1],
-                     "exposures": [min(times), max(times)] if times else None, "output": job.output,
-                     "preview": job.preview, "response": resp, "calibration": calib})
+        rows.append({"index": job.index, "frames": len(d["files"]), "first": d["files"][0],
+                     "last": d["files"][-1], "exposures": [min(times), max(times)] if times else None,
+                     "output": d["output"], "preview": job.preview, **decided[job.group].describe()})
     return {"sets": rows, "reference": _reference_text(plan.reference),
             "unmerged": [{"files": [os.path.abspath(f) for f in u.files], "reason": u.reason}
                          for u in manifest.unmerged]}

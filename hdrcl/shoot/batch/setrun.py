@@ -15,7 +15,7 @@ import numpy as np
 
 from hdrcl.core.findings import Finding
 from hdrcl.core.fusestage import FINDINGS_KEY
-from hdrcl.core.sources import GivenResponse, Inputs, ResponseSource
+from hdrcl.core.sources import Inputs, ResponseSource
 from hdrcl.errors import HdrclError, InputError
 from hdrcl.shoot.batch.jobs import (
     _FUSE_LOCK,
@@ -29,7 +29,7 @@ from hdrcl.shoot.batch.jobs import (
     _Context,
     _reference_text,
 )
-from hdrcl.shoot.batch.pooling import _open_set, _Opened, _response_of
+from hdrcl.shoot.batch.pooling import EntryResponse, _open_set, _Opened
 from hdrcl.shoot.batch.setquality import (
     REPORT_IMAGE_SIZE,
     _current_quality,
@@ -340,7 +340,7 @@ def response_source_of(entry, job: SetJob, infos, options) -> ResponseSource:
     """The set's response source: deferred (its camera's only set), else the group's curve."""
     if entry.deferred:
         return DeferredResponse(entry, job, infos, options)
-    return GivenResponse(_response_of(entry), os.path.basename(entry.file) if entry.file else entry.group)
+    return EntryResponse(entry)  # the curve read when the merge asks (a dry run's plan never does)
 
 
 def set_plan(step: _Opening, ctx: _Context):
