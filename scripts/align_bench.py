@@ -25,7 +25,11 @@ import time
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-MEMORIAL = os.path.join(os.path.dirname(ROOT), "shared", "data", "memorial", "memorial0066.png")
+#: The scene: ``shared/data`` beside the checkout (a worktree one level deeper: above it).
+MEMORIAL = next((p for p in (os.path.join(d, "shared", "data", "memorial", "memorial0066.png")
+                             for d in (os.path.dirname(ROOT), os.path.dirname(os.path.dirname(ROOT))))
+                 if os.path.isfile(p)), os.path.join(os.path.dirname(ROOT), "shared", "data", "memorial",
+                                                      "memorial0066.png"))
 
 
 def similarity(rot_deg, scale, dy, dx, h, w):

@@ -128,27 +128,18 @@ class MergeJob(Timed):
         if not self.options.align:
             self.source = BracketReader(self.inputs.paths, self.inputs.infos)
             return
-        from hdrcl.core.bracket import _with_ignore
-        from hdrcl.core.align.handheld import align_bracket, without
-        from hdrcl.core.pipeline import ArraySource
+        from hdrcl.core.align.stream import aligned_source
+        from hdrcl.core.align.unaligned import without
 
-        o = self.options
-        with BracketReader(self.inputs.paths, self.inputs.infos) as reader:
-            frames, valid = reader.read_all()
-            self.add_time("decode", reader.decode_seconds)
-        valid = _with_ignore(frames, valid, o.ignore_color)
-        with self.timed("align"):
-            al = align_bracket(frames, valid, self.times, o.device, o.crop, o.align_model, self.inputs.paths,
-                               inplace=True, find=self.find)
-        del frames, valid
+        # The frames decoded once and kept, sampled through their transforms strip by strip.
+        self.source, al = aligned_source(self.inputs, self.options, find=self.find)
+        self.add_time("decode", al.decode_seconds)
+        self.add_time("align", al.align_seconds)
         if al.left_out:  # frames that cannot be aligned: merged without them (a finding names each)
             self.inputs = without(self.inputs, al.left_out)
             self.times = self.nominal = np.asarray(self.inputs.times, np.float64)
         self.shifts, self.crop_box, self.alignment = al.shifts, al.crop, al.alignment
-        if self.crop_box is not None:
-            y0, y1, x0, x1 = self.crop_box
-            self.h, self.w = y1 - y0, x1 - x0
-        self.source = ArraySource(al.frames, al.valid)
+        self.h, self.w = self.source.height, self.source.width
         self.ignore = None
 
     def sample(self) -> None:
