@@ -131,6 +131,12 @@ class _Registrar:
             self._levels[j] = R.levels_of(self.pyr[j][:k], self.est, *self.range[j], vp)
         return self._levels[j]
 
+    def forget(self, keep) -> None:
+        """Drop the rank pyramids of the frames not in ``keep`` (made again, the same, if
+        asked for): the estimate's memory is a few frames' levels, not the bracket's."""
+        for k in [k for k in self._levels if k not in keep]:
+            del self._levels[k]
+
     def shift(self, a: int, b: int) -> np.ndarray:
         """Whole-pixel shift of ``b`` against ``a`` by median threshold bitmaps on the
         kept levels (each frame's usable range in place of the fixed one), full size."""
@@ -215,6 +221,9 @@ def estimate(frames: Sequence[np.ndarray], ref: int, model: str, device=None, na
     for j in sorted(range(n), key=lambda k: (abs(k - ref), k)):
         if j == ref:
             continue
+        # A frame registers against its two nearer neighbours toward the reference
+        # (register_chained): the frames nearer still are done with.
+        reg.forget({k for k in range(n) if abs(k - ref) >= abs(j - ref) - 2})
         try:
             anchor, kind, f, r, why = register_chained(reg, out, links, mats, j, ref, model, names)
         except Unaligned as exc:  # unmoved, or left out (hdrcl.core.align.unaligned)

@@ -39,7 +39,7 @@ from hdrcl.core.align import warp as W
 logger = logging.getLogger(__name__)
 
 #: Output pixels per frame warped at once (one chunk: a multiple of the fusion's strip).
-CHUNK_PIXELS = 1 << 20
+CHUNK_PIXELS = 1 << 19
 
 
 @dataclass
@@ -120,7 +120,7 @@ class AlignedSource:
         """Frame ``i`` (as given) whole, as decoded; its border fill noted."""
         f = self.cache.frame_rows(i, 0, self.full_h)[0]
         if i not in self._fill:
-            self._fill[i] = W.border_fill(f)
+            self._fill[i] = _Packed.of(W.border_fill(f))
         return f
 
     def _mask(self, codes, alpha):
@@ -160,6 +160,7 @@ class AlignedSource:
         fits, aligner = HH.estimate(_Frames(self, order), ref, model, self.device, [names[i] for i in order],
                                     [valid[i] for i in order], events=events, leave_out=find is not None)
         del valid
+        _trim()  # the estimate's pyramids, freed: given back before the fusion's buffers
         st = HH.settle(fits, order, names, events, find, h, w, crop)
         self.keep, self.matrices = st.keep, st.matrices
         if st.crop is not None:
@@ -202,7 +203,17 @@ class AlignedSource:
     def region(self, k: int, ys: range, xs: range):
         """``(codes, valid or None)`` of frame ``k`` (merged) at the output rows ``ys`` and
         columns ``xs`` (ranges of the cropped image, one step for both when both have
-        more than one element)."""
+        more than one element), in pieces of about :data:`CHUNK_PIXELS` source pixels
+        (a sampling grid reads the frame a band at a time, not whole)."""
+        step = ys.step if len(ys) > 1 else 1
+        per = max(1, CHUNK_PIXELS // max(1, step * self.full_w))
+        if len(ys) <= per:
+            return self._region(k, ys, xs)
+        got = [self._region(k, ys[j:j + per], xs) for j in range(0, len(ys), per)]
+        valid = None if got[0][1] is None else np.concatenate([g[1] for g in got])
+        return np.concatenate([g[0] for g in got]), valid
+
+    def _region(self, k: int, ys: range, xs: range):
         i, m, kind = self.keep[k], self.matrices[k], self._kind(k)
         oy, ox = self.box[0], self.box[2]
         if len(ys) == 0 or len(xs) == 0:
@@ -226,7 +237,7 @@ class AlignedSource:
         band, alpha = self.cache.frame_rows(i, b0, b1)
         vband = self._mask(band, alpha)
         if fill is not None:
-            vband = ~fill[b0:b1] if vband is None else vband & ~fill[b0:b1]
+            vband = ~fill.rows(b0, b1) if vband is None else vband & ~fill.rows(b0, b1)
         from hdrcl.core.align.warping import WARP_TAPS
 
         clip_hi = W.clip_high(int(np.iinfo(self.dtype).max))
@@ -254,7 +265,8 @@ class AlignedSource:
             codes[np.ix_(ry, rx)] = got
             v = self._mask(got, None if alpha is None else alpha[cy][:, cx])
             if fill is not None:
-                v = ~fill[ys[ry]][:, cx] if v is None else v & ~fill[ys[ry]][:, cx]
+                out = ~fill.rows(y0, y1)[cy][:, cx]
+                v = out if v is None else v & out
             ok[np.ix_(ry, rx)] = True if v is None else v
         return codes, ok
 
@@ -305,6 +317,33 @@ class AlignedSource:
 
     def __exit__(self, *exc):
         self.close()
+
+
+class _Packed:
+    """A frame's border fill mask kept 8 pixels a byte (a dark exposure's is a whole
+    frame of booleans: 12 MB at 12 MP), its rows unpacked as a band needs them."""
+
+    def __init__(self, bits: np.ndarray, width: int):
+        self.bits, self.width = bits, width
+
+    @classmethod
+    def of(cls, mask: Optional[np.ndarray]) -> Optional["_Packed"]:
+        return None if mask is None else cls(np.packbits(mask, axis=1), mask.shape[1])
+
+    def rows(self, y0: int, y1: int) -> np.ndarray:
+        return np.unpackbits(self.bits[y0:y1], axis=1, count=self.width).view(bool)
+
+
+def _trim() -> None:
+    """Hand the heap's free pages back to the system (glibc): the estimate frees some
+    hundred megabytes of small-to-middling arrays (rank pyramids of every frame) that the
+    allocator would otherwise keep, and the fusion's peak would sit on top of them."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc: nothing to do
+        pass
 
 
 class WarpedView:
