@@ -168,3 +168,22 @@ def test_aligned_merge_holds_no_warped_frames(tmp_path, moved_set, cl_device, mo
     (a, meta_a), (b, meta_b) = read_radiance(str(tmp_path / "a.exr")), read_radiance(str(tmp_path / "held.exr"))
     np.testing.assert_array_equal(a, b)  # the pixels, bit for bit
     assert meta_a["alignTransforms"] == meta_b["alignTransforms"]
+
+
+def test_views_serve_after_close_and_act_as_arrays(tmp_path, moved_set, cl_device):
+    """The frames as merged stay readable once the source is closed (a batch's quality
+    report reads them after the merge), and a view used as an array warps it whole."""
+    moved, times, _ = moved_set
+    paths = _write(tmp_path, moved, "v")
+    old = _whole(paths, times, lambda fr: [None] * len(fr), "auto", True)
+    src, _ = _streamed(paths, times, "auto", True)
+    frames, valid = src.frames, src.valid
+    src.close()
+    for k, (f, v) in enumerate(zip(old.frames, old.valid)):
+        np.testing.assert_array_equal(np.asarray(frames[k]), f)
+        np.testing.assert_array_equal(frames[k] >= 200, f >= 200)
+        assert frames[k].astype(np.float32).sum() == f.astype(np.float32).sum()
+        if v is not None:
+            np.testing.assert_array_equal(valid[k] & True, v)
+    kf, kv, grid = src.kept()
+    assert not grid and all(np.array_equal(a, b) for a, b in zip(kf, old.frames))

@@ -300,6 +300,12 @@ class AlignedSource:
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
 
+    def kept(self):
+        """``(frames, valid, False)``: every frame merged warped whole (and cropped), for a
+        caller that keeps the frames (``keep_frames``: the quality report)."""
+        got = [self.region(k, range(self.height), range(self.width)) for k in range(len(self.keep))]
+        return [np.ascontiguousarray(g[0]) for g in got], [g[1] for g in got], False
+
     def rewind(self) -> None:
         """Nothing to do: every pass reads the kept frames from the top."""
 
@@ -310,6 +316,10 @@ class AlignedSource:
         return [g[0] for g in got], [g[1] for g in got]
 
     def close(self) -> None:
+        """Close the files. The decoded frames stay while this source (or a view of it)
+        is referenced: a caller may read the frames as merged after the merge (a batch's
+        quality report); the cache's memory or scratch file goes with the last reference."""
+        self.reader.cache = None  # not closed with the reader
         self.reader.close()
 
     def __enter__(self):
@@ -346,12 +356,14 @@ def _trim() -> None:
         pass
 
 
-class WarpedView:
+class WarpedView(np.lib.mixins.NDArrayOperatorsMixin):
     """Frame ``k`` of an :class:`AlignedSource` (``part`` 0: codes, 1: valid mask) as an
-    array that warps only what is sliced out of it (module docstring)."""
+    array that warps only what is sliced out of it (module docstring); any other use
+    (arithmetic, comparisons, methods: a quality report's measures) warps it whole, once."""
 
     def __init__(self, src: AlignedSource, k: int, part: int):
         self.src, self.k, self.part = src, k, part
+        self._whole = None
         self.shape = (src.height, src.width, src.nch) if part == 0 else (src.height, src.width)
         self.dtype = src.dtype if part == 0 else np.dtype(bool)
         self.ndim = len(self.shape)
@@ -369,8 +381,18 @@ class WarpedView:
         return np.asarray(self)[key]
 
     def __array__(self, dtype=None, copy=None):
-        a = self[:, :]
-        return a if dtype is None else a.astype(dtype)
+        if self._whole is None:
+            self._whole = np.ascontiguousarray(self[:, :])
+        return self._whole if dtype is None else self._whole.astype(dtype)
+
+    def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
+        inputs = tuple(np.asarray(x) if isinstance(x, WarpedView) else x for x in inputs)
+        return getattr(ufunc, method)(*inputs, **kwargs)
+
+    def __getattr__(self, name):  # ndarray's methods and attributes, on the whole frame
+        if name.startswith("__") or name in ("src", "k", "part", "_whole"):
+            raise AttributeError(name)
+        return getattr(np.asarray(self), name)
 
     def __len__(self):
         return self.shape[0]
