@@ -206,9 +206,7 @@ class AlignedSource:
         more than one element), in pieces of about :data:`CHUNK_PIXELS` source pixels
         (a sampling grid reads the frame a band at a time, not whole)."""
         step = ys.step if len(ys) > 1 else 1
-        # A grid's output is small: a taller band (4 chunks of source rows) keeps the rows
-        # read twice for the transform's vertical extent few.
-        per = max(1, CHUNK_PIXELS * (4 if step > 1 else 1) // max(1, step * self.full_w))
+        per = max(1, CHUNK_PIXELS // max(1, step * self.full_w))
         if len(ys) <= per:
             return self._region(k, ys, xs)
         got = [self._region(k, ys[j:j + per], xs) for j in range(0, len(ys), per)]
