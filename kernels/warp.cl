@@ -41,6 +41,13 @@
  *   out      PIXEL_T [rows][w][NCH]     output strip, rows out_y0 .. out_y0 + rows - 1
  *   outvalid uchar [rows][w]            bit 0: valid, bit 1: covered
  *   m0..m8                              M row-major, float
+ *
+ * warp_grid: the same pixels on a grid, for a strip source that warps each strip of the
+ * fusion as it is needed (hdrcl.core.align.stream) and for the sampling grid: output
+ * pixel (x, r) is the warp at frame coordinates (x0 + x * step, out_y0 + r * step), so
+ * a cropped strip (step 1) or every step-th pixel costs only the pixels asked for; the
+ * value of a pixel is the same whichever kernel computes it.
+ *   out      PIXEL_T [rows][out_w][NCH] outvalid uchar [rows][out_w]
  */
 #ifndef PIXEL_T
 #define PIXEL_T uchar
@@ -296,4 +303,25 @@ __kernel void warp(__global const PIXEL_T *restrict src,
         return;
     const Site a = site(x, out_y0 + r, h, w, band_y0, band_h, m0, m1, m2, m3, m4, m5, m6, m7, m8);
     pixel(&a, src, srcvalid, out, outvalid, (size_t)r * w + x, h, w, band_y0, band_h);
+}
+
+__kernel void warp_grid(__global const PIXEL_T *restrict src,
+                        __global const uchar *restrict srcvalid,
+                        __global PIXEL_T *restrict out,
+                        __global uchar *restrict outvalid,
+                        const int h, const int w,
+                        const int band_y0, const int band_h,
+                        const int out_y0, const int rows,
+                        const int x0, const int out_w, const int step,
+                        const float m0, const float m1, const float m2,
+                        const float m3, const float m4, const float m5,
+                        const float m6, const float m7, const float m8)
+{
+    const int x = get_global_id(0);
+    const int r = get_global_id(1);
+    if (x >= out_w || r >= rows)
+        return;
+    const Site a = site(x0 + x * step, out_y0 + r * step, h, w, band_y0, band_h, m0, m1, m2, m3, m4, m5, m6, m7,
+                        m8);
+    pixel(&a, src, srcvalid, out, outvalid, (size_t)r * out_w + x, h, w, band_y0, band_h);
 }

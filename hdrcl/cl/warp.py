@@ -7,6 +7,7 @@ the frame nor its result has to fit the device whole.
 """
 from __future__ import annotations
 
+import threading
 from typing import Optional, Tuple
 
 import numpy as np
@@ -33,6 +34,11 @@ def source_band(matrix: np.ndarray, y0: int, y1: int, h: int, w: int) -> Tuple[i
     lo, hi = np.floor(sy.min()) - 3, np.floor(sy.max()) + 5
     b0, b1 = int(np.clip(lo, 0, h)), int(np.clip(hi, 0, h))
     return (b0, b1) if b1 > b0 else (0, 1)
+
+
+#: ``warp_grid`` is one kernel object per context: its arguments are set and the kernel
+#: enqueued under this lock (two sets aligned at once in one process).
+_GRID_LOCK = threading.Lock()
 
 
 class WarpProcessor(OpenCLProcessor):
@@ -88,3 +94,41 @@ class WarpProcessor(OpenCLProcessor):
             cl.enqueue_copy(q, out[y0:y1], out_b, is_blocking=False)
             cl.enqueue_copy(q, flags[y0:y1], flag_b, is_blocking=True)
         return out, (flags & 1).view(bool), (flags >> 1).view(bool)  # 0/1 bytes: views, no copies
+
+    def warp_grid(self, band: np.ndarray, b0: int, h: int, matrix: np.ndarray, y0: int, rows: int, x0: int,
+                  cols: int, step: int = 1, valid: Optional[np.ndarray] = None, taps: int = 4,
+                  clip_hi: Optional[int] = None) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(codes, valid, covered)`` of the warped frame at frame coordinates
+        ``(y0 + r step, x0 + x step)``, ``r < rows``, ``x < cols``: ``(rows, cols, C)``
+        and ``(rows, cols)`` bool. ``band``: the frame's source rows ``b0 ..`` (``(B, W,
+        C)``, every tap of those pixels inside it: :func:`hdrcl.core.align.warp.region_band`) of a frame ``h``
+        rows high; ``valid``: the band's mask. Each pixel's value equals :meth:`warp`'s."""
+        band = np.ascontiguousarray(band)
+        if band.ndim == 2:
+            band = band[:, :, None]
+        if band.dtype not in _PIXEL_T:
+            raise TypeError(f"frames must be uint8 or uint16, not {band.dtype}")
+        bh, w, c = band.shape
+        ptype, zmax = _PIXEL_T[band.dtype]
+        has_valid = valid is not None
+        knl = self.ctx.kernel("warp", "warp_grid", (f"-DPIXEL_T={ptype}", f"-DZMAX={zmax}", f"-DNCH={c}",
+                                                    f"-DHAS_VALID={int(has_valid)}", f"-DTAPS={int(taps)}",
+                                                    f"-DCLIP_HI={zmax if clip_hi is None else int(clip_hi)}"))
+        m = [np.float32(v) for v in np.asarray(matrix, np.float64).ravel()]
+        out = np.empty((rows, cols, c), band.dtype)
+        flags = np.empty((rows, cols), np.uint8)
+        q = self.queue
+        out_b = self.buffer("grid_out", out.nbytes)
+        flag_b = self.buffer("grid_flags", flags.nbytes)
+        src_b = self.buffer("grid_src", band.nbytes, cl.mem_flags.READ_ONLY)
+        val_b = self.buffer("grid_valid", bh * w if has_valid else 4, cl.mem_flags.READ_ONLY)
+        cl.enqueue_copy(q, src_b, band, is_blocking=False)
+        if has_valid:
+            cl.enqueue_copy(q, val_b, np.ascontiguousarray(valid, dtype=np.uint8), is_blocking=False)
+        with _GRID_LOCK:
+            knl(q, (round_up(cols, 16), round_up(rows, 4)), None, src_b, val_b, out_b, flag_b,
+                np.int32(h), np.int32(w), np.int32(b0), np.int32(bh), np.int32(y0), np.int32(rows),
+                np.int32(x0), np.int32(cols), np.int32(step), *m)
+        cl.enqueue_copy(q, out, out_b, is_blocking=False)
+        cl.enqueue_copy(q, flags, flag_b, is_blocking=True)
+        return out, (flags & 1).view(bool), (flags >> 1).view(bool)

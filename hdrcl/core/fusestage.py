@@ -219,6 +219,8 @@ class Tee:
 def kept_frames(source, grid):
     """``(frames, valid, is_grid)`` the merge holds already: an aligned set's frames, the
     decoded-frame cache when it is in memory, else the sampling grid; None otherwise."""
+    if hasattr(source, "kept"):  # aligned through the fusion: the frames as merged, warped whole now
+        return source.kept()
     if hasattr(source, "frames"):  # aligned (and cropped): what was merged
         return list(source.frames), list(source.valid), False
     cache = getattr(source, "cache", None)

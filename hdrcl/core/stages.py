@@ -86,23 +86,18 @@ def load(run) -> None:
     if plan.frames != HELD:
         run.source = BracketReader(run.inputs.paths, run.inputs.infos)
         return
-    from hdrcl.core.align.handheld import align_bracket
-    from hdrcl.core.bracket import _with_ignore
+    from hdrcl.core.align.stream import aligned_source
 
-    with BracketReader(run.inputs.paths, run.inputs.infos) as reader:
-        frames, valid = reader.read_all()
-        run.add_time("decode", reader.decode_seconds)
-    valid = _with_ignore(frames, valid, o.ignore_color)
-    with run.timed("align"):
-        al = align_bracket(frames, valid, run.times, o.device, o.crop, o.align_model, run.inputs.paths,
-                           inplace=True, find=run.find)
-    del frames, valid
-    _aligned(run, al)
-    run.source = ArraySource(al.frames, al.valid)
+    # The frames decoded once and kept, sampled through their transforms strip by strip
+    # (no warped copies held: hdrcl.core.align.stream).
+    run.source, al = aligned_source(run.inputs, o, find=run.find)
+    run.add_time("decode", al.decode_seconds)
+    run.add_time("align", al.align_seconds)
+    _aligned(run, al, (run.source.height, run.source.width))
     run.ignore = None
 
 
-def _aligned(run, al) -> None:
+def _aligned(run, al, size=None) -> None:
     """What an alignment leaves: frames it could not align left out (a finding names each),
     the shifts, the crop box and the image's size after it."""
     if al.left_out:
@@ -118,7 +113,7 @@ def _aligned(run, al) -> None:
             run.inputs = replace(run.inputs, times=np.asarray(run.times, np.float64)[keep])
         run.times = run.nominal = np.asarray(run.inputs.times, np.float64)
     run.shifts, run.crop_box, run.alignment = al.shifts, al.crop, al.alignment
-    run.h, run.w = al.frames[0].shape[:2]
+    run.h, run.w = size if size is not None else al.frames[0].shape[:2]
 
 
 def sample(run) -> None:

@@ -122,23 +122,27 @@ class FrameCache:
 
     def rows(self, y0: int, y1: int):
         """Rows ``y0..y1`` of every frame: ``(frames, valid)`` lists (read-only use)."""
-        frames = []
-        for k in range(self.nframes):
-            if self._frames is not None:  # views: the consumers only read them
-                frames.append(self._frames[k][y0:y1])
-                continue
-            out = np.empty((y1 - y0, self.width, self.nch), self.dtype)
-            view = memoryview(out).cast("B")
-            offset = k * self.frame_bytes + y0 * self.row_bytes
-            done = 0
-            while done < len(view):
-                got = os.preadv(self._file.fileno(), [view[done:]], offset + done)
-                if got <= 0:
-                    raise OSError(f"decoded-frame cache: short read at byte {offset + done}")
-                done += got
-            frames.append(out)
+        frames = [self.frame_rows(k, y0, y1)[0] for k in range(self.nframes)]
         valid = [None if v is None else v[y0:y1] for v in self._valid]
         return frames, valid
+
+    def frame_rows(self, k: int, y0: int, y1: int):
+        """Rows ``y0..y1`` of frame ``k``: ``(codes, alpha mask or None)`` (read-only use;
+        views of a memory cache). An aligned merge reads each frame's own band of rows."""
+        v = self._valid[k]
+        v = None if v is None else v[y0:y1]
+        if self._frames is not None:  # views: the consumers only read them
+            return self._frames[k][y0:y1], v
+        out = np.empty((y1 - y0, self.width, self.nch), self.dtype)
+        view = memoryview(out).cast("B")
+        offset = k * self.frame_bytes + y0 * self.row_bytes
+        done = 0
+        while done < len(view):
+            got = os.preadv(self._file.fileno(), [view[done:]], offset + done)
+            if got <= 0:
+                raise OSError(f"decoded-frame cache: short read at byte {offset + done}")
+            done += got
+        return out, v
 
     def close(self) -> None:
         self._frames = None

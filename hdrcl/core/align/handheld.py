@@ -131,6 +131,12 @@ class _Registrar:
             self._levels[j] = R.levels_of(self.pyr[j][:k], self.est, *self.range[j], vp)
         return self._levels[j]
 
+    def forget(self, keep) -> None:
+        """Drop the rank pyramids of the frames not in ``keep`` (made again, the same, if
+        asked for): the estimate's memory is a few frames' levels, not the bracket's."""
+        for k in [k for k in self._levels if k not in keep]:
+            del self._levels[k]
+
     def shift(self, a: int, b: int) -> np.ndarray:
         """Whole-pixel shift of ``b`` against ``a`` by median threshold bitmaps on the
         kept levels (each frame's usable range in place of the fixed one), full size."""
@@ -215,6 +221,9 @@ def estimate(frames: Sequence[np.ndarray], ref: int, model: str, device=None, na
     for j in sorted(range(n), key=lambda k: (abs(k - ref), k)):
         if j == ref:
             continue
+        # A frame registers against its two nearer neighbours toward the reference
+        # (register_chained): the frames nearer still are done with.
+        reg.forget({k for k in range(n) if abs(k - ref) >= abs(j - ref) - 2})
         try:
             anchor, kind, f, r, why = register_chained(reg, out, links, mats, j, ref, model, names)
         except Unaligned as exc:  # unmoved, or left out (hdrcl.core.align.unaligned)
@@ -313,33 +322,58 @@ def align_bracket(frames, valid, times, device=None, crop: bool = False, model: 
             logger.debug("align: a warp failed while alignment stopped: %s", exc)
         raise
     warps.finish()
+    st = settle(fits, order, names, events, find, h, w, crop)
+    for pos, i in enumerate(order):
+        if fits[pos][0] != LEFT_OUT:
+            warps.submit(pos, fits[pos][1])  # those not warped yet (the reference, a static bracket): here
+    if st.left:  # merged without them: every per-frame list in step
+        out_f, out_v = [out_f[i] for i in st.keep], [out_v[i] for i in st.keep]
+    if st.crop is not None:
+        out_f, out_v = W.crop_frames(out_f, out_v, st.crop)
+    return Aligned(out_f, out_v, st.shifts, st.crop, st.alignment, st.left)
+
+
+@dataclass
+class Settled:
+    """What the fits of a bracket come to (:func:`settle`), per frame merged (input order,
+    those left out dropped): the matrices, whole-pixel shifts and records; the indices
+    kept and left out (as given), and the crop box (or None)."""
+
+    matrices: List[np.ndarray]
+    shifts: List[tuple]
+    alignment: List[dict]
+    keep: List[int]
+    left: List[int]
+    crop: Optional[tuple]
+
+
+def settle(fits, order, names, events, find, h: int, w: int, crop: bool) -> Settled:
+    """The findings of the alignment handed to ``find`` (logged without it), the frames
+    left out, each frame's record and shift, and the crop box (InputError when the
+    frames share no area): :func:`estimate`'s ``fits`` (exposure order) in input order."""
+    ordered = [names[i] for i in order]
     static = all(f[0] in ("reference", "none", LEFT_OUT) for f in fits)
     for fd in U.findings(events, ordered, static):
         if find is None:
             logger.warning("%s", fd.message)
         else:
             find(fd)
+    n = len(order)
     left = sorted(order[pos] for pos, f in enumerate(fits) if f[0] == LEFT_OUT)
     shifts: List[tuple] = [(0, 0)] * n
     records: List[dict] = [{}] * n
+    mats: List[np.ndarray] = [np.eye(3)] * n
     for pos, i in enumerate(order):
         kind, m, r, anchor = fits[pos]
-        if kind != LEFT_OUT:
-            warps.submit(pos, m)  # those not warped yet (the reference, a static bracket): here
         rec = describe(names[i], kind, m, r, h, w, names[order[anchor]])
-        records[i] = rec
+        records[i], mats[i] = rec, m
         shifts[i] = (int(round(rec["shift_px"][0])), int(round(rec["shift_px"][1])))
-    if left:  # merged without them: every per-frame list in step
-        keep = [i for i in range(n) if i not in left]
-        out_f, out_v = [out_f[i] for i in keep], [out_v[i] for i in keep]
-        shifts, records = [shifts[i] for i in keep], [records[i] for i in keep]
-    mats = [f[1] for f in fits if f[0] != LEFT_OUT]
-    box = W.crop_box((h, w), mats) if crop else None
-    if box is not None:
-        if box[1] <= box[0] or box[3] <= box[2]:
-            raise InputError(f"{names[order[0]]}: the aligned frames share no common area to crop to")
-        out_f, out_v = W.crop_frames(out_f, out_v, box)
-    return Aligned(out_f, out_v, shifts, box, records, left)
+    keep = [i for i in range(n) if i not in left]
+    box = W.crop_box((h, w), [mats[i] for i in keep]) if crop else None
+    if box is not None and (box[1] <= box[0] or box[3] <= box[2]):
+        raise InputError(f"{names[order[0]]}: the aligned frames share no common area to crop to")
+    return Settled([mats[i] for i in keep], [shifts[i] for i in keep], [records[i] for i in keep], keep, left,
+                   box)
 
 
 def alignment_meta(shifts, alignment) -> dict:

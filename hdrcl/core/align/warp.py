@@ -88,9 +88,21 @@ def warp_rows(frame: np.ndarray, matrix: np.ndarray, y0: int, y1: int,
     The twin of the ``warp`` kernel (module docstring), in float64; ``taps`` 4 (Keys'
     cubic) or 2 (bilinear).
     """
-    h, w, c = frame.shape
-    zmax = float(np.iinfo(frame.dtype).max)
-    ys, xs = np.mgrid[y0:y1, 0:w].astype(np.float64)
+    return warp_grid(frame, 0, frame.shape[0], matrix, np.arange(y0, y1), np.arange(frame.shape[1]), valid,
+                     taps, clip_hi)
+
+
+def warp_grid(band: np.ndarray, b0: int, h: int, matrix: np.ndarray, ys: np.ndarray, xs: np.ndarray,
+              valid: Optional[np.ndarray] = None, taps: int = 4,
+              clip_hi: Optional[int] = None) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The warped frame at the output rows ``ys`` and columns ``xs`` (frame coordinates,
+    1-D): ``(codes (len(ys), len(xs), C), valid, covered)``; the twin of the
+    ``warp_grid`` kernel. ``band``: source rows ``b0 ..`` of a frame ``h`` rows high
+    holding every contributing tap (rows outside it are read clamped to it, as the
+    kernel does); ``valid``: the band's mask."""
+    bh, w, c = band.shape
+    zmax = float(np.iinfo(band.dtype).max)
+    ys, xs = np.meshgrid(np.asarray(ys, np.float64), np.asarray(xs, np.float64), indexing="ij")
     sx, sy, ok = source_coords(matrix, ys, xs)
     ix, iy = np.floor(sx), np.floor(sy)
     tx, ty = sx - ix, sy - iy
@@ -106,7 +118,7 @@ def warp_rows(frame: np.ndarray, matrix: np.ndarray, y0: int, y1: int,
     bot = np.full(ys.shape + (c,), zmax)  # and the smallest
     for j, oy in enumerate(offs):  # separable: each tap row over x, then the rows over y
         py = iy + oy
-        cy = np.clip(py, 0, h - 1)
+        cy = np.clip(np.clip(py, 0, h - 1) - b0, 0, bh - 1)
         row = np.zeros(ys.shape + (c,), np.float64)
         for i, ox in enumerate(offs):
             contrib = (wx[i] != 0.0) & (wy[j] != 0.0)
@@ -116,7 +128,7 @@ def warp_rows(frame: np.ndarray, matrix: np.ndarray, y0: int, y1: int,
             cx = np.clip(px, 0, w - 1)
             if valid is not None:
                 good &= valid[cy, cx] | ~contrib
-            z = frame[cy, cx]
+            z = band[cy, cx]
             row += wx[i][..., None] * z
             np.maximum(top, np.where(contrib[..., None], z, 0), out=top)
             np.minimum(bot, np.where(contrib[..., None], z, zmax), out=bot)
@@ -125,7 +137,7 @@ def warp_rows(frame: np.ndarray, matrix: np.ndarray, y0: int, y1: int,
     if clip_hi is not None:  # a clipped contributing tap: clipped (the kernel's docstring)
         codes[top >= clip_hi] = zmax
     codes[~covered] = 0
-    return codes.astype(frame.dtype), covered & good, covered
+    return codes.astype(band.dtype), covered & good, covered
 
 
 def warp_frame(frame: np.ndarray, matrix: np.ndarray, valid: Optional[np.ndarray] = None,
@@ -144,15 +156,38 @@ def warp_frame(frame: np.ndarray, matrix: np.ndarray, valid: Optional[np.ndarray
     return (out[:, :, 0] if squeeze else out), ok
 
 
+def region_band(matrix: np.ndarray, y0: int, y1: int, x0: int, x1: int, h: int, w: int) -> Tuple[int, int]:
+    """Source rows ``[b0, b1)`` holding every tap of the output pixels with rows
+    ``y0 .. y1`` and columns ``x0 .. x1`` (inclusive, frame coordinates): the corners of
+    that box bound its projective image; 3 rows of margin above, 4 below (as
+    :func:`hdrcl.cl.warp.source_band` for a whole-width strip)."""
+    m = np.asarray(matrix, np.float64)
+    xs = np.array([x0, x1, x0, x1], np.float64)
+    ys = np.array([y0, y0, y1, y1], np.float64)
+    s = m[2, 0] * xs + m[2, 1] * ys + m[2, 2]
+    if np.any(s <= 0):
+        return 0, h
+    sy = (m[1, 0] * xs + m[1, 1] * ys + m[1, 2]) / s
+    lo, hi = np.floor(sy.min()) - 3, np.floor(sy.max()) + 5
+    b0, b1 = int(np.clip(lo, 0, h)), int(np.clip(hi, 0, h))
+    return (b0, b1) if b1 > b0 else (0, 1)
+
+
 def border_fill(frame: np.ndarray) -> Optional[np.ndarray]:
     """Fill: the pixels at code 0 in every channel that connect to the frame's border
     (the black a camera or a converter paints where a rotation uncovered the frame), as
     an ``(H, W)`` bool mask, or None when there is none. Such a pixel is no measurement:
     a warp that blends it into its neighbours makes dark, oddly coloured edges."""
     f = np.asarray(frame)
-    zero = f == 0 if f.ndim == 2 else np.all(f == 0, axis=2)
-    if not (zero[0].any() or zero[-1].any() or zero[:, 0].any() or zero[:, -1].any()):
+
+    def black(a):
+        return a == 0 if a.ndim == 1 else np.all(a == 0, axis=-1)
+
+    # The border first: a frame with no black pixel on it (nearly every photograph) costs
+    # four rows and columns, not a pass over the frame.
+    if not (black(f[0]).any() or black(f[-1]).any() or black(f[:, 0]).any() or black(f[:, -1]).any()):
         return None
+    zero = f == 0 if f.ndim == 2 else np.all(f == 0, axis=2)
     from scipy import ndimage
 
     seed = np.zeros_like(zero)
