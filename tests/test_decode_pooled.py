@@ -191,3 +191,30 @@ def _stride(r):
     from hdrcl.core.sampling import grid_stride
 
     return grid_stride(r.height, r.width)
+
+
+def test_a_full_scratch_folder_only_costs_a_second_decode(shoot, tmp_path, monkeypatch):
+    """Holding is an optimisation: a set that should spill but cannot (the scratch folder
+    full or gone) keeps only its grid and is decoded again by its merge; the batch goes on
+    (it used to fail whole in the pooled calibration with the OSError)."""
+    import errno
+
+    from hdrcl.io import framecache
+
+    monkeypatch.setenv("HDRCL_MEMORY_MB", "0.25")  # two sets in memory, the third to spill
+    real_put = framecache.FrameCache.put
+
+    def put(self, k, y0, rows, valid=None):
+        if not self.in_memory:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_put(self, k, y0, rows, valid)
+
+    monkeypatch.setattr(framecache.FrameCache, "put", put)
+    reader_mod.count_full_decodes()
+    rep = _batch(shoot, tmp_path / "out")
+    assert [r.status for r in rep.results] == ["done"] * 3
+    counts = sorted(reader_mod.full_decodes().get(f) for f in _frames(shoot))
+    assert counts[:6] == [1] * 6 and min(counts[6:]) >= 2  # the held sets once; the third again (its
+    # failed spill stopped at its first strip: here, 64 rows, the whole frame)
+    assert ahead.held() == 0 and not _spill_files()
+    assert os.listdir(tmp_path / "scratch") == []

@@ -274,7 +274,17 @@ def read_and_hold(reader, stride: int):
     if where is None:
         logger.info("%s: its frames do not fit the memory budget: its merge decodes them again", first.path)
         return reader.read_grid(stride)
-    frames, valid = reader.read_grid(stride, keep=True, in_memory=where)
+    try:
+        frames, valid = reader.read_grid(stride, keep=True, in_memory=where)
+    except OSError as exc:
+        if where:  # nothing was spilled: the decode itself failed
+            raise
+        # The scratch file could not be made or written (a full or missing HDRCL_SCRATCH_DIR):
+        # holding is an optimisation, so the grid is read without it and the merge decodes
+        # the set again, as a set beyond the budget does (read_grid dropped the cache).
+        logger.warning("%s: cannot spill its frames to the scratch folder (%s): its merge decodes them again",
+                       first.path, exc.strerror or exc)
+        return reader.read_grid(stride)
     cache, reader.cache = reader.cache, None
     held = Held(list(_key(reader.paths)), cache, (stride, list(frames), list(valid)), reader.decode_seconds,
                 stamp)
