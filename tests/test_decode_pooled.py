@@ -44,6 +44,7 @@ def _stop_counting():
 @pytest.fixture
 def shoot(tmp_path, monkeypatch):
     monkeypatch.setenv("HDRCL_SCRATCH_DIR", str(tmp_path / "scratch"))
+    monkeypatch.setattr(ahead, "MEMORY_FILE_SYSTEMS", (), raising=False)  # the spill tests run on a tmpfs /tmp too
     os.makedirs(tmp_path / "scratch")
     folder = str(tmp_path / "shoot")
     make_clean_shoot(folder, sets=3, frames=3, width=W, height=H)  # one camera: a pooled response
@@ -218,3 +219,38 @@ def test_a_full_scratch_folder_only_costs_a_second_decode(shoot, tmp_path, monke
     # failed spill stopped at its first strip: here, 64 rows, the whole frame)
     assert ahead.held() == 0 and not _spill_files()
     assert os.listdir(tmp_path / "scratch") == []
+
+
+@pytest.mark.parametrize("scratch", ["tmpfs", "full disk"])
+def test_frames_are_not_spilled_where_the_scratch_folder_is_memory_or_full(shoot, tmp_path, monkeypatch, scratch):
+    """A scratch folder on tmpfs holds its files in RAM: spilling held sets there would keep
+    up to 4x HDRCL_MEMORY_MB of frames in memory beyond the budget; a disk without room for
+    the set fails the spill. Either way the set keeps only its grid (decoded again by its
+    merge) and no scratch file is made."""
+    import shutil
+    from collections import namedtuple
+
+    from hdrcl.io import framecache
+
+    monkeypatch.setenv("HDRCL_MEMORY_MB", "0.25")  # two sets in memory, the third would spill
+    if scratch == "tmpfs":
+        monkeypatch.setattr(ahead, "MEMORY_FILE_SYSTEMS", ("tmpfs",), raising=False)
+        monkeypatch.setattr(ahead, "file_system", lambda folder: "tmpfs", raising=False)
+    else:
+        usage = namedtuple("usage", "total used free")
+        monkeypatch.setattr(shutil, "disk_usage", lambda folder: usage(1 << 30, 1 << 30, 1 << 20))
+    spills = []
+    real_init = framecache.FrameCache.__init__
+
+    def init(self, *a, **k):
+        real_init(self, *a, **k)
+        if not self.in_memory:
+            spills.append(self)
+
+    monkeypatch.setattr(framecache.FrameCache, "__init__", init)
+    reader_mod.count_full_decodes()
+    rep = _batch(shoot, tmp_path / "out")
+    assert [r.status for r in rep.results] == ["done"] * 3
+    assert spills == []
+    assert sorted(reader_mod.full_decodes().get(f) for f in _frames(shoot)) == [1] * 6 + [2] * 3
+    assert ahead.held() == 0
