@@ -254,3 +254,19 @@ def test_frames_are_not_spilled_where_the_scratch_folder_is_memory_or_full(shoot
     assert spills == []
     assert sorted(reader_mod.full_decodes().get(f) for f in _frames(shoot)) == [1] * 6 + [2] * 3
     assert ahead.held() == 0
+
+
+def test_an_error_before_the_first_set_drops_the_held_frames(shoot, tmp_path, monkeypatch):
+    """The pooled calibration held the sets' frames; an error between it and the sets'
+    loop (here the caller's progress callback, called once before the first set) drops
+    them: a long-lived process keeps no frames (nor open scratch files) of a batch that
+    ended."""
+    monkeypatch.setenv("HDRCL_MEMORY_MB", "0.25")  # the third set spilled
+
+    def progress(res, done, total):
+        assert ahead.held() == 3
+        raise RuntimeError("the caller's own error")
+
+    with pytest.raises(RuntimeError):
+        _batch(shoot, tmp_path / "out", progress=progress)
+    assert ahead.held() == 0 and not _spill_files()
