@@ -5,8 +5,8 @@ that shapes the radiance, checked once, when the object is made, by the option t
 Each option is declared once, as a field (:func:`option`: default, help, spelling; its kind
 and range are the option table's). ``merge`` and ``batch`` (``BatchOptions`` holds one)
 make their click options from the fields, and they, :func:`hdrcl.merge` and
-:func:`hdrcl.merge_files` build a :class:`MergeOptions` and hand it to the merge engine
-(:mod:`hdrcl.core.engine`). The rules that tie options together live here and nowhere
+:func:`hdrcl.merge_files` build a :class:`MergeOptions` and put it in the merge's plan
+(:mod:`hdrcl.core.plan`, run by :mod:`hdrcl.core.executor`). The rules that tie options together live here and nowhere
 else: ``crop`` needs ``align`` (refused), ``ghost_threshold``/``ghost_reference`` need
 ``deghost`` (refused), ``absolute`` and ``reference_patch`` exclude each other
 (refused); an option that is ignored (``align_model`` without ``align``) is named in
