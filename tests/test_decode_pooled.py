@@ -270,3 +270,21 @@ def test_an_error_before_the_first_set_drops_the_held_frames(shoot, tmp_path, mo
     with pytest.raises(RuntimeError):
         _batch(shoot, tmp_path / "out", progress=progress)
     assert ahead.held() == 0 and not _spill_files()
+
+
+def test_a_ghost_reference_beyond_a_sets_frames_fails_that_set_first_naming_its_file(shoot, tmp_path, monkeypatch):
+    """batch --deghost --ghost-reference 5 on sets of 3 frames: each set fails before its
+    merge decodes or fuses anything, with a one-line error naming its first file (it
+    used to fail inside the fusion, naming no file)."""
+    import hdrcl.core.fusestage as fusestage
+    from hdrcl.shoot.batch.jobs import BatchOptions
+
+    fused = []
+    real_fuse = fusestage.fuse
+    monkeypatch.setattr(fusestage, "fuse", lambda run: fused.append(run) or real_fuse(run))
+    rep = _batch(shoot, tmp_path / "out", options=BatchOptions(deghost=True, ghost_reference=5))
+    assert [r.status for r in rep.results] == ["failed"] * 3
+    for r in rep.results:
+        assert r.error.startswith(r.files[0] + ": --ghost-reference: frame 5 does not exist")
+        assert "\n" not in r.error
+    assert fused == []
