@@ -44,6 +44,7 @@ def _stop_counting():
 @pytest.fixture
 def shoot(tmp_path, monkeypatch):
     monkeypatch.setenv("HDRCL_SCRATCH_DIR", str(tmp_path / "scratch"))
+    monkeypatch.setattr(ahead, "MEMORY_FILE_SYSTEMS", (), raising=False)  # the spill tests run on a tmpfs /tmp too
     os.makedirs(tmp_path / "scratch")
     folder = str(tmp_path / "shoot")
     make_clean_shoot(folder, sets=3, frames=3, width=W, height=H)  # one camera: a pooled response
@@ -191,3 +192,99 @@ def _stride(r):
     from hdrcl.core.sampling import grid_stride
 
     return grid_stride(r.height, r.width)
+
+
+def test_a_full_scratch_folder_only_costs_a_second_decode(shoot, tmp_path, monkeypatch):
+    """Holding is an optimisation: a set that should spill but cannot (the scratch folder
+    full or gone) keeps only its grid and is decoded again by its merge; the batch goes on
+    (it used to fail whole in the pooled calibration with the OSError)."""
+    import errno
+
+    from hdrcl.io import framecache
+
+    monkeypatch.setenv("HDRCL_MEMORY_MB", "0.25")  # two sets in memory, the third to spill
+    real_put = framecache.FrameCache.put
+
+    def put(self, k, y0, rows, valid=None):
+        if not self.in_memory:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_put(self, k, y0, rows, valid)
+
+    monkeypatch.setattr(framecache.FrameCache, "put", put)
+    reader_mod.count_full_decodes()
+    rep = _batch(shoot, tmp_path / "out")
+    assert [r.status for r in rep.results] == ["done"] * 3
+    counts = sorted(reader_mod.full_decodes().get(f) for f in _frames(shoot))
+    assert counts[:6] == [1] * 6 and min(counts[6:]) >= 2  # the held sets once; the third again (its
+    # failed spill stopped at its first strip: here, 64 rows, the whole frame)
+    assert ahead.held() == 0 and not _spill_files()
+    assert os.listdir(tmp_path / "scratch") == []
+
+
+@pytest.mark.parametrize("scratch", ["tmpfs", "full disk"])
+def test_frames_are_not_spilled_where_the_scratch_folder_is_memory_or_full(shoot, tmp_path, monkeypatch, scratch):
+    """A scratch folder on tmpfs holds its files in RAM: spilling held sets there would keep
+    up to 4x HDRCL_MEMORY_MB of frames in memory beyond the budget; a disk without room for
+    the set fails the spill. Either way the set keeps only its grid (decoded again by its
+    merge) and no scratch file is made."""
+    import shutil
+    from collections import namedtuple
+
+    from hdrcl.io import framecache
+
+    monkeypatch.setenv("HDRCL_MEMORY_MB", "0.25")  # two sets in memory, the third would spill
+    if scratch == "tmpfs":
+        monkeypatch.setattr(ahead, "MEMORY_FILE_SYSTEMS", ("tmpfs",), raising=False)
+        monkeypatch.setattr(ahead, "file_system", lambda folder: "tmpfs", raising=False)
+    else:
+        usage = namedtuple("usage", "total used free")
+        monkeypatch.setattr(shutil, "disk_usage", lambda folder: usage(1 << 30, 1 << 30, 1 << 20))
+    spills = []
+    real_init = framecache.FrameCache.__init__
+
+    def init(self, *a, **k):
+        real_init(self, *a, **k)
+        if not self.in_memory:
+            spills.append(self)
+
+    monkeypatch.setattr(framecache.FrameCache, "__init__", init)
+    reader_mod.count_full_decodes()
+    rep = _batch(shoot, tmp_path / "out")
+    assert [r.status for r in rep.results] == ["done"] * 3
+    assert spills == []
+    assert sorted(reader_mod.full_decodes().get(f) for f in _frames(shoot)) == [1] * 6 + [2] * 3
+    assert ahead.held() == 0
+
+
+def test_an_error_before_the_first_set_drops_the_held_frames(shoot, tmp_path, monkeypatch):
+    """The pooled calibration held the sets' frames; an error between it and the sets'
+    loop (here the caller's progress callback, called once before the first set) drops
+    them: a long-lived process keeps no frames (nor open scratch files) of a batch that
+    ended."""
+    monkeypatch.setenv("HDRCL_MEMORY_MB", "0.25")  # the third set spilled
+
+    def progress(res, done, total):
+        assert ahead.held() == 3
+        raise RuntimeError("the caller's own error")
+
+    with pytest.raises(RuntimeError):
+        _batch(shoot, tmp_path / "out", progress=progress)
+    assert ahead.held() == 0 and not _spill_files()
+
+
+def test_a_ghost_reference_beyond_a_sets_frames_fails_that_set_first_naming_its_file(shoot, tmp_path, monkeypatch):
+    """batch --deghost --ghost-reference 5 on sets of 3 frames: each set fails before its
+    merge decodes or fuses anything, with a one-line error naming its first file (it
+    used to fail inside the fusion, naming no file)."""
+    import hdrcl.core.fusestage as fusestage
+    from hdrcl.shoot.batch.jobs import BatchOptions
+
+    fused = []
+    real_fuse = fusestage.fuse
+    monkeypatch.setattr(fusestage, "fuse", lambda run: fused.append(run) or real_fuse(run))
+    rep = _batch(shoot, tmp_path / "out", options=BatchOptions(deghost=True, ghost_reference=5))
+    assert [r.status for r in rep.results] == ["failed"] * 3
+    for r in rep.results:
+        assert r.error.startswith(r.files[0] + ": --ghost-reference: frame 5 does not exist")
+        assert "\n" not in r.error
+    assert fused == []

@@ -195,3 +195,20 @@ def test_a_failing_source_leaves_no_strip_on_the_device(cl_device):
         stream_merge(Broken(frames, vv), np.exp(log_t), Response(bits=8, g=tables, knots=np.arange(256.0)), ArraySink(40, 20, 3),
                      processor=proc, has_valid=True)
     assert plans and not any(slot.busy for slot in plans[0].slots)
+
+
+def test_the_buffers_the_kernels_write_are_not_read_only(cl_device):
+    """Every strip slot's counters take the kernels' atomic adds (clipped counts and the fix
+    list's length): writing a buffer made CL_MEM_READ_ONLY is undefined in OpenCL (a GPU
+    driver may place it where atomics do not reach), so none of them is."""
+    import pyopencl as cl
+
+    from hdrcl.cl.fusion import FusionProcessor
+
+    frames, vv, log_t, tables, wts = _bracket(nframes=5)
+    h, w, _ = frames[0].shape
+    proc = FusionProcessor(ctx=cl_device, strip_pixels=3 * w + 1)
+    plan = proc.plan(len(frames), w, 3, np.uint8, log_t, tables, wts, True, depth=3)
+    for slot in plan.slots:
+        for buf in (slot.counts_b, slot.todo_b):
+            assert not buf.flags & cl.mem_flags.READ_ONLY

@@ -63,7 +63,9 @@ class _Slot:
         proc, mf = plan.proc, cl.mem_flags
         tag = "" if k == 0 else f".{k}"
         self.counts = np.zeros(4, np.uint32)
-        self.counts_b = proc.constant("counts" + tag, self.counts)
+        # the kernels add to it (atomics): read-write, not a constant (READ_ONLY: undefined)
+        self.counts_b = proc.buffer("counts" + tag, self.counts.nbytes, mf.READ_WRITE)
+        cl.enqueue_copy(proc.queue, self.counts_b, self.counts)  # zeros, before any strip
         self.frames_b = proc.buffer("frames" + tag, 4 if plan.frame_args else plan.p * plan.plane * plan.dtype.itemsize,
                                     mf.READ_ONLY)
         self.valid_b = proc.buffer("valid" + tag, plan.p * plan.spix if plan.has_valid else 4, mf.READ_ONLY)

@@ -5,8 +5,8 @@ that shapes the radiance, checked once, when the object is made, by the option t
 Each option is declared once, as a field (:func:`option`: default, help, spelling; its kind
 and range are the option table's). ``merge`` and ``batch`` (``BatchOptions`` holds one)
 make their click options from the fields, and they, :func:`hdrcl.merge` and
-:func:`hdrcl.merge_files` build a :class:`MergeOptions` and hand it to the merge engine
-(:mod:`hdrcl.core.engine`). The rules that tie options together live here and nowhere
+:func:`hdrcl.merge_files` build a :class:`MergeOptions` and put it in the merge's plan
+(:mod:`hdrcl.core.plan`, run by :mod:`hdrcl.core.executor`). The rules that tie options together live here and nowhere
 else: ``crop`` needs ``align`` (refused), ``ghost_threshold``/``ghost_reference`` need
 ``deghost`` (refused), ``absolute`` and ``reference_patch`` exclude each other
 (refused); an option that is ignored (``align_model`` without ``align``) is named in
@@ -68,7 +68,8 @@ class MergeOptions:
         solve=True)
     seed: int = option(0, "Seed of the sample choice (0 or more).", show_default=True, solve=True)
     fit_exposures: str = option(
-        "auto", "Estimate each frame's exposure from the pixels (with --response: measured through that curve): "
+        "auto", "Estimate each frame's exposure from the pixels (through a known curve: --response, or batch's "
+        "pooled one): "
         "auto uses the estimate only where the metadata is clearly wrong, on always, off never.", show_default=True, solve=True, identity=CHANGED)
     exposure_tolerance: Optional[float] = option(
         None, "Report frames whose metadata the pixels contradict by more than this [default: 0.5].",
@@ -81,7 +82,7 @@ class MergeOptions:
     ghost_reference: Any = option(None, "With --deghost: the frame ghost pixels are taken from; N counts the images "
                                   "as given, from 0 [default: middle].", metavar="middle|shortest|longest|N",
                                   identity=CHANGED)
-    neutral: Any = option(None, "White balance: make this patch (pixels) neutral grey.", metavar="X,Y,W,H",
+    neutral: Any = option(None, "White balance: make this patch (pixels) neutral grey (batch: in every set).", metavar="X,Y,W,H",
                           identity=CHANGED)
     reference_patch: Any = option(None, "Absolute scale: this patch's mean luminance is VALUE cd/m^2.",
                                   metavar="X,Y,W,H=VALUE", identity=CHANGED)

@@ -29,7 +29,8 @@ share of the budget (half: as much as a merge's own frames plus the next set dec
 ahead); the sets beyond are spilled to an anonymous scratch file
 (:class:`~hdrcl.io.framecache.FrameCache`, ``HDRCL_SCRATCH_DIR``: unlinked from the start,
 so nothing is left however the process ends) up to :data:`SPILL_BUDGET_FACTOR` times the
-budget (reading a 12 MP x 7 set back from it took 0.27 s and writing it 0.12 s against
+budget, where that folder is a disk with room for them (:func:`scratch_room`: not tmpfs,
+whose files are memory) (reading a 12 MP x 7 set back from it took 0.27 s and writing it 0.12 s against
 1.65 s to decode it, on the 2-core test machine); a set beyond both keeps only its grid and
 is decoded again by its merge (or ahead of it). A held set is never decoded ahead, and
 :func:`cancel_all` drops held sets too.
@@ -256,9 +257,49 @@ def room_for(nbytes: int) -> Optional[bool]:
         spilled = sum(h.nbytes for h in _held.values() if h.cache is not None and not h.cache.in_memory)
     if nbytes <= budget // MEMORY_SHARE_DIVISOR and in_memory + nbytes <= budget // HELD_MEMORY_DIVISOR:
         return True
-    if spilled + nbytes <= budget * SPILL_BUDGET_FACTOR:
+    if spilled + nbytes <= budget * SPILL_BUDGET_FACTOR and scratch_room(nbytes):
         return False
     return None
+
+
+#: Free space the scratch folder keeps beyond a spilled set (the outputs may share its disk).
+SPILL_MARGIN_BYTES = 256 << 20
+#: File systems whose files are memory: a spill there would hold the frames in RAM
+#: beyond ``HDRCL_MEMORY_MB`` (a /tmp on tmpfs, as several distributions mount it).
+MEMORY_FILE_SYSTEMS = ("tmpfs", "ramfs")
+
+
+def scratch_room(nbytes: int) -> bool:
+    """Whether the scratch folder (``HDRCL_SCRATCH_DIR``, else the temporary folder) can
+    take ``nbytes`` more of held frames: a disk with that much free beyond
+    :data:`SPILL_MARGIN_BYTES`, not memory (:data:`MEMORY_FILE_SYSTEMS`)."""
+    import shutil
+
+    from hdrcl.io.framecache import _scratch_dir
+
+    try:
+        folder = _scratch_dir()
+        if file_system(folder) in MEMORY_FILE_SYSTEMS:
+            return False
+        return shutil.disk_usage(folder).free >= nbytes + SPILL_MARGIN_BYTES
+    except OSError:  # no such folder: the spill would fail too
+        return False
+
+
+def file_system(folder: str) -> Optional[str]:
+    """The type of the file system ``folder`` is on (``/proc/self/mounts``: Linux), or None."""
+    try:
+        with open("/proc/self/mounts", encoding="utf-8", errors="replace") as f:
+            mounts = [line.split()[1:3] for line in f if len(line.split()) >= 3]
+    except OSError:
+        return None
+    path = os.path.realpath(folder)
+    best, kind = "", None
+    for point, fstype in mounts:
+        point = point.replace("\\040", " ").replace("\\011", "\t").replace("\\134", "\\")
+        if (path == point or path.startswith(point.rstrip("/") + "/")) and len(point) >= len(best):
+            best, kind = point, fstype
+    return kind
 
 
 def read_and_hold(reader, stride: int):
@@ -274,7 +315,17 @@ def read_and_hold(reader, stride: int):
     if where is None:
         logger.info("%s: its frames do not fit the memory budget: its merge decodes them again", first.path)
         return reader.read_grid(stride)
-    frames, valid = reader.read_grid(stride, keep=True, in_memory=where)
+    try:
+        frames, valid = reader.read_grid(stride, keep=True, in_memory=where)
+    except OSError as exc:
+        if where:  # nothing was spilled: the decode itself failed
+            raise
+        # The scratch file could not be made or written (a full or missing HDRCL_SCRATCH_DIR):
+        # holding is an optimisation, so the grid is read without it and the merge decodes
+        # the set again, as a set beyond the budget does (read_grid dropped the cache).
+        logger.warning("%s: cannot spill its frames to the scratch folder (%s): its merge decodes them again",
+                       first.path, exc.strerror or exc)
+        return reader.read_grid(stride)
     cache, reader.cache = reader.cache, None
     held = Held(list(_key(reader.paths)), cache, (stride, list(frames), list(valid)), reader.decode_seconds,
                 stamp)

@@ -95,7 +95,7 @@ def findings(events: List[Event], names, static: bool) -> List[Finding]:
 
 
 def without(inputs, left_out):
-    """``inputs`` (:class:`hdrcl.core.engine.Inputs`) without the frames at the indices
+    """``inputs`` (:class:`hdrcl.core.sources.Inputs`) without the frames at the indices
     ``left_out``: paths, headers and exposures stay in step with the frames merged."""
     keep = [i for i in range(len(inputs.paths)) if i not in set(left_out)]
     return replace(inputs, paths=[inputs.paths[i] for i in keep], infos=[inputs.infos[i] for i in keep],

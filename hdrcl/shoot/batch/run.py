@@ -69,6 +69,7 @@ This module does not import click, OpenImageIO or pyopencl directly.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import threading
@@ -278,7 +279,7 @@ def run_batch(source, out_dir, *, options: Optional[BatchOptions] = None,
     s = RunSettings(**settings)  # TypeError naming an unknown keyword
     _check_run(options, s, response)
     # With handle_signals, SIGTERM / Ctrl-C raise Cancelled in the main thread from here on.
-    with cancel_signals(install=s.handle_signals):
+    with cancel_signals(install=s.handle_signals), _dropping_held():
         ranges = parse_sets(sets) if isinstance(sets, str) else (list(sets) if sets is not None else None)
         out_dir = os.path.abspath(os.fspath(out_dir))
         if os.path.exists(out_dir) and not os.path.isdir(out_dir):
@@ -344,6 +345,19 @@ def _make_folders(folders) -> None:
             os.makedirs(folder, exist_ok=True)
         except OSError as exc:
             raise UsageError(f"{folder}: cannot create the {what} folder ({exc.strerror or exc})") from None
+
+
+@contextlib.contextmanager
+def _dropping_held():
+    """Whatever ends the run, the frames the pooled calibration held for the sets' merges
+    (and any set decoded ahead) are dropped: an error before the sets' loop left them
+    held in a long-lived process (:mod:`hdrcl.io.ahead`)."""
+    try:
+        yield
+    finally:
+        from hdrcl.io.ahead import cancel_all
+
+        cancel_all()
 
 
 def _pipelined(s: RunSettings, plan) -> bool:

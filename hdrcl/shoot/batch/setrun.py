@@ -354,6 +354,10 @@ def set_plan(step: _Opening, ctx: _Context):
     from hdrcl.shoot.batch.pooling import trust_findings
 
     job, opened, opts = step.job, step.opened, ctx.options
+    try:  # a frame number beyond this set's frames: the set fails here, before anything is decoded
+        opts.merge.check_frames(len(job.files))
+    except HdrclError as exc:
+        raise type(exc)(f"{job.files[0]}: {exc}") from None
     entry = ctx.responses[job.group]
     inputs = Inputs(list(job.files), opened.infos, np.asarray(opened.times, np.float64), reference=job.reference,
                     reference_exposure=job.exposure_ref, timestamp=opened.stamp)
