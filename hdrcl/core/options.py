@@ -89,7 +89,8 @@ class MergeOptions:
     absolute: bool = option(False, "Approximate absolute scale (cd/m^2) from f-number and ISO (meter constant "
                             "K = 12.5).", identity=CHANGED)
     align: bool = option(False, "Align hand-held frames to the middle exposure (shift, rotation, scale; see "
-                         "--align-model) before merging; a frame that cannot be aligned fails the merge.",
+                         "--align-model) before merging; a frame that cannot be aligned is left out and named "
+                         "(in a batch its set is marked to check).",
                          identity=CHANGED)
     align_model: str = option("auto", "With --align: the motion model; auto picks the simplest one the residuals "
                               "allow (shift, similarity, homography for wide lenses).", show_default=True,
