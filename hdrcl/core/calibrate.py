@@ -102,13 +102,17 @@ def calibrate(
     from hdrcl.core.exposure.fit import verify_exposures
 
     names = br.paths or [f"image {k}" for k in range(len(br.frames))]
+    from hdrcl.core.sampling import sample_candidates
+
     check_measurable(br.frames, br.valid_all, names, decimate=not br.grid)
+    # The exposure check and the curve draw their samples from the same candidates.
+    pool = sample_candidates(br.frames, br.valid_all, decimate=not br.grid)
     used, fit = verify_exposures(br.frames, br.times, names, mode=fit_exposures, valid=br.valid_all,
                                  samples=samples, seed=seed, tolerance=exposure_tolerance, decimate=not br.grid,
-                                 warn=warn)
+                                 warn=warn, candidates=pool)
     fitted = None if fit is None else fit.fitted
-    resp = recover_response(br.frames, used, valid=br.valid_all, samples=samples,
-                            smoothness=smoothness, weight=weight, seed=seed, decimate=not br.grid, warn=warn)
+    resp = recover_response(br.frames, used, valid=br.valid_all, samples=samples, smoothness=smoothness,
+                            weight=weight, seed=seed, decimate=not br.grid, warn=warn, candidates=pool)
     resp.camera = br.camera
     resp.exposures = [
         {"file": os.path.basename(n), "nominal": float(t), "fitted": None if fitted is None else float(f),

@@ -167,6 +167,7 @@ def recover_response(
     channels: Optional[Sequence[str]] = None,
     decimate: bool = True,
     warn: bool = True,
+    candidates=None,
 ) -> Response:
     """Recover the response of a bracket.
 
@@ -185,6 +186,9 @@ def recover_response(
     warn : bool
         Log the curve's problems (they are in ``Response.warnings`` either way); off for
         the internal re-solves of the quality figures.
+    candidates : hdrcl.core.sampling.SampleCandidates, optional
+        The frames' :func:`hdrcl.core.sampling.sample_candidates`, made once when the
+        caller samples them more than once (:func:`hdrcl.core.calibrate.calibrate`).
 
     Returns
     -------
@@ -212,7 +216,7 @@ def recover_response(
     n = int(samples) if samples else default_sample_count(knots.size, len(frames))
     if n < 1:
         raise UsageError(f"--samples must be positive, not {samples}")
-    idx = select_samples(frames, valid, n, seed=seed, decimate=decimate)
+    idx = select_samples(frames, valid, n, seed=seed, decimate=decimate, candidates=candidates)
     if idx.size * (len(frames) - 1) <= knots.size // 4:
         raise InputError(
             f"only {idx.size} usable calibration pixels were found; the frames may be blank, "

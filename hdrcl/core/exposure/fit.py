@@ -221,6 +221,7 @@ def fit_exposures(
     seed: int = 0,
     tolerance: float = EXPOSURE_TOLERANCE_STOPS,
     decimate: bool = True,
+    candidates=None,
 ) -> ExposureFit:
     """Verify each frame's exposure against the pixels; never trust an unconstrained fit.
 
@@ -235,7 +236,8 @@ def fit_exposures(
        the corrected exposures lower the fit residual by :data:`IMPROVEMENT`.
 
     Frames with different metadata that the pixels put within :data:`SAME_STOPS` of
-    each other are listed in ``same``.
+    each other are listed in ``same``. ``candidates``: the frames'
+    :func:`hdrcl.core.sampling.sample_candidates`, when the caller draws from them again.
     """
     from hdrcl.core.sampling import default_sample_count, select_samples
 
@@ -251,7 +253,7 @@ def fit_exposures(
     nch = frames[0].shape[2]
     k = knot_positions(bits).size
     n = int(samples) if samples else default_sample_count(k, p)
-    idx = select_samples(frames, valid, n, seed=seed, decimate=decimate)
+    idx = select_samples(frames, valid, n, seed=seed, decimate=decimate, candidates=candidates)
     n = idx.size
     # The exposures are the same in every channel: the middle one (G of RGB) tells them
     # as well as all three, at a third of the cost.
@@ -297,7 +299,8 @@ def fit_exposures(
 
 
 def verify_exposures(frames, times, names, *, mode: str = "auto", valid=None, samples=None, seed: int = 0,
-                     tolerance: Optional[float] = None, decimate: bool = True, warn: bool = True):
+                     tolerance: Optional[float] = None, decimate: bool = True, warn: bool = True,
+                     candidates=None):
     """Exposures a calibration should use, with what the pixels said about the metadata.
 
     ``mode`` ``off`` keeps the metadata; ``auto`` changes only the frames
@@ -327,7 +330,7 @@ def verify_exposures(frames, times, names, *, mode: str = "auto", valid=None, sa
     # The fit uses the paper's hat weights: their wide overlap between frames conditions
     # the exposure estimates better than a narrow weighting does.
     fit = fit_exposures(frames, nominal, valid=valid, samples=min(samples or 400, 400), weight="hat",
-                        seed=seed, tolerance=tol, decimate=decimate)
+                        seed=seed, tolerance=tol, decimate=decimate, candidates=candidates)
     base = [os.path.basename(n) for n in names]
     for k in np.flatnonzero(fit.contradicted):
         change = fit.flagged[k] and mode == "auto"
