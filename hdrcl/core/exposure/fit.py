@@ -18,7 +18,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from hdrcl.core.response import SPAN_BODY, Response, _check_smoothness, _segments, knot_positions
-from hdrcl.core.solve import small_solve, solve_curve
+from hdrcl.core.solve import one_blas_thread, solve_curve
 from hdrcl.core.weights import weight_values
 from hdrcl.errors import UsageError
 
@@ -189,8 +189,9 @@ def _joint_fit(z: np.ndarray, prior_lt: np.ndarray, prior_w: np.ndarray, bits: i
     a11[t, t] += prior_w * prior_w
     rhs = np.zeros(m)
     rhs[t] = prior_w * prior_w * prior_lt
-    s_mat = a11 - (a12 / d) @ a12.T + np.eye(m) * 1e-10
-    x = small_solve(s_mat, rhs)
+    with one_blas_thread():  # m x N x m: milliseconds on one thread, tens on a busy pool
+        s_mat = a11 - (a12 / d) @ a12.T + np.eye(m) * 1e-10
+        x = np.linalg.solve(s_mat, rhs)
     return x[k:]
 
 
