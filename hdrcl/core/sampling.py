@@ -49,16 +49,13 @@ def default_sample_count(knots: int, frames: int) -> int:
     return int(min(max(1000, needed), 5000))
 
 
-def _quarter_quantiles(bins: np.ndarray, values: np.ndarray, starts: np.ndarray) -> np.ndarray:
-    """``np.quantile(values[bins == b], 0.25)`` for every bin b at once (NaN for an empty
-    bin), bit for bit: the same virtual index and the same interpolation as NumPy's
-    default ("linear") method, without one call per bin."""
+def _quarter_quantiles(order: np.ndarray, values: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """``np.quantile(values[bins == b], 0.25)`` for every bin b (NaN for an empty bin), bit
+    for bit: the same virtual index and the same interpolation as NumPy's default
+    ("linear") method. ``order`` sorts the pixels by bin, ``starts`` where each bin
+    begins in it."""
     nb = starts.size - 1
     counts = np.diff(starts)
-    # Values sorted by (bin, value): the permutation of ``np.lexsort((values, bins))``
-    # (both sorts stable), the bins sorted as small integers (a radix sort).
-    by_value = np.argsort(values, kind="stable")
-    srt = values[by_value[np.argsort(_small_keys(bins, nb)[by_value], kind="stable")]]
     virtual = counts * 0.25 - 0.25  # NumPy: n q + (1 + q (1 - 1 - 1)) - 1, exact here
     prev = np.floor(virtual)
     gamma = virtual - prev
@@ -66,8 +63,14 @@ def _quarter_quantiles(bins: np.ndarray, values: np.ndarray, starts: np.ndarray)
     nxt = np.minimum(prev + 1, counts - 1)
     ok = counts > 0
     q = np.full(nb, np.nan)
-    a = srt[starts[:-1][ok] + prev[ok]]
-    b = srt[starts[:-1][ok] + nxt[ok]]
+    # The two order statistics of each bin by partition (values, not positions: the same
+    # numbers a sort by (bin, value) puts there), linear in the bin's size.
+    a = np.empty(int(ok.sum()))
+    b = np.empty_like(a)
+    by_bin = values[order]
+    for m, j in enumerate(np.flatnonzero(ok)):
+        part = np.partition(by_bin[starts[j]:starts[j + 1]], (prev[j], nxt[j]))
+        a[m], b[m] = part[prev[j]], part[nxt[j]]
     t = gamma[ok]
     diff = b - a
     q[ok] = np.where(t >= 0.5, b - diff * (1 - t), a + diff * t)
@@ -95,7 +98,9 @@ class SampleCandidates:
         top = 0.0
         for f in frames:
             sub = f[::stride, ::stride]
-            key += sub.reshape(sub.shape[0], sub.shape[1], -1).sum(axis=2, dtype=np.float64)
+            sub = sub.reshape(sub.shape[0], sub.shape[1], -1)
+            for c in range(sub.shape[2]):  # integer sums: exact in float64 in any order
+                key += sub[:, :, c]
             top += sub.shape[2] * float(np.iinfo(f.dtype).max)
 
         usable = np.ones(key.shape, bool) if valid is None else valid[::stride, ::stride].copy()
@@ -134,7 +139,7 @@ class SampleCandidates:
             bins = np.minimum(((kv - lo) / max(hi - lo, 1e-12) * nbins).astype(np.int64), nbins - 1)
             order = np.argsort(_small_keys(bins, nbins), kind="stable")
             starts = np.searchsorted(bins[order], np.arange(nbins + 1))
-            smooth_at = order[vv[order] <= _quarter_quantiles(bins, vv, starts)[bins[order]]]
+            smooth_at = order[vv[order] <= _quarter_quantiles(order, vv, starts)[bins[order]]]
             smooth_starts = np.searchsorted(bins[smooth_at], np.arange(nbins + 1))
             got = self._strata[nbins] = (bins, order, starts, smooth_at, smooth_starts)
         return got
