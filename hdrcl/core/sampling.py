@@ -77,6 +77,19 @@ def _quarter_quantiles(order: np.ndarray, values: np.ndarray, starts: np.ndarray
     return q
 
 
+def _smallest_first(values: np.ndarray, k: int) -> np.ndarray:
+    """Positions of the ``k`` smallest ``values``, ties to the earlier: the set
+    ``np.argsort(values, kind="stable")[:k]`` holds (in position order), found by
+    partition instead of a sort of them all."""
+    if k >= values.size:
+        return np.arange(values.size)
+    if k <= 0:
+        return np.zeros(0, np.int64)
+    kth = np.partition(values, k - 1)[k - 1]
+    less = np.flatnonzero(values < kth)
+    return np.sort(np.concatenate([less, np.flatnonzero(values == kth)[:k - less.size]]))
+
+
 def _small_keys(bins: np.ndarray, nbins: int) -> np.ndarray:
     """``bins`` (0 .. nbins - 1) as the smallest unsigned integers that hold them: NumPy's
     stable sort of 8- and 16-bit integers is a radix sort, the same order at a fraction
@@ -223,7 +236,7 @@ def select_samples(
         picked = np.zeros(cand.size, bool)
         picked[sel] = True
         rest = order[~picked[order]]
-        rest = rest[np.argsort(vv[rest], kind="stable")[:missing]]
+        rest = rest[_smallest_first(vv[rest], missing)]
         sel = np.concatenate([sel, rest])
 
     flat = cand[sel]
