@@ -103,3 +103,42 @@ def test_exposure_fit_does_not_depend_on_the_blas_pool(scene):
             fits.append(fit_exposures(scene["frames"], wrong))
     np.testing.assert_array_equal(fits[0].fitted, fits[1].fitted)
     assert fits[0].flagged[3]
+
+
+def test_known_curve_measurement_is_the_plain_one(scene):
+    """Exposures measured through a known curve: the shared pixel-channels taken once per
+    pair and the draw of pixels made once per frame size give the plain computation's
+    figures (medians of boolean-masked differences)."""
+    from hdrcl.core.exposure import known
+    from hdrcl.core.response import Response
+
+    frames = list(scene["frames"])
+    lt = np.log(np.asarray(scene["times"], np.float64))
+    g = np.log(np.linspace(1e-3, 1.0, 256))
+    resp = Response(bits=8, g=np.stack([g - g[128]] * 3), knots=np.arange(256.0), channels=("R", "G", "B"))
+    xs, ws, oks, pixels = known._usable_samples(frames, resp, "gaussian", None)
+    got = known._measure(xs, ws, oks, pixels, lt)
+    plain = []
+    for j in range(len(xs)):
+        for k in range(j + 1, len(xs)):
+            ok = oks[j] & oks[k]
+            if int(ok.sum()) >= known.MIN_OVERLAP:
+                d = xs[k][ok] - xs[j][ok]
+                m = float(np.median(d))
+                plain.append((j, k, m, max(1.4826 * float(np.median(np.abs(d - m))), known._SPREAD_FLOOR)))
+    assert len(plain) >= len(xs) - 1
+    measured = np.zeros(len(xs), bool)
+    comps = known._components(len(xs), [(j, k) for j, k, _, _ in plain])
+    main = max(comps, key=lambda c: (len(c), int(pixels[c].sum())))
+    measured[main] = True
+    np.testing.assert_array_equal(got[0], measured)
+    # Every pair's location is the plain median, bit for bit.
+    for j, k, m, s_ in plain:
+        ok = oks[j] & oks[k]
+        loc, _ = known._location(xs[k][ok] - xs[j][ok], ws[j][ok] * ws[k][ok])
+        assert loc == m
+    # A frame larger than the draw: the same draw every time, made once, not writeable.
+    a, b = known._subsample(known.MAX_PIXELS + 12345), known._subsample(known.MAX_PIXELS + 12345)
+    assert a is b and not a.flags.writeable and a.size == known.MAX_PIXELS
+    np.testing.assert_array_equal(a, np.sort(np.random.default_rng(0).choice(known.MAX_PIXELS + 12345,
+                                                                              known.MAX_PIXELS, replace=False)))
