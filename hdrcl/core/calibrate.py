@@ -100,10 +100,9 @@ def calibrate(
         br = load_bracket(images, times, times_file=times_file, ignore_color=ignore_color,
                           channel_order=channel_order)
     from hdrcl.core.exposure.fit import verify_exposures
-
-    names = br.paths or [f"image {k}" for k in range(len(br.frames))]
     from hdrcl.core.sampling import sample_candidates
 
+    names = br.paths or [f"image {k}" for k in range(len(br.frames))]
     check_measurable(br.frames, br.valid_all, names, decimate=not br.grid)
     # The exposure check and the curve draw their samples from the same candidates.
     pool = sample_candidates(br.frames, br.valid_all, decimate=not br.grid)
