@@ -100,15 +100,18 @@ def calibrate(
         br = load_bracket(images, times, times_file=times_file, ignore_color=ignore_color,
                           channel_order=channel_order)
     from hdrcl.core.exposure.fit import verify_exposures
+    from hdrcl.core.sampling import sample_candidates
 
     names = br.paths or [f"image {k}" for k in range(len(br.frames))]
     check_measurable(br.frames, br.valid_all, names, decimate=not br.grid)
+    # The exposure check and the curve draw their samples from the same candidates.
+    pool = sample_candidates(br.frames, br.valid_all, decimate=not br.grid)
     used, fit = verify_exposures(br.frames, br.times, names, mode=fit_exposures, valid=br.valid_all,
                                  samples=samples, seed=seed, tolerance=exposure_tolerance, decimate=not br.grid,
-                                 warn=warn)
+                                 warn=warn, candidates=pool)
     fitted = None if fit is None else fit.fitted
-    resp = recover_response(br.frames, used, valid=br.valid_all, samples=samples,
-                            smoothness=smoothness, weight=weight, seed=seed, decimate=not br.grid, warn=warn)
+    resp = recover_response(br.frames, used, valid=br.valid_all, samples=samples, smoothness=smoothness,
+                            weight=weight, seed=seed, decimate=not br.grid, warn=warn, candidates=pool)
     resp.camera = br.camera
     resp.exposures = [
         {"file": os.path.basename(n), "nominal": float(t), "fitted": None if fitted is None else float(f),
@@ -146,8 +149,9 @@ def check_measurable(frames, valid, names, decimate: bool = True) -> None:
     lo = np.zeros(ok.shape, bool)
     hi = np.zeros(ok.shape, bool)
     for s in subs:
-        lo |= (s > 0).any(axis=2)
-        hi |= (s < top).any(axis=2)
+        for c in range(s.shape[2]):  # channel by channel: NumPy's any() over a last axis of 3 is slow
+            lo |= s[:, :, c] > 0
+            hi |= s[:, :, c] < top
     usable = ok & lo & hi
     need = knot_positions(8 * frames[0].dtype.itemsize).size // 4
     if int(usable.sum()) * (len(frames) - 1) > need:

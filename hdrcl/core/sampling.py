@@ -49,13 +49,13 @@ def default_sample_count(knots: int, frames: int) -> int:
     return int(min(max(1000, needed), 5000))
 
 
-def _quarter_quantiles(bins: np.ndarray, values: np.ndarray, starts: np.ndarray) -> np.ndarray:
-    """``np.quantile(values[bins == b], 0.25)`` for every bin b at once (NaN for an empty
-    bin), bit for bit: the same virtual index and the same interpolation as NumPy's
-    default ("linear") method, without one call per bin."""
+def _quarter_quantiles(order: np.ndarray, values: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """``np.quantile(values[bins == b], 0.25)`` for every bin b (NaN for an empty bin), bit
+    for bit: the same virtual index and the same interpolation as NumPy's default
+    ("linear") method. ``order`` sorts the pixels by bin, ``starts`` where each bin
+    begins in it."""
     nb = starts.size - 1
     counts = np.diff(starts)
-    srt = values[np.lexsort((values, bins))]
     virtual = counts * 0.25 - 0.25  # NumPy: n q + (1 + q (1 - 1 - 1)) - 1, exact here
     prev = np.floor(virtual)
     gamma = virtual - prev
@@ -63,12 +63,105 @@ def _quarter_quantiles(bins: np.ndarray, values: np.ndarray, starts: np.ndarray)
     nxt = np.minimum(prev + 1, counts - 1)
     ok = counts > 0
     q = np.full(nb, np.nan)
-    a = srt[starts[:-1][ok] + prev[ok]]
-    b = srt[starts[:-1][ok] + nxt[ok]]
+    # The two order statistics of each bin by partition (values, not positions: the same
+    # numbers a sort by (bin, value) puts there), linear in the bin's size.
+    a = np.empty(int(ok.sum()))
+    b = np.empty_like(a)
+    by_bin = values[order]
+    for m, j in enumerate(np.flatnonzero(ok)):
+        part = np.partition(by_bin[starts[j]:starts[j + 1]], (prev[j], nxt[j]))
+        a[m], b[m] = part[prev[j]], part[nxt[j]]
     t = gamma[ok]
     diff = b - a
     q[ok] = np.where(t >= 0.5, b - diff * (1 - t), a + diff * t)
     return q
+
+
+def _smallest_first(values: np.ndarray, k: int) -> np.ndarray:
+    """Positions of the ``k`` smallest ``values``, ties to the earlier: the set
+    ``np.argsort(values, kind="stable")[:k]`` holds (in position order), found by
+    partition instead of a sort of them all."""
+    if k >= values.size:
+        return np.arange(values.size)
+    if k <= 0:
+        return np.zeros(0, np.int64)
+    kth = np.partition(values, k - 1)[k - 1]
+    less = np.flatnonzero(values < kth)
+    return np.sort(np.concatenate([less, np.flatnonzero(values == kth)[:k - less.size]]))
+
+
+def _small_keys(bins: np.ndarray, nbins: int) -> np.ndarray:
+    """``bins`` (0 .. nbins - 1) as the smallest unsigned integers that hold them: NumPy's
+    stable sort of 8- and 16-bit integers is a radix sort, the same order at a fraction
+    of the cost of sorting int64."""
+    return bins.astype(np.uint8 if nbins <= 256 else np.uint16 if nbins <= 65536 else np.int64)
+
+
+class SampleCandidates:
+    """The pixels a bracket's samples are drawn from, with their brightness key and
+    smoothness: everything :func:`select_samples` computes before it knows how many
+    samples are wanted. A calibration draws twice from one bracket (the exposure check's
+    400 samples, then the curve's), so it makes this once (:func:`sample_candidates`) and
+    passes it to both; the draws are those :func:`select_samples` makes without it."""
+
+    def __init__(self, frames, valid, decimate):
+        h, w = frames[0].shape[:2]
+        stride = grid_stride(h, w) if decimate else 1
+        key = np.zeros((len(range(0, h, stride)), len(range(0, w, stride))), np.float64)
+        top = 0.0
+        for f in frames:
+            sub = f[::stride, ::stride]
+            sub = sub.reshape(sub.shape[0], sub.shape[1], -1)
+            for c in range(sub.shape[2]):  # integer sums: exact in float64 in any order
+                key += sub[:, :, c]
+            top += sub.shape[2] * float(np.iinfo(f.dtype).max)
+
+        usable = np.ones(key.shape, bool) if valid is None else valid[::stride, ::stride].copy()
+        # Stay clear of invalid areas and of the image border: samples must sit inside
+        # smooth, fully measured neighbourhoods.
+        if min(key.shape) > 8:
+            usable = _box_sum(usable.astype(np.float64), 5, "constant") > 24.5  # 5x5 erosion, outside = 0
+        # A pixel clipped in every frame and channel carries no measurement.
+        usable &= (key > 0) & (key < top)
+
+        mean = _box_sum(key, 5, "edge") / 25.0
+        var = _box_sum(key * key, 5, "edge") / 25.0 - mean * mean
+
+        self.shape = (h, w)
+        self.stride = stride
+        self.grid = key.shape
+        self.frames = len(frames)
+        self.cand = np.flatnonzero(usable)
+        self.kv = key.ravel()[self.cand]
+        self.vv = var.ravel()[self.cand]
+        self._strata = {}
+
+    def fits(self, frames, decimate) -> bool:
+        """Whether these candidates are those of ``frames`` (by shape and count)."""
+        h, w = frames[0].shape[:2]
+        return (h, w) == self.shape and len(frames) == self.frames and \
+            self.stride == (grid_stride(h, w) if decimate else 1)
+
+    def strata(self, nbins: int):
+        """``(bins, order, starts, smooth_at, smooth_starts)`` of ``nbins`` brightness
+        strata (equal-width key bins), made once per ``nbins``."""
+        got = self._strata.get(nbins)
+        if got is None:
+            kv, vv = self.kv, self.vv
+            lo, hi = kv.min(), kv.max()
+            bins = np.minimum(((kv - lo) / max(hi - lo, 1e-12) * nbins).astype(np.int64), nbins - 1)
+            order = np.argsort(_small_keys(bins, nbins), kind="stable")
+            starts = np.searchsorted(bins[order], np.arange(nbins + 1))
+            smooth_at = order[vv[order] <= _quarter_quantiles(order, vv, starts)[bins[order]]]
+            smooth_starts = np.searchsorted(bins[smooth_at], np.arange(nbins + 1))
+            got = self._strata[nbins] = (bins, order, starts, smooth_at, smooth_starts)
+        return got
+
+
+def sample_candidates(frames: Sequence[np.ndarray], valid: Optional[np.ndarray] = None,
+                      decimate: bool = True) -> SampleCandidates:
+    """The candidates of :func:`select_samples` for ``frames``, to draw from several times."""
+    return SampleCandidates(frames, valid, decimate)
 
 
 def select_samples(
@@ -77,6 +170,7 @@ def select_samples(
     n: int,
     seed: int = 0,
     decimate: bool = True,
+    candidates: Optional[SampleCandidates] = None,
 ) -> np.ndarray:
     """Choose ``n`` calibration pixels.
 
@@ -94,6 +188,9 @@ def select_samples(
     decimate : bool
         Work on the :func:`grid_stride` grid (the default). False when ``frames`` are
         that grid already, read so by :meth:`hdrcl.io.reader.BracketReader.read_grid`.
+    candidates : SampleCandidates, optional
+        :func:`sample_candidates` of these ``frames``, ``valid`` and ``decimate``, made
+        once for several draws; the result is the same as without it.
 
     Returns
     -------
@@ -110,41 +207,16 @@ def select_samples(
     random among the smoothest quarter (lowest 5x5 variance of the key), which spreads
     the samples over the image while keeping them away from edges.
     """
-    h, w = frames[0].shape[:2]
-    stride = grid_stride(h, w) if decimate else 1
-    key = np.zeros((len(range(0, h, stride)), len(range(0, w, stride))), np.float64)
-    top = 0.0
-    for f in frames:
-        sub = f[::stride, ::stride]
-        key += sub.reshape(sub.shape[0], sub.shape[1], -1).sum(axis=2, dtype=np.float64)
-        top += sub.shape[2] * float(np.iinfo(f.dtype).max)
-
-    usable = np.ones(key.shape, bool) if valid is None else valid[::stride, ::stride].copy()
-    # Stay clear of invalid areas and of the image border: samples must sit inside
-    # smooth, fully measured neighbourhoods.
-    if min(key.shape) > 8:
-        usable = _box_sum(usable.astype(np.float64), 5, "constant") > 24.5  # 5x5 erosion, outside = 0
-    # A pixel clipped in every frame and channel carries no measurement.
-    usable &= (key > 0) & (key < top)
-
-    mean = _box_sum(key, 5, "edge") / 25.0
-    var = _box_sum(key * key, 5, "edge") / 25.0 - mean * mean
-
-    cand = np.flatnonzero(usable)
+    pool = candidates if candidates is not None and candidates.fits(frames, decimate) else \
+        SampleCandidates(frames, valid, decimate)
+    cand, vv = pool.cand, pool.vv
     if cand.size == 0:
         return np.zeros(0, np.int64)
     n = int(min(n, cand.size))
-    kv = key.ravel()[cand]
-    vv = var.ravel()[cand]
     nbins = int(min(MAX_BINS, n))
-    lo, hi = kv.min(), kv.max()
-    bins = np.minimum(((kv - lo) / max(hi - lo, 1e-12) * nbins).astype(np.int64), nbins - 1)
+    bins, order, starts, smooth_at, smooth_starts = pool.strata(nbins)
 
     rng = np.random.default_rng(seed)
-    order = np.argsort(bins, kind="stable")
-    starts = np.searchsorted(bins[order], np.arange(nbins + 1))
-    smooth_at = order[vv[order] <= _quarter_quantiles(bins, vv, starts)[bins[order]]]
-    smooth_starts = np.searchsorted(bins[smooth_at], np.arange(nbins + 1))
     chosen: list = []
     quota = n / nbins
     owed = 0.0
@@ -164,11 +236,11 @@ def select_samples(
         picked = np.zeros(cand.size, bool)
         picked[sel] = True
         rest = order[~picked[order]]
-        rest = rest[np.argsort(vv[rest], kind="stable")[:missing]]
+        rest = rest[_smallest_first(vv[rest], missing)]
         sel = np.concatenate([sel, rest])
 
     flat = cand[sel]
-    rows, cols = np.divmod(flat, key.shape[1])
-    full = (rows * stride) * w + cols * stride
-    logger.debug("selected %d samples on a %dx%d grid (stride %d)", full.size, key.shape[0], key.shape[1], stride)
+    rows, cols = np.divmod(flat, pool.grid[1])
+    full = (rows * pool.stride) * pool.shape[1] + cols * pool.stride
+    logger.debug("selected %d samples on a %dx%d grid (stride %d)", full.size, *pool.grid, pool.stride)
     return np.sort(full.astype(np.int64))

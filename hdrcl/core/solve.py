@@ -26,9 +26,11 @@ logger = logging.getLogger(__name__)
 _blas = []  # the threadpoolctl controller of NumPy's BLAS, found once per process
 
 
-def _one_blas_thread():
+def one_blas_thread():
     """A context that runs NumPy's BLAS on one thread. The controller is made once:
-    ``threadpool_limits(1)`` scans every loaded library again on each call."""
+    ``threadpool_limits(1)`` scans every loaded library again on each call. The small
+    dense products and solves of a calibration (a few hundred unknowns) take milliseconds
+    on one thread and tens of them on OpenBLAS's pool when the cores are busy."""
     if not _blas:
         try:
             from threadpoolctl import ThreadpoolController
@@ -47,7 +49,7 @@ def small_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``np.linalg.solve`` on one BLAS thread: a levels x levels system solves in a few
     milliseconds alone, but several times slower on OpenBLAS's thread pool, more so on a
     machine whose cores are busy decoding and fusing (measured 4.5 ms vs 41 ms, 256 x 256)."""
-    with _one_blas_thread():
+    with one_blas_thread():
         return np.linalg.solve(a, b)
 
 
@@ -167,6 +169,7 @@ def recover_response(
     channels: Optional[Sequence[str]] = None,
     decimate: bool = True,
     warn: bool = True,
+    candidates=None,
 ) -> Response:
     """Recover the response of a bracket.
 
@@ -185,6 +188,9 @@ def recover_response(
     warn : bool
         Log the curve's problems (they are in ``Response.warnings`` either way); off for
         the internal re-solves of the quality figures.
+    candidates : hdrcl.core.sampling.SampleCandidates, optional
+        The frames' :func:`hdrcl.core.sampling.sample_candidates`, made once when the
+        caller samples them more than once (:func:`hdrcl.core.calibrate.calibrate`).
 
     Returns
     -------
@@ -212,7 +218,7 @@ def recover_response(
     n = int(samples) if samples else default_sample_count(knots.size, len(frames))
     if n < 1:
         raise UsageError(f"--samples must be positive, not {samples}")
-    idx = select_samples(frames, valid, n, seed=seed, decimate=decimate)
+    idx = select_samples(frames, valid, n, seed=seed, decimate=decimate, candidates=candidates)
     if idx.size * (len(frames) - 1) <= knots.size // 4:
         raise InputError(
             f"only {idx.size} usable calibration pixels were found; the frames may be blank, "

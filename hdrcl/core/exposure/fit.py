@@ -18,7 +18,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from hdrcl.core.response import SPAN_BODY, Response, _check_smoothness, _segments, knot_positions
-from hdrcl.core.solve import small_solve, solve_curve
+from hdrcl.core.solve import one_blas_thread, solve_curve
 from hdrcl.core.weights import weight_values
 from hdrcl.errors import UsageError
 
@@ -189,8 +189,9 @@ def _joint_fit(z: np.ndarray, prior_lt: np.ndarray, prior_w: np.ndarray, bits: i
     a11[t, t] += prior_w * prior_w
     rhs = np.zeros(m)
     rhs[t] = prior_w * prior_w * prior_lt
-    s_mat = a11 - (a12 / d) @ a12.T + np.eye(m) * 1e-10
-    x = small_solve(s_mat, rhs)
+    with one_blas_thread():  # m x N x m: milliseconds on one thread, tens on a busy pool
+        s_mat = a11 - (a12 / d) @ a12.T + np.eye(m) * 1e-10
+        x = np.linalg.solve(s_mat, rhs)
     return x[k:]
 
 
@@ -221,6 +222,7 @@ def fit_exposures(
     seed: int = 0,
     tolerance: float = EXPOSURE_TOLERANCE_STOPS,
     decimate: bool = True,
+    candidates=None,
 ) -> ExposureFit:
     """Verify each frame's exposure against the pixels; never trust an unconstrained fit.
 
@@ -235,7 +237,8 @@ def fit_exposures(
        the corrected exposures lower the fit residual by :data:`IMPROVEMENT`.
 
     Frames with different metadata that the pixels put within :data:`SAME_STOPS` of
-    each other are listed in ``same``.
+    each other are listed in ``same``. ``candidates``: the frames'
+    :func:`hdrcl.core.sampling.sample_candidates`, when the caller draws from them again.
     """
     from hdrcl.core.sampling import default_sample_count, select_samples
 
@@ -251,7 +254,7 @@ def fit_exposures(
     nch = frames[0].shape[2]
     k = knot_positions(bits).size
     n = int(samples) if samples else default_sample_count(k, p)
-    idx = select_samples(frames, valid, n, seed=seed, decimate=decimate)
+    idx = select_samples(frames, valid, n, seed=seed, decimate=decimate, candidates=candidates)
     n = idx.size
     # The exposures are the same in every channel: the middle one (G of RGB) tells them
     # as well as all three, at a third of the cost.
@@ -297,7 +300,8 @@ def fit_exposures(
 
 
 def verify_exposures(frames, times, names, *, mode: str = "auto", valid=None, samples=None, seed: int = 0,
-                     tolerance: Optional[float] = None, decimate: bool = True, warn: bool = True):
+                     tolerance: Optional[float] = None, decimate: bool = True, warn: bool = True,
+                     candidates=None):
     """Exposures a calibration should use, with what the pixels said about the metadata.
 
     ``mode`` ``off`` keeps the metadata; ``auto`` changes only the frames
@@ -327,7 +331,7 @@ def verify_exposures(frames, times, names, *, mode: str = "auto", valid=None, sa
     # The fit uses the paper's hat weights: their wide overlap between frames conditions
     # the exposure estimates better than a narrow weighting does.
     fit = fit_exposures(frames, nominal, valid=valid, samples=min(samples or 400, 400), weight="hat",
-                        seed=seed, tolerance=tol, decimate=decimate)
+                        seed=seed, tolerance=tol, decimate=decimate, candidates=candidates)
     base = [os.path.basename(n) for n in names]
     for k in np.flatnonzero(fit.contradicted):
         change = fit.flagged[k] and mode == "auto"

@@ -16,6 +16,7 @@ a caller can prefer a response from a good set of the same camera.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import os
 from dataclasses import dataclass, field
@@ -146,8 +147,8 @@ def _location(d: np.ndarray, w: np.ndarray):
     :data:`_SPREAD_FLOOR`) and ``w`` the samples' weights (1 at mid-grey): a pair that
     shares only samples near the ends of the body counts as fewer samples.
     """
-    m = float(np.median(d))
-    s = max(1.4826 * float(np.median(np.abs(d - m))), _SPREAD_FLOOR)
+    m = float(np.median(d, overwrite_input=True))  # ``d`` is the caller's temporary: reordered, not copied
+    s = max(1.4826 * float(np.median(np.abs(d - m), overwrite_input=True)), _SPREAD_FLOOR)
     return m, 0.5 * np.pi * s * s / max(float(w.sum()), 1.0)
 
 
@@ -391,6 +392,15 @@ def _checked_frames(frames, response: Response) -> list:
     return arrs
 
 
+@functools.lru_cache(maxsize=8)
+def _subsample(npx: int) -> np.ndarray:
+    """The :data:`MAX_PIXELS` pixels (sorted flat indices) measured of ``npx``: a fixed
+    draw, made once per frame size (every set of a shoot has the same)."""
+    idx = np.sort(np.random.default_rng(0).choice(npx, MAX_PIXELS, replace=False))
+    idx.flags.writeable = False
+    return idx
+
+
 def _usable_samples(arrs: list, response: Response, weight: str, valid):
     """Per frame: ``g(Z)`` of (at most :data:`MAX_PIXELS`) pixels, their weights, which are
     usable (valid, in the curve's body), and how many pixel-channels are."""
@@ -402,9 +412,7 @@ def _usable_samples(arrs: list, response: Response, weight: str, valid):
     lo, hi = SPAN_BODY[0] * scale, SPAN_BODY[1] * scale
     masks = _masks(valid, p, shape[:2])
     npx = shape[0] * shape[1]
-    idx = None
-    if npx > MAX_PIXELS:
-        idx = np.sort(np.random.default_rng(0).choice(npx, MAX_PIXELS, replace=False))
+    idx = _subsample(npx) if npx > MAX_PIXELS else None
     xs, ws, oks = [], [], []
     for f, v in zip(arrs, masks):
         z = f.reshape(-1, nch)
@@ -427,12 +435,15 @@ def _measure(xs, ws, oks, pixels, lt_nom):
     pairs' ratios (the others keep ``lt_nom``)."""
     p = len(xs)
     pairs = []
+    # Flat views: the pixel-channels a pair shares are found once and taken from each
+    # array (the values, in the order, of boolean indexing).
+    xs, ws = [x.ravel() for x in xs], [w.ravel() for w in ws]
     for j in range(p):
         for k in range(j + 1, p):
-            ok = oks[j] & oks[k]
-            if int(ok.sum()) < MIN_OVERLAP:
+            at = np.flatnonzero(oks[j] & oks[k])
+            if at.size < MIN_OVERLAP:
                 continue
-            d, var = _location(xs[k][ok] - xs[j][ok], ws[j][ok] * ws[k][ok])
+            d, var = _location(xs[k][at] - xs[j][at], ws[j][at] * ws[k][at])
             pairs.append((j, k, d, var))
     comps = _components(p, [(j, k) for j, k, _, _ in pairs])
     main = max(comps, key=lambda c: (len(c), int(pixels[c].sum())))
