@@ -70,8 +70,8 @@ class Committer:
     """Commits started sets (:class:`hdrcl.shoot.batch.setrun._Started`) one at a time on
     one thread, emitting each result, in set order, through ``emit``.
 
-    ``make_room(step)`` before a set starts, ``submit(started, t_begin)`` once it is fused,
-    ``drain()`` before emitting a set that did not merge, ``close(cancelled)`` at the end.
+    ``make_room(step)`` before a set starts, ``merge(step, t_begin)`` to run it, ``drain()``
+    before emitting a set that did not merge, ``close(cancelled)`` at the end.
     """
 
     def __init__(self, ctx, emit: Callable):
@@ -92,11 +92,28 @@ class Committer:
                          step.job.index, held, need, budget)
             self.drain()
 
-    def submit(self, started, t_begin: float) -> None:
-        """Hand a fused set over for its commit (after the one committing is done)."""
+    def merge(self, step, t_begin: float):
+        """Run set ``step`` (:class:`hdrcl.shoot.batch.setrun._Opening`) up to its commit here,
+        then hand it to the commit thread (once the set committing is done and emitted).
+        Returns None when handed over, else the set's result (skipped, failed) to emit
+        after :meth:`drain`. A set started but never handed over (an exception, a signal
+        on the way) is undone: its temporary files removed, its claim released."""
+        from hdrcl.shoot.batch.setrun import _merge_begin, _Started
+
+        begun = _merge_begin(step, self.ctx)
+        if not isinstance(begun, _Started):
+            return begun
+        try:
+            self._submit(begun, t_begin)
+        except BaseException:
+            self._undo(begun)
+            raise
+        return None
+
+    def _submit(self, started, t_begin: float) -> None:
         from hdrcl.shoot.batch.setrun import _commit_set
 
-        self.drain()
+        self.drain()  # one set committing at a time; its result first (set order)
         if self._pool is None:
             self._pool = ThreadPoolExecutor(1, thread_name_prefix="hdrcl-commit")
 
@@ -106,12 +123,7 @@ class Committer:
             return res
 
         held = held_bytes(started.run)
-        try:
-            fut = self._pool.submit(task)
-        except BaseException:  # never handed over: undone here
-            self._undo(started)
-            raise
-        self._pending = (held, fut)
+        self._pending = (held, self._pool.submit(task))
 
     def drain(self) -> None:
         """Wait for the set committing, if any, and emit its result."""

@@ -93,7 +93,7 @@ from hdrcl.shoot.batch.plan import _plan, check_outputs_spare_inputs, damaged_fi
 from hdrcl.shoot.batch.pooling import _prepare_responses, cache_for
 from hdrcl.shoot.batch.setquality import _contact_sheet
 from hdrcl.shoot.batch.overlap import Committer
-from hdrcl.shoot.batch.setrun import _failed, _merge_begin, _Opening, _read_stage, _Started, process_set
+from hdrcl.shoot.batch.setrun import _failed, _Opening, _read_stage, process_set
 from hdrcl.shoot.batch.state import (
     _atomic_json,
     _merge_entries,
@@ -159,10 +159,9 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
                 ahead = reader.submit(read, jobs[i + 1], True)
             if isinstance(step, _Opening):
                 committer.make_room(step)
-                step = _merge_begin(step, ctx)
+                step = committer.merge(step, started[jobs[i].index])  # None: committing on its thread
             discard(jobs[i].files)  # decoded ahead or held but never opened (up to date, merged elsewhere, failed)
-            if isinstance(step, _Started):
-                committer.submit(step, started[jobs[i].index])
+            if step is None:
                 continue
             committer.drain()  # the set before, first: results in set order
             step.seconds["total"] = _time.perf_counter() - started[step.index]
