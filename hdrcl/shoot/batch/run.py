@@ -46,7 +46,9 @@ its reason; the others complete.
 (:func:`hdrcl.core.pipeline.stream_merge`): decoding the next strip, fusing the current one
 on the OpenCL device and encoding the previous one overlap, and memory does not grow
 with the image. Meanwhile a read-ahead thread hashes the next set, checks its outputs
-and reads its headers. One OpenCL context and built program serve the process.
+and reads its headers, and each set's tail (preview, deliverables, the EXR moved into
+place, its record and report) runs on a commit thread while the next set fuses
+(:mod:`hdrcl.shoot.batch.overlap`). One OpenCL context and built program serve the process.
 ``jobs > 1`` runs sets in worker processes (``spawn``: each worker makes its own OpenCL
 context once); ``scheduler`` runs them on a Dask cluster (:mod:`hdrcl.shoot.batch.executors`).
 
