@@ -56,7 +56,7 @@ def _run(folder, out, **kw):
 
 def test_commit_of_a_set_overlaps_the_start_of_the_next(shoot, tmp_path, monkeypatch, cl_device):
     started = {i: threading.Event() for i in range(3)}
-    seen = {}
+    seen, released = {}, {}
     plan, before = setrun.set_plan, setrun._before_commit
 
     def set_plan(step, ctx):
@@ -67,13 +67,23 @@ def test_commit_of_a_set_overlaps_the_start_of_the_next(shoot, tmp_path, monkeyp
         i = _index(step)
         if i + 1 in started:  # set i commits: set i+1 starts meanwhile, on the main thread
             seen[i] = started[i + 1].wait(BOUND), threading.current_thread() is threading.main_thread()
+        released[i] = run.source.cache is None  # its decoded frames let go before the commit
         return before(run, step, opts)
+
+    held, release = {}, overlap.release_frames
+
+    def release_frames(run):
+        held[len(held)] = run.source.cache is not None and run.source.cache.in_memory
+        release(run)
 
     monkeypatch.setattr(setrun, "set_plan", set_plan)
     monkeypatch.setattr(setrun, "_before_commit", before_commit)
+    monkeypatch.setattr(overlap, "release_frames", release_frames)
     rep, order = _run(shoot, tmp_path / "out")
     assert [r.status for r in rep.results] == ["done"] * 3
+    assert held == {0: True, 1: True, 2: True}  # each set's frames in memory once fused...
     assert seen == {0: (True, False), 1: (True, False)}
+    assert released == {0: True, 1: True, 2: True}
     assert order == [0, 1, 2]  # progress in set order
     assert not _commit_threads() and not _litter(tmp_path / "out")
 

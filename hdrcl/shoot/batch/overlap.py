@@ -14,8 +14,9 @@ The rules:
 * **One set committing at a time.** Set n+1's commit is handed over once set n's is
   done, and set n's result is emitted then, before n+1's: results, progress lines and
   report entries stay in set order.
-* **Within the memory budget.** What the committing set holds (its decoded frames when in
-  memory, its full-size sinks, the frames its quality report keeps: :func:`held_bytes`)
+* **Within the memory budget.** A set's streamed frames are released before its commit
+  (:func:`release_frames`); what the committing set still holds (an aligned set's frames,
+  its full-size sinks, the frames its quality report keeps: :func:`held_bytes`)
   and what the next set will hold (its frames' codes, up to the in-memory share:
   :func:`need_bytes`) must fit :func:`hdrcl.io.framecache.memory_budget_bytes` together;
   otherwise the next set waits for the commit.
@@ -53,6 +54,17 @@ def held_bytes(run) -> int:
     if tapped is not None:
         n += sum(int(k.nbytes) for k in getattr(tapped, "kept", ()))
     return n
+
+
+def release_frames(run) -> None:
+    """Close a fused run's frame source before its commit where the commit never reads it
+    (streamed frames: the quality report reads the frames it kept as they passed), so the
+    set committing does not hold its decoded frames beside the next set's. An aligned
+    run's frames (the deliverables' exposure fusion, the report) and frames the plan keeps
+    stay until :func:`hdrcl.core.executor.finish` closes them."""
+    if hasattr(run.source, "frames") or run.plan.extras.keep_frames:
+        return
+    run.close()  # finish closes it again: a no-op
 
 
 def need_bytes(step) -> int:
@@ -122,6 +134,7 @@ class Committer:
             res.seconds["total"] = time.perf_counter() - t_begin
             return res
 
+        release_frames(started.run)
         held = held_bytes(started.run)
         self._pending = (held, self._pool.submit(task))
 
