@@ -61,7 +61,7 @@ CONTEXTS = (
     ("hdrcl/shoot/batch/run.py", {"read"}, "set read"),
     ("hdrcl/shoot/batch/setrun.py", {"_read_stage"}, "set read"),
     ("hdrcl/io/ahead.py", {"decode_ahead"}, "decode ahead"),
-    ("hdrcl/shoot/batch/setrun.py", {"_merge_stage", "_merge_claimed", "process_set"}, "set merge"),
+    ("hdrcl/shoot/batch/setrun.py", {"_merge_stage", "_merge_begin", "_commit_set", "process_set"}, "set merge"),
     ("hdrcl/shoot/batch/run.py", {"_write_report"}, "report.json"),
     ("hdrcl/shoot/batch/run.py", {"run_batch"}, "batch (other)"),
 )

@@ -46,7 +46,9 @@ its reason; the others complete.
 (:func:`hdrcl.core.pipeline.stream_merge`): decoding the next strip, fusing the current one
 on the OpenCL device and encoding the previous one overlap, and memory does not grow
 with the image. Meanwhile a read-ahead thread hashes the next set, checks its outputs
-and reads its headers. One OpenCL context and built program serve the process.
+and reads its headers, and each set's tail (preview, deliverables, the EXR moved into
+place, its record and report) runs on a commit thread while the next set fuses
+(:mod:`hdrcl.shoot.batch.overlap`). One OpenCL context and built program serve the process.
 ``jobs > 1`` runs sets in worker processes (``spawn``: each worker makes its own OpenCL
 context once); ``scheduler`` runs them on a Dask cluster (:mod:`hdrcl.shoot.batch.executors`).
 
@@ -93,7 +95,8 @@ from hdrcl.shoot.batch.jobs import (
 from hdrcl.shoot.batch.plan import _plan, check_outputs_spare_inputs, damaged_files, load_source, parse_sets
 from hdrcl.shoot.batch.pooling import _prepare_responses
 from hdrcl.shoot.batch.setquality import _contact_sheet
-from hdrcl.shoot.batch.setrun import _failed, _merge_stage, _Opening, _read_stage, process_set
+from hdrcl.shoot.batch.overlap import Committer
+from hdrcl.shoot.batch.setrun import _failed, _Opening, _read_stage, process_set
 from hdrcl.shoot.batch.state import (
     _atomic_json,
     _merge_entries,
@@ -116,7 +119,10 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
     """Run sets in this process, hashing and opening the next set during the merge.
 
     The merge itself overlaps decoding, fusion (on this thread, which owns the
-    OpenCL queue) and encoding strip by strip; the read-ahead thread meanwhile hashes
+    OpenCL queue) and encoding strip by strip; each set's tail (preview, deliverables,
+    the EXR's rename, its record and quality report) runs on a commit thread while the
+    next set opens and fuses (:mod:`hdrcl.shoot.batch.overlap`: one set committing at a
+    time, within the memory budget, results in set order); the read-ahead thread meanwhile hashes
     the next set's files, checks whether its outputs are current and reads its
     headers, so consecutive sets follow each other without a gap; and a set that needs
     merging has its frames decoded ahead on a low-priority thread, within the memory
@@ -144,6 +150,10 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
     stop = threading.Event()  # set before cancel_all: a read still running starts nothing after it
 
     reader = ThreadPoolExecutor(1, thread_name_prefix="hdrcl-readahead")
+    # Set n's tail (preview, deliverables, the EXR's last strips and rename, its record and
+    # report) on one commit thread while set n+1 starts here (hdrcl.shoot.batch.overlap).
+    committer = Committer(ctx, emit)
+    ok = False
     try:
         ahead = reader.submit(read, jobs[0], False)
         for i in range(len(jobs)):
@@ -151,15 +161,24 @@ def _run_pipelined(jobs: List[SetJob], ctx: _Context, emit: Callable[[SetResult]
             if i + 1 < len(jobs):
                 ahead = reader.submit(read, jobs[i + 1], True)
             if isinstance(step, _Opening):
-                step = _merge_stage(step, ctx)
+                committer.make_room(step)
+                step = committer.merge(step, started[jobs[i].index])  # None: committing on its thread
             discard(jobs[i].files)  # decoded ahead or held but never opened (up to date, merged elsewhere, failed)
+            if step is None:
+                continue
+            committer.drain()  # the set before, first: results in set order
             step.seconds["total"] = _time.perf_counter() - started[step.index]
             emit(step)
+        committer.drain()
+        ok = True
     finally:
         # Cancelled: do not wait for the read-ahead of a set that will not be merged.
         stop.set()
         reader.shutdown(wait=False, cancel_futures=True)
-        cancel_all()  # frames decoded ahead for a set that will not be merged: dropped
+        try:
+            committer.close(cancelled=not ok)  # a commit in progress stops and undoes its set
+        finally:
+            cancel_all()  # frames decoded ahead for a set that will not be merged: dropped
 
 
 # --------------------------------------------------------------------------- run

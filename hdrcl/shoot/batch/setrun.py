@@ -245,12 +245,36 @@ def _read_stage(job: SetJob, ctx: _Context, strict: bool = False):
 
 
 def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResult:
-    """Claim the set, then merge it unless another process just did.
+    """Claim the set, then merge it unless another process just did: :func:`_merge_begin`,
+    then :func:`_commit_set` on this thread (a batch in this process commits on its own
+    thread instead: :mod:`hdrcl.shoot.batch.overlap`)."""
+    begun = _merge_begin(step, ctx, strict)
+    return _commit_set(begun, ctx, strict) if isinstance(begun, _Started) else begun
+
+
+@dataclass
+class _Started:
+    """A set fused, its writer open and its claim held, awaiting :func:`_commit_set`."""
+
+    step: _Opening
+    run: object  # hdrcl.core.runstate.RunState
+    claim: object  # hdrcl.shoot.batch.claims.SetClaim, released by the commit
+    seconds: float  # the start's own seconds (the set's "merge" time, with the commit's)
+
+
+class _Stopped(BaseException):
+    """The batch was cancelled while this set committed: nothing of it is left."""
+
+
+def _merge_begin(step: _Opening, ctx: _Context, strict: bool = False):
+    """Claim the set and run its merge up to the commit (on this thread, the OpenCL queue's).
 
     The claim (:mod:`hdrcl.shoot.batch.claims`) makes this process the set's only writer
-    until it returns; a set another batch on the same folder merged while this one
-    waited for the claim is skipped.
+    until its commit returns; a set another batch on the same folder merged while this
+    one waited for the claim is skipped. Returns a :class:`_Started` (the claim held),
+    else the set's result (skipped, failed; the claim released).
     """
+    from hdrcl.core.executor import start
     from hdrcl.shoot.batch.claims import claim_set
 
     job = step.job
@@ -259,6 +283,7 @@ def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResu
     except OSError as exc:
         return _failed(job, HdrclError(f"{job.output}: cannot claim the set ({exc.strerror or exc})"),
                        step.seconds, step.digest)
+    started = None
     try:
         if not ctx.force:
             exr_ok, preview_ok, meta, pmeta = _up_to_date(job, step.digest, ctx.options)
@@ -269,41 +294,50 @@ def _merge_stage(step: _Opening, ctx: _Context, strict: bool = False) -> SetResu
                                  ev_offset=_float_or_none(meta.get("evOffset")),
                                  findings=_recorded_findings(job, meta),
                                  warnings=["merged meanwhile by another process on this folder"])
-        return _merge_claimed(step, ctx, strict)
-    finally:
-        claim.release()
-
-
-def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetResult:
-    """Decode, fuse and write the set strip by strip; preview; commit the EXR.
-
-    The set's plan (:func:`set_plan`) runs on the executor (:mod:`hdrcl.core.executor`),
-    as ``hdrcl merge``'s does; between the fusion and the commit the preview and the
-    deliverables are written (:func:`_before_commit`), so the EXR, moved into place last,
-    marks the set complete.
-    """
-    from hdrcl.core.executor import abort, finish, start
-
-    job, opts = step.job, ctx.options
-    seconds = step.seconds
-    try:
-        plan = set_plan(step, ctx)
-        t0 = _time.perf_counter()
-        with _FUSE_LOCK:
-            run = start(plan)
-            try:
-                delivered = _before_commit(run, step, opts)
-            except BaseException:
-                abort(run)
+        try:
+            plan = set_plan(step, ctx)
+            t0 = _time.perf_counter()
+            with _FUSE_LOCK:
+                run = start(plan)
+            started = _Started(step, run, claim, _time.perf_counter() - t0)
+            return started
+        except Exception as exc:
+            if strict and not isinstance(exc, HdrclError):
                 raise
-            res = finish(run)
-        seconds["merge"] = _time.perf_counter() - t0 - run.seconds.get("preview", 0.0) \
+            return _failed(job, exc, step.seconds, step.digest)
+    finally:
+        if started is None:
+            claim.release()
+
+
+def _commit_set(started: _Started, ctx: _Context, strict: bool = False, stop=None) -> SetResult:
+    """A started set's tail: the preview and the deliverables (:func:`_before_commit`), the
+    EXR encoded to its end and moved into place (it marks the set complete), the set's
+    record, its quality report; the claim released. A failure fails this set alone (its
+    temporary files removed); ``stop`` (a :class:`threading.Event`) set before the EXR is
+    moved into place undoes the set and raises :class:`_Stopped`.
+    """
+    from hdrcl.core.executor import abort, finish
+
+    step, run = started.step, started.run
+    job, opts, seconds = step.job, ctx.options, step.seconds
+    try:
+        t0 = _time.perf_counter()
+        try:
+            _check_stop(stop)
+            delivered = _before_commit(run, step, opts)
+            _check_stop(stop)
+        except BaseException:
+            abort(run)
+            raise
+        res = finish(run)
+        seconds["merge"] = started.seconds + _time.perf_counter() - t0 - run.seconds.get("preview", 0.0) \
             - run.seconds.get("write", 0.0) - run.seconds.get("deliver", 0.0)
         for k, v in run.seconds.items():
             if k not in ("open", "calibrate"):
                 seconds[k] = seconds.get(k, 0.0) + v
         out = _set_result(step, opts, run, res, delivered)
-        if opts.report_dir:
+        if opts.report_dir and not (stop is not None and stop.is_set()):
             # After the EXR is committed: the report never holds back or spoils an output.
             t3 = _time.perf_counter()
             reduced = run.sinks["preview"] if "preview" in run.sinks else run.sinks["reduced"]
@@ -315,6 +349,13 @@ def _merge_claimed(step: _Opening, ctx: _Context, strict: bool = False) -> SetRe
         if strict and not isinstance(exc, HdrclError):
             raise
         return _failed(job, exc, seconds, step.digest)
+    finally:
+        started.claim.release()
+
+
+def _check_stop(stop) -> None:
+    if stop is not None and stop.is_set():
+        raise _Stopped()
 
 
 class DeferredResponse(ResponseSource):
@@ -405,7 +446,7 @@ def _before_commit(run, step: _Opening, opts: BatchOptions) -> list:
         return []
     from hdrcl.report.deliver import deliver
 
-    with run.timed("deliver"):
+    with run.timed("deliver"), _FUSE_LOCK:  # its tone mapping runs on the process's OpenCL device
         delivered = deliver(step.job.output, full.array, opts.deliver_options,
                             common_orientation(i.orientation for i in run.inputs.infos),
                             device=opts.device, frames=lambda: _fusion_frames(run, opts))
