@@ -291,8 +291,13 @@ class RadianceWriter:
         self._tmp = self._ctx.__enter__()
         self._out = None
         if ext == ".hdr":
+            from hdrcl.io.encoders import rgbe_threads
+
+            threads = rgbe_threads()
+            self._ones = [self._one] + [halfrange.OnePass() for _ in range(threads - 1)]
             self._rgbe = self._guarded(lambda: RGBEFile(self._tmp, width, height, self._hdr_lines, name=target,
-                                                        orientation=int((camera or {}).get("orientation") or 1)))
+                                                        orientation=int((camera or {}).get("orientation") or 1),
+                                                        threads=threads))
         elif self._whole is None:
             self._open()
             if ext == ".exr":
@@ -363,9 +368,7 @@ class RadianceWriter:
             found = one.measure(data, 1.0)
             self._write_plain(y0, y1, data)
         elif self._rgbe is not None:
-            found = one.measure(data, scale)
-            clean = not (found.nonfinite or found.negative) and found.hi <= RGBE_MAX
-            self._guarded(lambda: self._rgbe.write(np.broadcast_to(data, (y1 - y0, self.width, 3)), scale, clean))
+            found = self._write_rgbe(data, scale)
         elif self._whole is not None:
             found = one.to_float(data, scale, self._whole[y0:y1])
         else:
@@ -378,6 +381,23 @@ class RadianceWriter:
             self._negative += found.negative if self.ext == ".hdr" else 0
         self._next_row = y1
         return found
+
+    def _write_rgbe(self, data: np.ndarray, scale: float) -> halfrange.StripRange:
+        """Measure and encode a strip, in parts on the encoder's threads (each part
+        measured where it is encoded, by a :class:`hdrcl.io.halfrange.OnePass` of its
+        own); the strip's range, as one pass over it would find it."""
+        found = [None] * len(self._ones)
+
+        def check(part, y0, y1):
+            r = found[part] = self._ones[part].measure(data[y0:y1], scale)
+            return not (r.nonfinite or r.negative) and r.hi <= RGBE_MAX
+
+        self._guarded(lambda: self._rgbe.write(np.broadcast_to(data, data.shape[:2] + (3,)), scale, check=check))
+        total = halfrange.StripRange()
+        for r in found:
+            if r is not None:
+                total.add(r)
+        return total
 
     def _write_plain(self, y0: int, y1: int, data: np.ndarray) -> None:
         if self.colorspace != "rec709":
