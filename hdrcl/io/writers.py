@@ -17,7 +17,8 @@ Formats, chosen by extension:
           ``chromaticities`` (Rec.709 or ACEScg AP1) and ``oiio:ColorSpace``
 ``.hdr``  Radiance RGBE (shared 8-bit exponent: about 1% precision;
           grey is written as RGB), run-length encoded by hdrcl's NumPy
-          encoder (:mod:`hdrcl.io.encoders`); header lines SOFTWARE, EXPOSURE,
+          encoder (:mod:`hdrcl.io.encoders`), each strip in parts on up to
+          four threads (the same bytes); header lines SOFTWARE, EXPOSURE,
           PRIMARIES, CAPDATE; no ``hdrcl:*`` metadata
 ``.tif``  32-bit float TIFF; metadata as JSON in ImageDescription
 ``.pfm``  Portable float map (1 or 3 channels); no metadata
@@ -263,7 +264,8 @@ class RadianceWriter:
     blocks per OpenEXR thread (at most 64 MB each, :class:`hdrcl.io.encoders.ExrBatch`)
     so that OpenEXR compresses on every thread, and PFM, whose rows are stored bottom to
     top, is collected whole before writing. Radiance ``.hdr`` strips are encoded as they
-    come (:class:`hdrcl.io.encoders.RGBEFile`).
+    come, each cut into parts of whole scanlines measured and encoded at once on the
+    CPUs (:class:`hdrcl.io.encoders.RGBEFile`, :func:`hdrcl.io.encoders.rgbe_threads`).
 
     Parameters are those of :func:`write_radiance` plus the image size; ``write_rows``
     takes float32 ``(rows, width, nch)`` strips.
