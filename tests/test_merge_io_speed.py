@@ -154,3 +154,12 @@ def test_hdr_writer_on_threads_returns_the_range_of_one_pass(tmp_path, monkeypat
     for y0, r1, r4 in zip(range(0, 120, 50), got[1][1], got[4][1]):
         want = OnePass().measure(rad[y0:y0 + 50], 0.25)
         assert vars(r4) == vars(want) == vars(r1)
+
+
+def test_whole_image_hdr_on_threads_gives_the_bytes_of_one_encoder(tmp_path):
+    """:func:`hdrcl.io.encoders.write_rgbe` (a whole array, as ``write_radiance``) encodes
+    its strips on threads: the same file as on one."""
+    rad = _radiance(300, 1000, seed=7)
+    encoders.write_rgbe(tmp_path / "one.hdr", rad, threads=1)
+    encoders.write_rgbe(tmp_path / "four.hdr", rad, threads=4)
+    assert (tmp_path / "one.hdr").read_bytes() == (tmp_path / "four.hdr").read_bytes()

@@ -448,10 +448,12 @@ def rgbe_threads() -> int:
     return max(1, min(RGBE_MAX_THREADS, cpus))
 
 
-def write_rgbe(path, image, lines: Iterable[str] = (), *, rle: bool = True, orientation: int = 1) -> None:
+def write_rgbe(path, image, lines: Iterable[str] = (), *, rle: bool = True, orientation: int = 1,
+               threads: Optional[int] = None) -> None:
     """Write float ``(H, W, 3)`` (or ``(H, W, 1)``: grey, written as RGB) radiance to the
     Radiance file ``path``, atomically (:func:`hdrcl.io.atomic.atomic_output`), in strips
-    of about 256K pixels so that the work arrays stay small.
+    of about 256K pixels so that the work arrays stay small, each encoded on ``threads``
+    threads (default :func:`rgbe_threads`; the same bytes whatever the number).
 
     Raises
     ------
@@ -469,7 +471,8 @@ def write_rgbe(path, image, lines: Iterable[str] = (), *, rle: bool = True, orie
     h, w, _ = img.shape
     step = max(1, _CHUNK_PIXELS // w)
     with atomic_output(target) as tmp:
-        out = RGBEFile(tmp, w, h, lines, rle=rle, name=target, orientation=orientation)
+        out = RGBEFile(tmp, w, h, lines, rle=rle, name=target, orientation=orientation,
+                       threads=rgbe_threads() if threads is None else threads)
         try:
             for y in range(0, h, step):
                 out.write(np.broadcast_to(img[y:y + step], (min(step, h - y), w, 3)))

@@ -33,7 +33,7 @@ import numpy as np
 DEFAULT_MEMORY_MB = 1024.0
 #: The codes stay in memory up to this fraction of the budget (a quarter: a 24 MP x 7
 #: set, 504 MB of codes, spills, and a calibrating merge of it peaks near 400 MB rather
-#: than 800 MB; reading the scratch file back costs a copy, not a decode).
+#: than 800 MB; reading the scratch file back maps the page cache: no decode, no copy).
 MEMORY_SHARE_DIVISOR = 4
 #: Reads (strips) of a spilled cache kept mapped behind the last one (the strips a fusion
 #: has in flight and a deghost look-back) before their pages are given back.
