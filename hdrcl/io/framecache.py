@@ -12,9 +12,17 @@ The codes stay in memory when they fit a quarter of the memory budget
 the moment it is created, so it leaves nothing behind however the process ends (kill -9
 included), and its pages live in the operating system's page cache rather than in the
 process, which keeps the merge's resident memory bounded whatever the image size.
+
+A spilled cache is read back through a read-only mapping of the file: :meth:`FrameCache.rows`
+returns views of the page cache, not copies (a copy into fresh memory cost a page fault
+per 4 KB, as much CPU as the copy itself), and gives the mapping's pages back
+(``MADV_DONTNEED``) once the reads have moved :data:`UNMAP_LAG_STRIPS` strips past them,
+so the process's resident memory stays a few strips. The pages stay in the page cache: a view
+still read after that reads the same bytes again.
 """
 from __future__ import annotations
 
+import mmap
 import os
 import tempfile
 from typing import List, Optional
@@ -25,8 +33,11 @@ import numpy as np
 DEFAULT_MEMORY_MB = 1024.0
 #: The codes stay in memory up to this fraction of the budget (a quarter: a 24 MP x 7
 #: set, 504 MB of codes, spills, and a calibrating merge of it peaks near 400 MB rather
-#: than 800 MB; reading the scratch file back costs a copy, not a decode).
+#: than 800 MB; reading the scratch file back maps the page cache: no decode, no copy).
 MEMORY_SHARE_DIVISOR = 4
+#: Reads (strips) of a spilled cache kept mapped behind the last one (the strips a fusion
+#: has in flight and a deghost look-back) before their pages are given back.
+UNMAP_LAG_STRIPS = 4
 
 
 def memory_budget_bytes() -> int:
@@ -76,6 +87,9 @@ class FrameCache:
         self.in_memory = bool(in_memory)
         self._frames: Optional[List[np.ndarray]] = None
         self._file = None
+        self._map = self._codes = None  # read-only mapping of the spill file, made by the first read
+        self._unmapped = 0  # rows of every frame whose mapped pages were given back
+        self._last = 0  # first row of the last read (a read above it starts a new pass)
         if self.in_memory:  # allocated on first use, or adopted whole (no copy)
             self._frames = [None] * nframes
         else:
@@ -121,14 +135,49 @@ class FrameCache:
         self.complete = True
 
     def rows(self, y0: int, y1: int):
-        """Rows ``y0..y1`` of every frame: ``(frames, valid)`` lists (read-only use)."""
-        frames = [self.frame_rows(k, y0, y1)[0] for k in range(self.nframes)]
+        """Rows ``y0..y1`` of every frame: ``(frames, valid)`` lists of views (read-only
+        use; a spilled cache's are read-only arrays over the file's mapping)."""
+        if self._frames is not None:  # views: the consumers only read them
+            frames = [self._frames[k][y0:y1] for k in range(self.nframes)]
+        else:
+            codes = self._mapped()
+            frames = [codes[k, y0:y1] for k in range(self.nframes)]
+            self._give_back(y0, y1 - y0)
         valid = [None if v is None else v[y0:y1] for v in self._valid]
         return frames, valid
 
+    def _mapped(self) -> np.ndarray:
+        """The spill file as a read-only ``(nframes, height, width, nch)`` array."""
+        if self._map is None:
+            size = self.frame_bytes * self.nframes
+            self._map = mmap.mmap(self._file.fileno(), size, flags=mmap.MAP_SHARED, prot=mmap.PROT_READ)
+            self._codes = np.frombuffer(self._map, self.dtype).reshape(
+                self.nframes, self.height, self.width, self.nch)
+        return self._codes
+
+    def _give_back(self, y0: int, rows: int) -> None:
+        """Drop the mapping's pages of every frame's rows more than :data:`UNMAP_LAG_STRIPS`
+        reads of ``rows`` rows above ``y0`` (read top to bottom; the page cache keeps them)."""
+        if y0 < self._last:  # a new pass from the top: give back from there again
+            self._unmapped = 0
+        self._last = y0
+        upto = y0 - UNMAP_LAG_STRIPS * rows
+        if upto - self._unmapped < 2 * rows or not hasattr(self._map, "madvise"):
+            return
+        page = mmap.PAGESIZE
+        for k in range(self.nframes):
+            a = k * self.frame_bytes + self._unmapped * self.row_bytes
+            b = k * self.frame_bytes + upto * self.row_bytes
+            a = -(-a // page) * page  # whole pages inside the rows given back
+            b = b // page * page
+            if b > a:
+                self._map.madvise(mmap.MADV_DONTNEED, a, b - a)
+        self._unmapped = upto
+
     def frame_rows(self, k: int, y0: int, y1: int):
         """Rows ``y0..y1`` of frame ``k``: ``(codes, alpha mask or None)`` (read-only use;
-        views of a memory cache). An aligned merge reads each frame's own band of rows."""
+        views of a memory cache; a spilled cache's rows are read into a new array, so an
+        aligned merge reading each frame's own band keeps no pages of the file mapped)."""
         v = self._valid[k]
         v = None if v is None else v[y0:y1]
         if self._frames is not None:  # views: the consumers only read them
@@ -146,6 +195,9 @@ class FrameCache:
 
     def close(self) -> None:
         self._frames = None
+        # The mapping is not closed: views handed out may still be read (it goes with the
+        # last of them).
+        self._map = self._codes = None
         if self._file is not None:
             self._file.close()
             self._file = None

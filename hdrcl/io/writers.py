@@ -17,7 +17,8 @@ Formats, chosen by extension:
           ``chromaticities`` (Rec.709 or ACEScg AP1) and ``oiio:ColorSpace``
 ``.hdr``  Radiance RGBE (shared 8-bit exponent: about 1% precision;
           grey is written as RGB), run-length encoded by hdrcl's NumPy
-          encoder (:mod:`hdrcl.io.encoders`); header lines SOFTWARE, EXPOSURE,
+          encoder (:mod:`hdrcl.io.encoders`), each strip in parts on up to
+          four threads (the same bytes); header lines SOFTWARE, EXPOSURE,
           PRIMARIES, CAPDATE; no ``hdrcl:*`` metadata
 ``.tif``  32-bit float TIFF; metadata as JSON in ImageDescription
 ``.pfm``  Portable float map (1 or 3 channels); no metadata
@@ -263,7 +264,8 @@ class RadianceWriter:
     blocks per OpenEXR thread (at most 64 MB each, :class:`hdrcl.io.encoders.ExrBatch`)
     so that OpenEXR compresses on every thread, and PFM, whose rows are stored bottom to
     top, is collected whole before writing. Radiance ``.hdr`` strips are encoded as they
-    come (:class:`hdrcl.io.encoders.RGBEFile`).
+    come, each cut into parts of whole scanlines measured and encoded at once on the
+    CPUs (:class:`hdrcl.io.encoders.RGBEFile`, :func:`hdrcl.io.encoders.rgbe_threads`).
 
     Parameters are those of :func:`write_radiance` plus the image size; ``write_rows``
     takes float32 ``(rows, width, nch)`` strips.
@@ -291,8 +293,13 @@ class RadianceWriter:
         self._tmp = self._ctx.__enter__()
         self._out = None
         if ext == ".hdr":
+            from hdrcl.io.encoders import rgbe_threads
+
+            threads = rgbe_threads()
+            self._ones = [self._one] + [halfrange.OnePass() for _ in range(threads - 1)]
             self._rgbe = self._guarded(lambda: RGBEFile(self._tmp, width, height, self._hdr_lines, name=target,
-                                                        orientation=int((camera or {}).get("orientation") or 1)))
+                                                        orientation=int((camera or {}).get("orientation") or 1),
+                                                        threads=threads))
         elif self._whole is None:
             self._open()
             if ext == ".exr":
@@ -363,9 +370,7 @@ class RadianceWriter:
             found = one.measure(data, 1.0)
             self._write_plain(y0, y1, data)
         elif self._rgbe is not None:
-            found = one.measure(data, scale)
-            clean = not (found.nonfinite or found.negative) and found.hi <= RGBE_MAX
-            self._guarded(lambda: self._rgbe.write(np.broadcast_to(data, (y1 - y0, self.width, 3)), scale, clean))
+            found = self._write_rgbe(data, scale)
         elif self._whole is not None:
             found = one.to_float(data, scale, self._whole[y0:y1])
         else:
@@ -378,6 +383,23 @@ class RadianceWriter:
             self._negative += found.negative if self.ext == ".hdr" else 0
         self._next_row = y1
         return found
+
+    def _write_rgbe(self, data: np.ndarray, scale: float) -> halfrange.StripRange:
+        """Measure and encode a strip, in parts on the encoder's threads (each part
+        measured where it is encoded, by a :class:`hdrcl.io.halfrange.OnePass` of its
+        own); the strip's range, as one pass over it would find it."""
+        found = [None] * len(self._ones)
+
+        def check(part, y0, y1):
+            r = found[part] = self._ones[part].measure(data[y0:y1], scale)
+            return not (r.nonfinite or r.negative) and r.hi <= RGBE_MAX
+
+        self._guarded(lambda: self._rgbe.write(np.broadcast_to(data, data.shape[:2] + (3,)), scale, check=check))
+        total = halfrange.StripRange()
+        for r in found:
+            if r is not None:
+                total.add(r)
+        return total
 
     def _write_plain(self, y0: int, y1: int, data: np.ndarray) -> None:
         if self.colorspace != "rec709":
