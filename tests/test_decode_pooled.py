@@ -158,7 +158,9 @@ def test_a_cancel_drops_every_held_frame_and_leaves_no_scratch_file(shoot, tmp_p
     else:
         def progress(res, done, total):
             if res is not None:
-                assert ahead.held() == 2  # the first set took its own
+                # the first set took its own; the second may have taken its own too (it starts
+                # while the first commits: hdrcl.shoot.batch.overlap)
+                assert ahead.held() in (1, 2)
                 raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
