@@ -34,6 +34,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Optional
 
+import numpy as np
+
 logger = logging.getLogger(__name__)
 
 
@@ -45,8 +47,9 @@ def held_bytes(run) -> int:
     cache = getattr(src, "cache", None)
     if cache is not None and getattr(cache, "in_memory", False):
         n += int(cache.frame_bytes) * int(cache.nframes)
-    if hasattr(src, "frames"):  # aligned: the frames as merged
-        n += sum(int(getattr(f, "nbytes", 0)) for f in src.frames)
+    if hasattr(src, "frames"):  # frames held as arrays (an aligned source's are views of
+        # its cache, counted above: asking them for nbytes would warp each one whole)
+        n += sum(int(f.nbytes) for f in src.frames if isinstance(f, np.ndarray))
     for sink in list(run.sinks.values()) + [run.keep]:
         arr = getattr(sink, "array", None)
         n += int(getattr(arr, "nbytes", 0))
