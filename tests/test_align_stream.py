@@ -211,3 +211,22 @@ def test_memory_rule_counts_an_aligned_set_without_warping_it(tmp_path, moved_se
         assert held == (cache.frame_bytes * cache.nframes if cache.in_memory else 0)
     finally:
         src.close()
+
+
+def test_views_copied_and_flipped_as_arrays_are(tmp_path, moved_set, cl_device):
+    """np.array(view) is a copy (writing it left the view's whole frame changed for every
+    later reader), and a slice with a negative step gives the flipped frame (it gave an
+    empty array)."""
+    moved, times, _ = moved_set
+    paths = _write(tmp_path, moved, "c")
+    src, _ = _streamed(paths, times, "auto", True)
+    try:
+        view = src.frames[0]
+        whole = np.asarray(view).copy()
+        scratch = np.array(view)
+        scratch[...] = 0
+        np.testing.assert_array_equal(np.asarray(view), whole)
+        np.testing.assert_array_equal(view[::-1, ::-1], whole[::-1, ::-1])
+        np.testing.assert_array_equal(view[5:1:-2], whole[5:1:-2])
+    finally:
+        src.close()
