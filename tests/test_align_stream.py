@@ -187,3 +187,46 @@ def test_views_serve_after_close_and_act_as_arrays(tmp_path, moved_set, cl_devic
             np.testing.assert_array_equal(valid[k] & True, v)
     kf, kv, grid = src.kept()
     assert not grid and all(np.array_equal(a, b) for a, b in zip(kf, old.frames))
+
+
+def test_memory_rule_counts_an_aligned_set_without_warping_it(tmp_path, moved_set, cl_device, monkeypatch):
+    """The batch's memory rule (overlap.held_bytes, on the main thread before each commit)
+    counts an aligned set's decoded frames without warping them: its views' nbytes used to
+    warp every frame whole (the whole frames then dropped, the frames counted twice)."""
+    from types import SimpleNamespace
+
+    from hdrcl.shoot.batch import overlap
+
+    moved, times, _ = moved_set
+    paths = _write(tmp_path, moved, "h")
+    src, _ = _streamed(paths, times, "auto", True)
+    calls = []
+    monkeypatch.setattr(src, "region", lambda *a, **k: calls.append(a) or (_ for _ in ()).throw(
+        AssertionError("a frame was warped to count its bytes")))
+    run = SimpleNamespace(source=src, sinks={}, keep=None, tapped=None)
+    try:
+        cache = src.cache
+        held = overlap.held_bytes(run)
+        assert not calls
+        assert held == (cache.frame_bytes * cache.nframes if cache.in_memory else 0)
+    finally:
+        src.close()
+
+
+def test_views_copied_and_flipped_as_arrays_are(tmp_path, moved_set, cl_device):
+    """np.array(view) is a copy (writing it left the view's whole frame changed for every
+    later reader), and a slice with a negative step gives the flipped frame (it gave an
+    empty array)."""
+    moved, times, _ = moved_set
+    paths = _write(tmp_path, moved, "c")
+    src, _ = _streamed(paths, times, "auto", True)
+    try:
+        view = src.frames[0]
+        whole = np.asarray(view).copy()
+        scratch = np.array(view)
+        scratch[...] = 0
+        np.testing.assert_array_equal(np.asarray(view), whole)
+        np.testing.assert_array_equal(view[::-1, ::-1], whole[::-1, ::-1])
+        np.testing.assert_array_equal(view[5:1:-2], whole[5:1:-2])
+    finally:
+        src.close()

@@ -213,3 +213,32 @@ def test_held_and_needed_bytes_count_the_frames(shoot, tmp_path, monkeypatch):
                           keep=None, tapped=None)
     assert overlap.held_bytes(run) == 4 * 100 * 50 * 3 + 80
     cache.close()
+
+
+def test_a_signal_while_a_set_is_handed_over_undoes_it_once(shoot, tmp_path, monkeypatch, cl_device):
+    """SIGTERM landing in the hand-over itself (the set queued on the commit thread, the
+    main thread not yet told: the thread start inside submit is a wait a signal can
+    interrupt): the set is undone by one thread only, never while the other commits it
+    (it was aborted on the main thread while the commit thread wrote its preview)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    seen = []
+    before = setrun._before_commit
+
+    def before_commit(run, step, opts):
+        seen.append(run.writer is not None)  # the main thread must not have aborted it
+        return before(run, step, opts)
+
+    class Interrupted(ThreadPoolExecutor):
+        def submit(self, fn, *a, **kw):
+            super().submit(fn, *a, **kw)
+            raise Cancelled(signal.SIGTERM)  # after the task is queued
+
+    monkeypatch.setattr(overlap, "ThreadPoolExecutor", Interrupted)
+    monkeypatch.setattr(setrun, "_before_commit", before_commit)
+    out = tmp_path / "out"
+    rep, order = _run(shoot, out)
+    assert rep.cancelled == signal.SIGTERM and rep.results == [] and order == []
+    assert seen in ([], [True])  # dropped before it started, or committed whole
+    assert not [n for n in os.listdir(out) if n.endswith((".exr", ".jpg"))]
+    assert not _litter(out) and not _commit_threads()

@@ -373,7 +373,7 @@ class WarpedView(np.lib.mixins.NDArrayOperatorsMixin):
         if len(key) <= 2 and all(isinstance(s, slice) for s in key):
             ys = range(*key[0].indices(self.shape[0]))
             xs = range(*key[1].indices(self.shape[1])) if len(key) == 2 else range(self.shape[1])
-            if len(ys) <= 1 or len(xs) <= 1 or ys.step == xs.step:
+            if (len(ys) <= 1 or len(xs) <= 1 or ys.step == xs.step) and ys.step > 0 and xs.step > 0:
                 got = self.src.region(self.k, ys, xs)[self.part]
                 if got is None:  # a mask with every pixel valid
                     got = np.ones((len(ys), len(xs)), bool)
@@ -383,7 +383,9 @@ class WarpedView(np.lib.mixins.NDArrayOperatorsMixin):
     def __array__(self, dtype=None, copy=None):
         if self._whole is None:
             self._whole = np.ascontiguousarray(self[:, :])
-        return self._whole if dtype is None else self._whole.astype(dtype)
+        if dtype is not None and np.dtype(dtype) != self._whole.dtype:
+            return self._whole.astype(dtype)
+        return self._whole.copy() if copy else self._whole  # np.array(view): a copy of its own
 
     def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
         inputs = tuple(np.asarray(x) if isinstance(x, WarpedView) else x for x in inputs)

@@ -34,6 +34,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Optional
 
+import numpy as np
+
 logger = logging.getLogger(__name__)
 
 
@@ -45,8 +47,9 @@ def held_bytes(run) -> int:
     cache = getattr(src, "cache", None)
     if cache is not None and getattr(cache, "in_memory", False):
         n += int(cache.frame_bytes) * int(cache.nframes)
-    if hasattr(src, "frames"):  # aligned: the frames as merged
-        n += sum(int(getattr(f, "nbytes", 0)) for f in src.frames)
+    if hasattr(src, "frames"):  # frames held as arrays (an aligned source's are views of
+        # its cache, counted above: asking them for nbytes would warp each one whole)
+        n += sum(int(f.nbytes) for f in src.frames if isinstance(f, np.ndarray))
     for sink in list(run.sinks.values()) + [run.keep]:
         arr = getattr(sink, "array", None)
         n += int(getattr(arr, "nbytes", 0))
@@ -91,6 +94,7 @@ class Committer:
         self.stop = threading.Event()
         self._pool: Optional[ThreadPoolExecutor] = None
         self._pending = None  # (bytes held, future) of the set committing
+        self._gate: Optional[_Gate] = None  # the last set handed over, or being handed
 
     def make_room(self, step) -> None:
         """Wait for the set committing if the next one would not fit beside it."""
@@ -118,7 +122,9 @@ class Committer:
         try:
             self._submit(begun, t_begin)
         except BaseException:
-            self._undo(begun)
+            gate = self._gate
+            if gate is None or gate.started is not begun or not gate.settle(False):
+                self._undo(begun)  # not handed over: the commit thread will not touch it
             raise
         return None
 
@@ -129,14 +135,21 @@ class Committer:
         if self._pool is None:
             self._pool = ThreadPoolExecutor(1, thread_name_prefix="hdrcl-commit")
 
+        gate = self._gate = _Gate(started)
+
         def task():
+            if not gate.wait():  # a signal came before the hand-over: undone on the main thread
+                return None
             res = _commit_set(started, self.ctx, stop=self.stop)
             res.seconds["total"] = time.perf_counter() - t_begin
             return res
 
         release_frames(started.run)
         held = held_bytes(started.run)
+        # A signal can land anywhere here (the thread start inside submit waits): the set
+        # belongs to the commit thread only once settled below, else merge() undoes it.
         self._pending = (held, self._pool.submit(task))
+        gate.settle(True)
 
     def drain(self) -> None:
         """Wait for the set committing, if any, and emit its result."""
@@ -154,6 +167,8 @@ class Committer:
 
         if cancelled:
             self.stop.set()
+        if self._gate is not None:
+            self._gate.settle(False)  # a hand-over a second signal left unsettled: dropped
         try:
             if self._pending is not None:
                 fut = self._pending[1]
@@ -177,6 +192,29 @@ class Committer:
             abort(started.run)
         finally:
             started.claim.release()
+
+
+class _Gate:
+    """Who owns a set being handed over: the commit thread (``settle(True)``, once the
+    main thread holds its future) or the main thread that undoes it (``settle(False)``,
+    a signal came first). Settled once, by the main thread; the commit thread waits."""
+
+    def __init__(self, started):
+        self.started = started
+        self.handed: Optional[bool] = None
+        self._settled = threading.Event()
+
+    def settle(self, handed: bool) -> bool:
+        """Settle it (the first call decides); returns whether it was handed over."""
+        if self.handed is None:
+            self.handed = handed  # one store: a signal after it finds the decision made
+        self._settled.set()
+        return self.handed
+
+    def wait(self) -> bool:
+        while self.handed is None:  # a signal between the store and set(): polled
+            self._settled.wait(0.05)
+        return self.handed
 
 
 def _wait(fut):
