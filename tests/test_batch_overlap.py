@@ -63,12 +63,12 @@ def test_commit_of_a_set_overlaps_the_start_of_the_next(shoot, tmp_path, monkeyp
         started[_index(step)].set()
         return plan(step, ctx)
 
-    def before_commit(run, step, opts):
+    def before_commit(run, step, opts, *made):
         i = _index(step)
         if i + 1 in started:  # set i commits: set i+1 starts meanwhile, on the main thread
             seen[i] = started[i + 1].wait(BOUND), threading.current_thread() is threading.main_thread()
         released[i] = run.source.cache is None  # its decoded frames let go before the commit
-        return before(run, step, opts)
+        return before(run, step, opts, *made)
 
     held, release = {}, overlap.release_frames
 
@@ -132,6 +132,8 @@ def test_a_failing_commit_fails_its_set_alone(shoot, tmp_path, monkeypatch, cl_d
     assert "IMG_0004.exr: cannot write (No space left on device)" in rep.results[1].error
     out = tmp_path / "out"
     assert not (out / "IMG_0004.exr").exists() and (out / "IMG_0007.exr").exists()
+    # nor the failed set's preview (written before its EXR was to be committed)
+    assert not (out / "IMG_0004.jpg").exists() and (out / "IMG_0007.jpg").exists()
     assert not _litter(out) and not _commit_threads()
     assert rep.exit_code != 0
 
@@ -147,11 +149,11 @@ def test_cancel_during_a_commit_leaves_nothing(shoot, tmp_path, monkeypatch, cl_
     in_commit = threading.Event()
     plan, before = setrun.set_plan, setrun._before_commit
 
-    def before_commit(run, step, opts):
+    def before_commit(run, step, opts, *made):
         if _index(step) == 0:  # set 0 commits until the batch is cancelled
             in_commit.set()
             assert committers[0].stop.wait(BOUND)
-        return before(run, step, opts)
+        return before(run, step, opts, *made)
 
     def set_plan(step, ctx):
         if _index(step) == 1:  # SIGTERM arrives while set 1 starts and set 0 commits
@@ -225,9 +227,9 @@ def test_a_signal_while_a_set_is_handed_over_undoes_it_once(shoot, tmp_path, mon
     seen = []
     before = setrun._before_commit
 
-    def before_commit(run, step, opts):
+    def before_commit(run, step, opts, *made):
         seen.append(run.writer is not None)  # the main thread must not have aborted it
-        return before(run, step, opts)
+        return before(run, step, opts, *made)
 
     class Interrupted(ThreadPoolExecutor):
         def submit(self, fn, *a, **kw):

@@ -323,14 +323,20 @@ def _commit_set(started: _Started, ctx: _Context, strict: bool = False, stop=Non
     job, opts, seconds = step.job, ctx.options, step.seconds
     try:
         t0 = _time.perf_counter()
+        made: list = []  # the preview and deliverables written for this commit
         try:
             _check_stop(stop)
-            delivered = _before_commit(run, step, opts)
+            delivered = _before_commit(run, step, opts, made)
             _check_stop(stop)
         except BaseException:
             abort(run)
+            _remove(made)
             raise
-        res = finish(run)
+        try:
+            res = finish(run)
+        except BaseException:
+            _remove(made)  # no picture of a map that was not written
+            raise
         seconds["merge"] = started.seconds + _time.perf_counter() - t0 - run.seconds.get("preview", 0.0) \
             - run.seconds.get("write", 0.0) - run.seconds.get("deliver", 0.0)
         for k, v in run.seconds.items():
@@ -351,6 +357,16 @@ def _commit_set(started: _Started, ctx: _Context, strict: bool = False, stop=Non
         return _failed(job, exc, seconds, step.digest)
     finally:
         started.claim.release()
+
+
+def _remove(paths) -> None:
+    """Remove the pictures a set wrote beside an EXR that was not committed (a failed or
+    cancelled commit leaves no preview or deliverable of a map that is not there)."""
+    for path in paths:
+        try:
+            os.unlink(path)
+        except OSError:
+            pass
 
 
 def _check_stop(stop) -> None:
@@ -428,8 +444,10 @@ def set_plan(step: _Opening, ctx: _Context):
                       reference_from_exposures=bool(job.exposure_ref_own))
 
 
-def _before_commit(run, step: _Opening, opts: BatchOptions) -> list:
-    """Between the fusion and the commit: the preview, then the deliverables (returned)."""
+def _before_commit(run, step: _Opening, opts: BatchOptions, made=None) -> list:
+    """Between the fusion and the commit: the preview, then the deliverables (returned);
+    each file written is added to ``made`` as soon as it exists."""
+    made = [] if made is None else made
     from hdrcl.io.exif import common_orientation
 
     small, full = run.sinks.get("preview"), run.sinks.pop("full", None)
@@ -442,6 +460,7 @@ def _before_commit(run, step: _Opening, opts: BatchOptions) -> list:
             upright = to_display(encode(small.result(), opts.tonemap),
                                  common_orientation(i.orientation for i in run.inputs.infos))
             write_ldr(step.job.preview, upright, metadata=_preview_metadata(step.digest, opts, run.counts))
+            made.append(step.job.preview)
     if full is None:
         return []
     from hdrcl.report.deliver import deliver
@@ -450,6 +469,7 @@ def _before_commit(run, step: _Opening, opts: BatchOptions) -> list:
         delivered = deliver(step.job.output, full.array, opts.deliver_options,
                             common_orientation(i.orientation for i in run.inputs.infos),
                             device=opts.device, frames=lambda: _fusion_frames(run, opts))
+    made.extend(d["path"] for d in delivered)
     del full  # the map's memory, before the EXR is closed
     return delivered
 
