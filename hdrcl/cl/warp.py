@@ -46,6 +46,13 @@ class WarpProcessor(OpenCLProcessor):
 
     source = "warp"
 
+    def _kernel(self, name: str, dtype, nch: int, has_valid: bool, taps: int, clip_hi: Optional[int]):
+        """Kernel ``name`` of kernels/warp.cl built for frames of ``dtype`` and ``nch`` channels."""
+        ptype, zmax = _PIXEL_T[np.dtype(dtype)]
+        return self.ctx.kernel("warp", name, (f"-DPIXEL_T={ptype}", f"-DZMAX={zmax}", f"-DNCH={nch}",
+                                              f"-DHAS_VALID={int(has_valid)}", f"-DTAPS={int(taps)}",
+                                              f"-DCLIP_HI={zmax if clip_hi is None else int(clip_hi)}"))
+
     def warp(self, frame: np.ndarray, matrix: np.ndarray, valid: Optional[np.ndarray] = None,
              strip_pixels: int = WARP_STRIP_PIXELS, taps: int = 4,
              out: Optional[np.ndarray] = None,
@@ -62,11 +69,8 @@ class WarpProcessor(OpenCLProcessor):
         if frame.dtype not in _PIXEL_T:
             raise TypeError(f"frames must be uint8 or uint16, not {frame.dtype}")
         h, w, c = frame.shape
-        ptype, zmax = _PIXEL_T[frame.dtype]
         has_valid = valid is not None
-        knl = self.ctx.kernel("warp", "warp", (f"-DPIXEL_T={ptype}", f"-DZMAX={zmax}", f"-DNCH={c}",
-                                               f"-DHAS_VALID={int(has_valid)}", f"-DTAPS={int(taps)}",
-                                               f"-DCLIP_HI={zmax if clip_hi is None else int(clip_hi)}"))
+        knl = self._kernel("warp", frame.dtype, c, has_valid, taps, clip_hi)
         m = [np.float32(v) for v in np.asarray(matrix, np.float64).ravel()]
         rows = max(1, min(h, int(strip_pixels) // max(w, 1)))
         px = frame.dtype.itemsize * c
@@ -109,11 +113,8 @@ class WarpProcessor(OpenCLProcessor):
         if band.dtype not in _PIXEL_T:
             raise TypeError(f"frames must be uint8 or uint16, not {band.dtype}")
         bh, w, c = band.shape
-        ptype, zmax = _PIXEL_T[band.dtype]
         has_valid = valid is not None
-        knl = self.ctx.kernel("warp", "warp_grid", (f"-DPIXEL_T={ptype}", f"-DZMAX={zmax}", f"-DNCH={c}",
-                                                    f"-DHAS_VALID={int(has_valid)}", f"-DTAPS={int(taps)}",
-                                                    f"-DCLIP_HI={zmax if clip_hi is None else int(clip_hi)}"))
+        knl = self._kernel("warp_grid", band.dtype, c, has_valid, taps, clip_hi)
         m = [np.float32(v) for v in np.asarray(matrix, np.float64).ravel()]
         out = np.empty((rows, cols, c), band.dtype)
         flags = np.empty((rows, cols), np.uint8)
